@@ -1,0 +1,44 @@
+"""Offline data: transition layout, local generators, Minari loading, normalized scores."""
+
+from torchrl_dual.data.cache import load_cached_dataset, load_or_generate, save_cached_dataset
+from torchrl_dual.data.frozenlake_dataset import (
+    FROZENLAKE_GENERATOR_VERSION,
+    generate_frozenlake_dataset,
+    load_or_generate_frozenlake_dataset,
+)
+from torchrl_dual.data.layout import TRANSITION_KEYS, make_transitions, validate_transitions
+from torchrl_dual.data.maze_controller import MazeWaypointController
+from torchrl_dual.data.maze_dataset import (
+    MAZE_GENERATOR_VERSION,
+    compute_maze_references,
+    default_cache_dir,
+    generate_maze_dataset,
+    load_or_generate_maze_dataset,
+)
+from torchrl_dual.data.minari import default_observation_keys, load_minari_dataset
+from torchrl_dual.data.offline import OfflineDataset
+from torchrl_dual.data.replay import to_replay_buffer
+from torchrl_dual.data.scores import normalized_score
+
+__all__ = [
+    "FROZENLAKE_GENERATOR_VERSION",
+    "MAZE_GENERATOR_VERSION",
+    "TRANSITION_KEYS",
+    "MazeWaypointController",
+    "OfflineDataset",
+    "compute_maze_references",
+    "default_cache_dir",
+    "default_observation_keys",
+    "generate_frozenlake_dataset",
+    "generate_maze_dataset",
+    "load_cached_dataset",
+    "load_minari_dataset",
+    "load_or_generate",
+    "load_or_generate_frozenlake_dataset",
+    "load_or_generate_maze_dataset",
+    "make_transitions",
+    "normalized_score",
+    "save_cached_dataset",
+    "to_replay_buffer",
+    "validate_transitions",
+]

@@ -1,0 +1,286 @@
+"""Local D4RL-maze2d-like offline data for PointMaze, with score references and a disk cache.
+
+Each episode resets the env, so start and task goal are drawn as at evaluation, and the
+task goal is part of the observation and of the (sparse) reward. The behaviour policy,
+however, is a noisy waypoint controller (:class:`MazeWaypointController`) that chases
+its *own* random goal cells and picks a new one whenever it gets within
+``goal_tolerance`` of the current one: like D4RL, the data covers the maze instead of
+demonstrating the task.
+
+References for normalized scores, averaged over ``num_reference_episodes`` evaluation
+episodes: ``random_return`` (uniform actions in ``[-1, 1]``) and ``controller_return``
+(the same noisy controller chasing the *true* goal).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from torchrl_dual.data.cache import load_or_generate
+from torchrl_dual.data.layout import make_transitions
+from torchrl_dual.data.maze_controller import MazeWaypointController
+from torchrl_dual.data.offline import OfflineDataset
+from torchrl_dual.envs.pointmaze import (
+    default_max_episode_steps,
+    flatten_pointmaze_obs,
+    make_pointmaze_gym_env,
+)
+
+MAZE_GENERATOR_VERSION = 1
+"""Bump when the generated data changes for identical arguments (invalidates caches)."""
+
+
+def default_cache_dir() -> Path:
+    """``$TORCHRL_DUAL_CACHE`` or ``~/.cache/torchrl_dual``."""
+    return Path(os.environ.get("TORCHRL_DUAL_CACHE", Path.home() / ".cache" / "torchrl_dual"))
+
+
+def _controller(env, action_noise: float, rng: np.random.Generator) -> MazeWaypointController:
+    maze = env.unwrapped.maze
+    return MazeWaypointController(
+        maze.maze_map,
+        maze_size_scaling=maze.maze_size_scaling,
+        action_noise=action_noise,
+        rng=rng,
+    )
+
+
+def compute_maze_references(
+    maze: str = "umaze",
+    *,
+    num_episodes: int = 50,
+    seed: int = 0,
+    max_episode_steps: int | None = None,
+    action_noise: float = 0.5,
+    continuing_task: bool = True,
+    reward_type: str = "sparse",
+) -> dict[str, Any]:
+    """Average returns and success rates of the random policy and of the goal-chasing controller.
+
+    Args:
+        maze (str): ``"umaze"``, ``"medium"`` or ``"large"``.
+
+    Keyword Args:
+        num_episodes (int): evaluation episodes per policy. Defaults to 50.
+        seed (int): seed of the reference episodes (both policies see the same resets).
+        max_episode_steps (int, optional): episode length; defaults to the registered one.
+        action_noise (float): controller action-noise std. Defaults to 0.5.
+        continuing_task (bool): as in :func:`~torchrl_dual.envs.make_pointmaze_env`.
+        reward_type (str): ``"sparse"`` or ``"dense"``.
+
+    Returns:
+        a dict with ``random_return``, ``controller_return``, their standard deviations,
+        ``random_success`` and ``controller_success`` (fraction of episodes that ever reached
+        the goal) and ``num_episodes``.
+
+    Examples:
+        >>> refs = compute_maze_references("umaze", num_episodes=2, max_episode_steps=200)
+        >>> refs["controller_return"] > refs["random_return"]
+        True
+    """
+    env = make_pointmaze_gym_env(
+        maze,
+        max_episode_steps=max_episode_steps,
+        continuing_task=continuing_task,
+        reward_type=reward_type,
+    )
+    results: dict[str, Any] = {"num_episodes": int(num_episodes)}
+    for name in ("random", "controller"):
+        rng = np.random.default_rng([seed, 1])
+        ctrl = _controller(env, action_noise, rng)
+        returns, successes = [], []
+        for ep in range(num_episodes):
+            obs, _ = env.reset(seed=int(seed) * 100_003 + ep)
+            total, success, done = 0.0, False, False
+            while not done:
+                if name == "random":
+                    action = rng.uniform(-1.0, 1.0, size=2)
+                else:
+                    state = obs["observation"]
+                    action = ctrl.act(state[:2], state[2:4], obs["desired_goal"])
+                obs, reward, terminated, truncated, info = env.step(action)
+                total += float(reward)
+                success = success or bool(info.get("success", False))
+                done = terminated or truncated
+            returns.append(total)
+            successes.append(success)
+        results[f"{name}_return"] = float(np.mean(returns))
+        results[f"{name}_return_std"] = float(np.std(returns))
+        results[f"{name}_success"] = float(np.mean(successes))
+    env.close()
+    return results
+
+
+def generate_maze_dataset(
+    maze: str = "umaze",
+    num_transitions: int = 100_000,
+    *,
+    seed: int = 0,
+    max_episode_steps: int | None = None,
+    action_noise: float = 0.5,
+    goal_tolerance: float = 0.3,
+    num_reference_episodes: int = 50,
+    continuing_task: bool = True,
+    reward_type: str = "sparse",
+) -> OfflineDataset:
+    """Generates D4RL-maze2d-like PointMaze transitions (see the module docstring).
+
+    Args:
+        maze (str): ``"umaze"``, ``"medium"`` or ``"large"``.
+        num_transitions (int): number of transitions; the last episode is cut (and marked
+            ``truncated``) to hit the number exactly.
+
+    Keyword Args:
+        seed (int): seeds the env resets, the controller goals and noise, and the references.
+        max_episode_steps (int, optional): episode length; defaults to the registered one
+            (300 / 600 / 800), as at evaluation.
+        action_noise (float): std of the Gaussian noise added to the controller's actions.
+        goal_tolerance (float): distance at which the controller's own goal counts as reached.
+        num_reference_episodes (int): episodes per reference policy (0 skips the references).
+        continuing_task (bool): as in :func:`~torchrl_dual.envs.make_pointmaze_env`.
+        reward_type (str): ``"sparse"`` (default) or ``"dense"``.
+
+    Returns:
+        An :class:`OfflineDataset` with ``reference_min = random_return`` and
+        ``reference_max = controller_return``; ``metadata`` also holds success rates,
+        the number of own goals reached and the generation time.
+
+    Examples:
+        >>> data = generate_maze_dataset("umaze", 500, max_episode_steps=100, num_reference_episodes=0)
+        >>> len(data), data.obs_dim, data.action_dim, data.num_episodes
+        (500, 6, 2, 5)
+    """
+    if num_transitions <= 0:
+        raise ValueError(f"num_transitions must be positive, got {num_transitions}.")
+    start = time.perf_counter()
+    steps = max_episode_steps or default_max_episode_steps(maze)
+    env = make_pointmaze_gym_env(
+        maze, max_episode_steps=steps, continuing_task=continuing_task, reward_type=reward_type
+    )
+    rng = np.random.default_rng([seed, 0])
+    ctrl = _controller(env, action_noise, rng)
+    noise = rng.standard_normal((num_transitions, 2))
+
+    n = num_transitions
+    obs_buf = np.empty((n, 6), np.float32)
+    next_buf = np.empty((n, 6), np.float32)
+    act_buf = np.empty((n, 2), np.float32)
+    rew_buf = np.empty(n, np.float32)
+    term_buf = np.zeros(n, bool)
+    trunc_buf = np.zeros(n, bool)
+    ep_buf = np.empty(n, np.int64)
+
+    episode, goals_reached = 0, 0
+    obs, _ = env.reset(seed=int(seed))
+    flat = flatten_pointmaze_obs(obs)
+    state = obs["observation"]
+    _, own_goal = ctrl.random_goal(exclude=ctrl.xy_to_cell(state[:2]))
+    for t in range(n):
+        action = ctrl.act(state[:2], state[2:4], own_goal, noise=noise[t])
+        obs, reward, terminated, truncated, _ = env.step(action)
+        next_flat = flatten_pointmaze_obs(obs)
+        obs_buf[t], act_buf[t], next_buf[t] = flat, action, next_flat
+        rew_buf[t], term_buf[t], ep_buf[t] = reward, terminated, episode
+        trunc_buf[t] = truncated or (t == n - 1 and not terminated)
+        state = obs["observation"]
+        if terminated or truncated:
+            episode += 1
+            obs, _ = env.reset()
+            next_flat = flatten_pointmaze_obs(obs)
+            state = obs["observation"]
+            _, own_goal = ctrl.random_goal(exclude=ctrl.xy_to_cell(state[:2]))
+        elif np.hypot(*(state[:2] - own_goal)) < goal_tolerance:
+            goals_reached += 1
+            _, own_goal = ctrl.random_goal(exclude=ctrl.xy_to_cell(state[:2]))
+        flat = next_flat
+    env.close()
+    gen_seconds = time.perf_counter() - start
+
+    metadata: dict[str, Any] = {
+        "source": "pointmaze_local",
+        "maze": maze,
+        "seed": int(seed),
+        "num_transitions": int(n),
+        "max_episode_steps": int(steps),
+        "action_noise": float(action_noise),
+        "goal_tolerance": float(goal_tolerance),
+        "continuing_task": bool(continuing_task),
+        "reward_type": reward_type,
+        "generator_version": MAZE_GENERATOR_VERSION,
+        "own_goals_reached": int(goals_reached),
+        "reward_fraction": float((rew_buf > 0).mean()),
+        "generation_seconds": round(gen_seconds, 3),
+    }
+    refs: dict[str, Any] = {}
+    if num_reference_episodes > 0:
+        start = time.perf_counter()
+        refs = compute_maze_references(
+            maze,
+            num_episodes=num_reference_episodes,
+            seed=int(seed) + 1,
+            max_episode_steps=steps,
+            action_noise=action_noise,
+            continuing_task=continuing_task,
+            reward_type=reward_type,
+        )
+        refs["reference_seconds"] = round(time.perf_counter() - start, 3)
+        metadata["references"] = refs
+    td = make_transitions(obs_buf, act_buf, next_buf, rew_buf, term_buf, trunc_buf, ep_buf)
+    return OfflineDataset(
+        td,
+        reference_min=refs.get("random_return"),
+        reference_max=refs.get("controller_return"),
+        metadata=metadata,
+    )
+
+
+def load_or_generate_maze_dataset(
+    maze: str = "umaze",
+    num_transitions: int = 100_000,
+    seed: int = 0,
+    cache_dir: str | Path | None = None,
+    **kwargs: Any,
+) -> OfflineDataset:
+    """Loads the PointMaze data set from the disk cache, generating it on a miss.
+
+    The entry lives in ``<cache_dir>/pointmaze-<maze>-n<num_transitions>-seed<seed>``; it
+    is regenerated when its recorded arguments or :data:`MAZE_GENERATOR_VERSION` differ.
+
+    Args:
+        maze (str): ``"umaze"``, ``"medium"`` or ``"large"``.
+        num_transitions (int): number of transitions.
+        seed (int): generation seed.
+        cache_dir (str or Path, optional): defaults to :func:`default_cache_dir`.
+        **kwargs: forwarded to :func:`generate_maze_dataset`.
+
+    Examples:
+        >>> import tempfile
+        >>> root = tempfile.mkdtemp()
+        >>> a = load_or_generate_maze_dataset("umaze", 300, 0, root, num_reference_episodes=1)
+        >>> b = load_or_generate_maze_dataset("umaze", 300, 0, root, num_reference_episodes=1)
+        >>> bool((a.transitions["observation"] == b.transitions["observation"]).all())
+        True
+    """
+    from torchrl_dual.envs.pointmaze import pointmaze_env_id
+
+    pointmaze_env_id(maze)  # fail fast on an unknown maze
+    root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    spec = {
+        "generator": "pointmaze_local",
+        "generator_version": MAZE_GENERATOR_VERSION,
+        "maze": maze,
+        "num_transitions": int(num_transitions),
+        "seed": int(seed),
+        **kwargs,
+    }
+    path = root / f"pointmaze-{maze}-n{num_transitions}-seed{seed}"
+    return load_or_generate(
+        path,
+        spec,
+        lambda: generate_maze_dataset(maze, num_transitions, seed=seed, **kwargs),
+    )

@@ -1,0 +1,49 @@
+"""Environment factories: PointMaze (Gymnasium-Robotics) and slippery Frozen-Lake."""
+
+from torchrl_dual.envs.frozenlake import (
+    FROZENLAKE_MAPS,
+    FROZENLAKE_NUM_ACTIONS,
+    frozenlake_num_states,
+    make_frozenlake_env,
+)
+from torchrl_dual.envs.frozenlake_mdp import (
+    FROZENLAKE_HORIZON,
+    FrozenLakeMDP,
+    FrozenLakeSolution,
+    frozenlake_mdp,
+    frozenlake_optimal_policy,
+    frozenlake_success_probability,
+    frozenlake_transition_matrix,
+    frozenlake_value_iteration,
+)
+from torchrl_dual.envs.onehot_action import ContinuousOneHotAction
+from torchrl_dual.envs.pointmaze import (
+    POINTMAZE_IDS,
+    default_max_episode_steps,
+    flatten_pointmaze_obs,
+    make_pointmaze_env,
+    make_pointmaze_gym_env,
+    pointmaze_env_id,
+)
+
+__all__ = [
+    "FROZENLAKE_HORIZON",
+    "FROZENLAKE_MAPS",
+    "FROZENLAKE_NUM_ACTIONS",
+    "POINTMAZE_IDS",
+    "ContinuousOneHotAction",
+    "FrozenLakeMDP",
+    "FrozenLakeSolution",
+    "default_max_episode_steps",
+    "flatten_pointmaze_obs",
+    "frozenlake_mdp",
+    "frozenlake_num_states",
+    "frozenlake_optimal_policy",
+    "frozenlake_success_probability",
+    "frozenlake_transition_matrix",
+    "frozenlake_value_iteration",
+    "make_frozenlake_env",
+    "make_pointmaze_env",
+    "make_pointmaze_gym_env",
+    "pointmaze_env_id",
+]

@@ -1,0 +1,206 @@
+"""PointMaze (Gymnasium-Robotics) environment factories in the D4RL maze2d style.
+
+The policy reads one flat float32 ``"observation"`` of size 6: the point's state
+``(x, y, vx, vy)`` followed by the task goal ``(gx, gy)``.
+
+Conventions (the Gymnasium-Robotics defaults, which mirror D4RL ``maze2d``):
+
+* sparse reward: 1 while the point is within 0.45 of the goal, 0 otherwise;
+* ``continuing_task=True``: reaching the goal does not terminate the episode and the
+  goal stays where it is (``reset_target=False``), so an episode always runs for
+  ``max_episode_steps`` steps (300 for ``umaze``, 600 for ``medium``, 800 for ``large``)
+  and ends with ``truncated=True``. A return is therefore "steps spent at the goal".
+  Pass ``continuing_task=False`` to terminate on success instead.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+POINTMAZE_IDS: dict[str, str] = {
+    "umaze": "PointMaze_UMaze-v3",
+    "medium": "PointMaze_Medium-v3",
+    "large": "PointMaze_Large-v3",
+}
+"""Maze name -> Gymnasium-Robotics environment id."""
+
+POINTMAZE_OBS_KEYS: tuple[str, str] = ("observation", "desired_goal")
+"""Entries of the Gymnasium dict observation concatenated (in this order) by the factories."""
+
+_REWARD_TYPES = ("sparse", "dense")
+
+
+def _register() -> None:
+    import gymnasium_robotics
+
+    gym.register_envs(gymnasium_robotics)
+
+
+def pointmaze_env_id(maze: str) -> str:
+    """Returns the Gymnasium id of a PointMaze layout.
+
+    Args:
+        maze (str): one of ``"umaze"``, ``"medium"``, ``"large"`` (case-insensitive).
+
+    Raises:
+        ValueError: for an unknown maze name; the message lists the valid names.
+
+    Examples:
+        >>> pointmaze_env_id("umaze")
+        'PointMaze_UMaze-v3'
+    """
+    key = maze.lower() if isinstance(maze, str) else maze
+    if key not in POINTMAZE_IDS:
+        raise ValueError(
+            f"Unknown PointMaze layout {maze!r}. Valid names: {sorted(POINTMAZE_IDS)}."
+        )
+    return POINTMAZE_IDS[key]
+
+
+def _gym_kwargs(
+    maze: str,
+    max_episode_steps: int | None,
+    continuing_task: bool,
+    reward_type: str,
+) -> tuple[str, dict[str, Any]]:
+    env_id = pointmaze_env_id(maze)
+    if reward_type not in _REWARD_TYPES:
+        raise ValueError(f"reward_type must be one of {_REWARD_TYPES}, got {reward_type!r}.")
+    if max_episode_steps is not None and max_episode_steps <= 0:
+        raise ValueError(f"max_episode_steps must be positive, got {max_episode_steps}.")
+    kwargs: dict[str, Any] = {
+        "continuing_task": continuing_task,
+        "reset_target": False,
+        "reward_type": reward_type,
+    }
+    if max_episode_steps is not None:
+        kwargs["max_episode_steps"] = int(max_episode_steps)
+    return env_id, kwargs
+
+
+def default_max_episode_steps(maze: str) -> int:
+    """Evaluation episode length registered by Gymnasium-Robotics for a layout.
+
+    Examples:
+        >>> default_max_episode_steps("umaze"), default_max_episode_steps("large")
+        (300, 800)
+    """
+    _register()
+    return int(gym.spec(pointmaze_env_id(maze)).max_episode_steps)
+
+
+def make_pointmaze_gym_env(
+    maze: str = "umaze",
+    *,
+    max_episode_steps: int | None = None,
+    continuing_task: bool = True,
+    reward_type: str = "sparse",
+) -> gym.Env:
+    """Builds the raw Gymnasium PointMaze env (dict observations) with the factory's settings.
+
+    Used by the offline data generator so that data and evaluation share one definition.
+    Flatten its observations with :func:`flatten_pointmaze_obs`.
+
+    Args:
+        maze (str): ``"umaze"``, ``"medium"`` or ``"large"``.
+        max_episode_steps (int, optional): time limit; defaults to the registered one.
+        continuing_task (bool): keep running after the goal is reached. Defaults to ``True``.
+        reward_type (str): ``"sparse"`` (default) or ``"dense"``.
+
+    Examples:
+        >>> env = make_pointmaze_gym_env("umaze", max_episode_steps=5)
+        >>> obs, _ = env.reset(seed=0)
+        >>> flatten_pointmaze_obs(obs).shape
+        (6,)
+    """
+    _register()
+    env_id, kwargs = _gym_kwargs(maze, max_episode_steps, continuing_task, reward_type)
+    return gym.make(env_id, **kwargs)
+
+
+def flatten_pointmaze_obs(obs: dict[str, np.ndarray]) -> np.ndarray:
+    """Concatenates ``observation`` (4) and ``desired_goal`` (2) into a float32 vector.
+
+    Works on single observations and on batches (concatenation on the last axis); the
+    result equals the ``"observation"`` written by :func:`make_pointmaze_env`.
+
+    Examples:
+        >>> obs = {"observation": np.zeros(4), "desired_goal": np.ones(2), "achieved_goal": np.zeros(2)}
+        >>> flatten_pointmaze_obs(obs)
+        array([0., 0., 0., 0., 1., 1.], dtype=float32)
+    """
+    return np.concatenate(
+        [np.asarray(obs[k], dtype=np.float32) for k in POINTMAZE_OBS_KEYS], axis=-1
+    )
+
+
+def make_pointmaze_env(
+    maze: str = "umaze",
+    *,
+    max_episode_steps: int | None = None,
+    device: torch.device | str = "cpu",
+    seed: int | None = None,
+    continuing_task: bool = True,
+    reward_type: str = "sparse",
+):
+    """Creates a TorchRL PointMaze environment with a flat float32 ``"observation"``.
+
+    The env is a :class:`~torchrl.envs.GymEnv` over ``PointMaze_<Layout>-v3`` with the
+    transforms ``DoubleToFloat`` -> ``CatTensors(observation, desired_goal -> observation)``
+    -> ``ExcludeTransform(achieved_goal)`` (it equals ``observation[:2]``) -> ``StepCounter``.
+    See the module docstring for reward and termination conventions.
+
+    Args:
+        maze (str): ``"umaze"``, ``"medium"`` or ``"large"``.
+
+    Keyword Args:
+        max_episode_steps (int, optional): time limit (truncation). Defaults to the
+            Gymnasium-Robotics value (300 / 600 / 800).
+        device (torch.device or str): device of the output tensordicts. Defaults to ``"cpu"``.
+        seed (int, optional): seed passed to :meth:`~torchrl.envs.EnvBase.set_seed`.
+        continuing_task (bool): if ``True`` (default, D4RL maze2d style) reaching the goal
+            does not end the episode; if ``False`` the episode terminates on success.
+        reward_type (str): ``"sparse"`` (default) or ``"dense"`` (``exp(-distance)``).
+
+    Raises:
+        ValueError: unknown maze name (the message lists the valid ones) or reward type.
+
+    Examples:
+        >>> env = make_pointmaze_env("umaze", max_episode_steps=20, seed=0)
+        >>> env.observation_spec["observation"].shape
+        torch.Size([6])
+        >>> rollout = env.rollout(10)
+        >>> rollout["next", "reward"].shape, rollout["observation"].dtype
+        (torch.Size([10, 1]), torch.float32)
+    """
+    from torchrl.envs import (
+        CatTensors,
+        Compose,
+        DoubleToFloat,
+        ExcludeTransform,
+        GymEnv,
+        StepCounter,
+        TransformedEnv,
+    )
+
+    _register()
+    env_id, kwargs = _gym_kwargs(maze, max_episode_steps, continuing_task, reward_type)
+    base = GymEnv(env_id, device=device, **kwargs)
+    env = TransformedEnv(
+        base,
+        Compose(
+            DoubleToFloat(),
+            CatTensors(
+                in_keys=list(POINTMAZE_OBS_KEYS), out_key="observation", del_keys=True, sort=False
+            ),
+            ExcludeTransform("achieved_goal"),
+            StepCounter(),
+        ),
+    )
+    if seed is not None:
+        env.set_seed(seed)
+    return env

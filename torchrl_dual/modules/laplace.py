@@ -1,0 +1,498 @@
+"""Closed-form last-layer Laplace approximation of the DUAL actor (Eq. 8, Thm. 3.3)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import torch
+from torch import Tensor, nn
+
+__all__ = ["LastLayerLaplace"]
+
+_F64 = torch.float64
+
+
+class LastLayerLaplace(nn.Module):
+    r"""Last-layer Laplace approximation for a linear-Gaussian policy head (DUAL Eq. 8).
+
+    The policy mean of DUAL's actor ends in a linear head ``y = W φ + b``
+    (``W: [out, d]``, ``b: [out]``) trained with the weighted MAP actor loss of Eq. 7,
+    ``π(a|s) = N(y, diag(σ²))``. Writing ``φ̃ = [φ, 1]`` and ``θ_j = [w_j, b_j]`` for
+    output ``j``, the loss over the data ``D`` (a *sum*, the log-likelihood, not a mean) is
+
+    .. math::
+
+        L(θ) = \sum_i w_i \sum_j \frac{(y_{ij} - θ_j^\top φ̃_i)^2}{2σ_j^2}
+               - \log p(θ), \qquad p(θ) = N(0, λ^{-1} I),
+
+    with the critic weights ``w_i`` normalised to mean 1 over everything accumulated.
+    The Laplace approximation of Eq. 8 is ``p(θ|D) ≈ N(θ*, Σ)`` with
+    ``Σ = (∇²_θ L(θ*))^{-1}``. For this linear-Gaussian head the generalised Gauss-Newton
+    matrix *is* the exact Hessian and it is block diagonal over outputs:
+
+    .. math::
+
+        P_j = Σ_j^{-1} = \frac{G}{σ_j^2} + λ I, \qquad
+        G = \sum_i w_i φ̃_i φ̃_i^\top = U \operatorname{diag}(g) U^\top .
+
+    One eigendecomposition of the shared ``(d+1)×(d+1)`` Gram matrix ``G`` gives every
+    ``P_j = U diag(g/σ_j² + λ) Uᵀ``, its log-determinant, the sampling transform
+    ``S_j = U diag((g/σ_j² + λ)^{-1/2})`` (so ``θ_j = θ*_j + S_j ε``, ``ε ~ N(0, I)``) and the
+    epistemic variance of the head output ``φ̃ᵀ P_j^{-1} φ̃ = Σ_k (Uᵀφ̃)_k² / (g_k/σ_j² + λ)``.
+
+    **Prior precision.** The paper uses a flat prior (``λ = 0``), which leaves ``P_j``
+    singular whenever the features do not span ``R^{d+1}``; here ``λ`` is either fixed or,
+    by default, chosen post hoc by maximising the Laplace evidence of Thm. 3.3 for the
+    fixed MAP ``θ*`` (MacKay 1992; Immer et al. 2021). With ``P = out·(d+1)`` parameters,
+    ``Z = exp(-L(θ*)) (2π)^{P/2} det(Σ)^{1/2}`` and
+    ``log p(θ*) = (P/2) log(λ/2π) - (λ/2)‖θ*‖²`` give
+
+    .. math::
+
+        \log Z(λ) = \log p(D|θ^*) + \frac{P}{2}\log λ - \frac{λ}{2}\|θ^*\|^2
+                    - \frac12 \sum_j \sum_k \log\!\left(\frac{g_k}{σ_j^2} + λ\right).
+
+    Its derivative in ``log λ`` is ``½ (γ(λ) - λ‖θ*‖²)`` with the effective number of
+    parameters ``γ(λ) = Σ_{j,k} (g_k/σ_j²) / (g_k/σ_j² + λ)``; ``γ`` decreases and
+    ``λ‖θ*‖²`` increases with ``λ``, so the maximiser is the unique root of MacKay's
+    fixed-point equation ``λ = γ(λ)/‖θ*‖²``, found by bisection in ``log λ`` inside
+    ``prior_precision_bounds`` (clamped to the bracket if the root lies outside).
+
+    All statistics are float64. Eigenvalues of ``G`` below round-off are clamped to 0, so
+    ``P_j ⪰ λ I`` is always invertible (e.g. for ``d + 1 > N``). Everything needed to
+    sample, predict or refit (``G_raw``, weight sums, ``θ*``, ``λ``, ``σ²``, ``U``, ``g`` and the
+    per-output scales of ``S_j``) is a registered buffer, so ``state_dict()`` round-trips;
+    to refit, :meth:`accumulate` more data (or :meth:`reset` and re-accumulate) and call
+    :meth:`fit` again, which costs one ``(d+1)×(d+1)`` eigendecomposition.
+
+    Args:
+        in_features: feature dimension ``d`` of the head input ``φ``.
+        out_features: output dimension of the head (the action dimension).
+        prior_precision: ``"evidence"`` (default) to maximise ``log Z(λ)`` at each fit, or a
+            positive float used as is.
+        prior_precision_bounds: bracket ``(λ_min, λ_max)`` for the evidence search.
+
+    Examples:
+        >>> import torch
+        >>> from torchrl_dual.modules.laplace import LastLayerLaplace
+        >>> head = torch.nn.Linear(8, 2)
+        >>> la = LastLayerLaplace(8, 2)
+        >>> phi = torch.randn(256, 8)
+        >>> la.accumulate(phi, weights=torch.rand(256))
+        >>> la = la.fit(head.weight, head.bias, noise_variance=0.1)
+        >>> la.sample(16).shape
+        torch.Size([16, 2, 9])
+        >>> W, b = la.weight_samples_split(16)
+        >>> (torch.einsum("mod,bd->mbo", W, phi) + b[:, None]).shape
+        torch.Size([16, 256, 2])
+        >>> la.predictive_variance(phi).shape
+        torch.Size([256, 2])
+    """
+
+    G_raw: Tensor
+    sum_weights: Tensor
+    count: Tensor
+    theta_map: Tensor
+    noise_variance: Tensor
+    prior_precision: Tensor
+    eigenvalues: Tensor
+    eigenvectors: Tensor
+    sample_scale: Tensor
+    fitted: Tensor
+
+    def __init__(
+        self,
+        in_features: int,
+        out_features: int,
+        prior_precision: str | float = "evidence",
+        prior_precision_bounds: tuple[float, float] = (1e-6, 1e6),
+    ) -> None:
+        super().__init__()
+        if int(in_features) < 1 or int(out_features) < 1:
+            raise ValueError(
+                f"in_features and out_features must be >= 1, got {in_features} and "
+                f"{out_features}; pass the head's weight.shape[1] and weight.shape[0]."
+            )
+        self.in_features = int(in_features)
+        self.out_features = int(out_features)
+        self.prior_precision_config = self._check_prior_config(prior_precision)
+        lo, hi = (float(v) for v in prior_precision_bounds)
+        if not (0.0 < lo < hi < math.inf):
+            raise ValueError(
+                f"prior_precision_bounds must satisfy 0 < low < high < inf, got {(lo, hi)}; "
+                "e.g. use (1e-6, 1e6)."
+            )
+        self.prior_precision_bounds = (lo, hi)
+        self._head_dtype = torch.float32
+
+        p, o = self.in_features + 1, self.out_features
+        self.register_buffer("G_raw", torch.zeros(p, p, dtype=_F64))
+        self.register_buffer("sum_weights", torch.zeros((), dtype=_F64))
+        self.register_buffer("count", torch.zeros((), dtype=_F64))
+        self.register_buffer("theta_map", torch.zeros(o, p, dtype=_F64))
+        self.register_buffer("noise_variance", torch.ones(o, dtype=_F64))
+        self.register_buffer("prior_precision", torch.ones((), dtype=_F64))
+        self.register_buffer("eigenvalues", torch.zeros(p, dtype=_F64))
+        self.register_buffer("eigenvectors", torch.eye(p, dtype=_F64))
+        self.register_buffer("sample_scale", torch.ones(o, p, dtype=_F64))
+        self.register_buffer("fitted", torch.zeros((), dtype=torch.bool))
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_linear(cls, linear: nn.Linear, **kwargs) -> LastLayerLaplace:
+        """Build an (unfitted) approximation sized for ``linear``; kwargs go to ``__init__``."""
+        return cls(linear.in_features, linear.out_features, **kwargs)
+
+    @staticmethod
+    def _check_prior_config(prior_precision: str | float) -> str | float:
+        if isinstance(prior_precision, str):
+            if prior_precision != "evidence":
+                raise ValueError(
+                    f"prior_precision must be 'evidence' or a positive float, got "
+                    f"{prior_precision!r}."
+                )
+            return prior_precision
+        value = float(prior_precision)
+        if not (0.0 < value < math.inf):
+            raise ValueError(
+                f"a fixed prior_precision must be a positive finite float, got {value}; "
+                "use prior_precision='evidence' to choose it from the data."
+            )
+        return value
+
+    def extra_repr(self) -> str:
+        return (
+            f"in_features={self.in_features}, out_features={self.out_features}, "
+            f"prior_precision={self.prior_precision_config!r}"
+        )
+
+    def get_extra_state(self) -> dict:
+        return {"head_dtype": str(self._head_dtype).removeprefix("torch.")}
+
+    def set_extra_state(self, state: dict) -> None:
+        self._head_dtype = getattr(torch, state.get("head_dtype", "float32"))
+
+    def _apply(self, fn: Callable[[Tensor], Tensor], recurse: bool = True):
+        # Keep the float64 statistics float64 under ``.float()``/``.to(dtype)``: re-transfer
+        # the original tensor (device change only) instead of a lossy dtype cast.
+        def keep_f64(t: Tensor) -> Tensor:
+            out = fn(t)
+            if t.dtype == _F64 and out.dtype != _F64:
+                out = t.to(device=out.device)
+            return out
+
+        return super()._apply(keep_f64, recurse)
+
+    # ------------------------------------------------------------------ accumulation
+    @torch.no_grad()
+    def reset(self) -> None:
+        """Drop all accumulated statistics and the fit."""
+        self.G_raw.zero_()
+        self.sum_weights.zero_()
+        self.count.zero_()
+        self.fitted.fill_(False)
+
+    @torch.no_grad()
+    def accumulate(self, features: Tensor, weights: Tensor | None = None) -> None:
+        """Add ``Σ_i w_i φ̃_i φ̃_iᵀ`` of a batch to the float64 Gram buffer (``O(B d²)``).
+
+        Args:
+            features: head inputs ``φ`` of shape ``[B, d]`` (any leading batch shape).
+            weights: non-negative per-sample loss weights (e.g. IQL ``exp(β A)``) of shape
+                ``[B]`` (the leading shape of ``features``); ``None`` means all ones. They
+                are normalised to mean 1 over everything accumulated at :meth:`fit` time.
+        """
+        if not isinstance(features, Tensor):
+            raise TypeError(f"features must be a torch.Tensor, got {type(features).__name__}.")
+        if features.ndim < 1 or features.shape[-1] != self.in_features:
+            raise ValueError(
+                f"features must have shape [B, {self.in_features}] (last dim = in_features), "
+                f"got {tuple(features.shape)}; pass the input of the linear head."
+            )
+        if features.ndim == 1:
+            features = features.unsqueeze(0)
+        if not features.is_floating_point():
+            raise TypeError(f"features must be floating point, got {features.dtype}.")
+        if weights is not None:
+            if not isinstance(weights, Tensor):
+                weights = torch.as_tensor(weights)
+            if weights.shape != features.shape[:-1]:
+                raise ValueError(
+                    f"weights must have shape {tuple(features.shape[:-1])} (one per feature "
+                    f"row), got {tuple(weights.shape)}; squeeze a trailing singleton dim."
+                )
+        phi = features.detach().reshape(-1, self.in_features).to(self.G_raw.device, _F64)
+        if not torch.isfinite(phi).all():
+            raise ValueError(
+                "features contain NaN or inf; check the network producing the head input "
+                "(or filter those samples) before calling accumulate()."
+            )
+        if phi.shape[0] == 0:
+            return
+        phi = torch.cat([phi, phi.new_ones(phi.shape[0], 1)], dim=1)
+        if weights is None:
+            self.G_raw.add_(phi.T @ phi)
+            self.sum_weights.add_(phi.shape[0])
+        else:
+            w = weights.detach().reshape(-1).to(self.G_raw.device, _F64)
+            if not torch.isfinite(w).all():
+                raise ValueError(
+                    "weights contain NaN or inf; clip the advantage weights (e.g. exp(β·A) "
+                    "clamped to a maximum) before calling accumulate()."
+                )
+            if (w < 0).any():
+                raise ValueError(
+                    f"weights must be non-negative, got min {w.min().item():.3g}; use "
+                    "likelihood weights such as exp(β·A), not raw advantages."
+                )
+            self.G_raw.add_((phi * w[:, None]).T @ phi)
+            self.sum_weights.add_(w.sum())
+        self.count.add_(phi.shape[0])
+
+    def gram(self) -> Tensor:
+        """Weighted Gram matrix ``G`` with weights normalised to mean 1, float64 ``[d+1, d+1]``."""
+        if self.count.item() == 0:
+            raise RuntimeError("no features accumulated; call accumulate() before fit().")
+        if self.sum_weights.item() <= 0:
+            raise RuntimeError(
+                "all accumulated weights are zero, so the weighted likelihood is empty; "
+                "accumulate samples with positive weights."
+            )
+        G = self.G_raw * (self.count / self.sum_weights)
+        return 0.5 * (G + G.T)
+
+    # ------------------------------------------------------------------ fit
+    @torch.no_grad()
+    def fit(
+        self,
+        weight: Tensor,
+        bias: Tensor,
+        noise_variance: Tensor | float,
+        prior_precision: str | float | None = None,
+    ) -> LastLayerLaplace:
+        """Store the MAP head and compute the posterior ``N(θ*, P_j^{-1})`` of Eq. 8.
+
+        Args:
+            weight: MAP head weight ``W``, shape ``[out, d]``; its dtype is the dtype of
+                :meth:`sample`.
+            bias: MAP head bias ``b``, shape ``[out]``.
+            noise_variance: policy variance ``σ²`` (per output ``[out]``, or a scalar).
+            prior_precision: overrides the constructor's setting for this fit
+                (``"evidence"`` or a positive float); ``None`` uses the constructor's.
+
+        Returns:
+            ``self``.
+        """
+        o, d = self.out_features, self.in_features
+        if weight.shape != (o, d):
+            raise ValueError(
+                f"weight must have shape [out, d] = {[o, d]}, got {list(weight.shape)}; "
+                "pass the nn.Linear head's .weight."
+            )
+        if bias is None or bias.shape != (o,):
+            got = None if bias is None else list(bias.shape)
+            raise ValueError(
+                f"bias must have shape [{o}], got {got}; for a bias-free head pass zeros."
+            )
+        dev = self.G_raw.device
+        theta = torch.cat([weight.detach(), bias.detach()[:, None]], dim=1).to(dev, _F64)
+        if not torch.isfinite(theta).all():
+            raise ValueError("weight/bias contain NaN or inf; the MAP head has diverged.")
+        sigma2 = torch.as_tensor(noise_variance).detach().to(dev, _F64)
+        if sigma2.ndim > 1 or sigma2.numel() not in (1, o):
+            raise ValueError(
+                f"noise_variance must be a float or a tensor of shape [{o}] (variance, not "
+                f"std, per action dim), got shape {list(sigma2.shape)}."
+            )
+        sigma2 = sigma2.reshape(-1).expand(o).clone()
+        if not (torch.isfinite(sigma2).all() and (sigma2 > 0).all()):
+            raise ValueError(
+                f"noise_variance must be positive and finite, got {sigma2.tolist()}; pass "
+                "σ² = exp(2·log_std) of the actor."
+            )
+        config = (
+            self.prior_precision_config
+            if prior_precision is None
+            else self._check_prior_config(prior_precision)
+        )
+
+        g, U = self._eigh(self.gram())
+        self.theta_map.copy_(theta)
+        self.noise_variance.copy_(sigma2)
+        self.eigenvalues.copy_(g)
+        self.eigenvectors.copy_(U)
+        if config == "evidence":
+            lam = self._evidence_argmax()
+        else:
+            lam = torch.tensor(float(config), dtype=_F64, device=dev)
+        self.prior_precision.copy_(lam)
+        self.sample_scale.copy_(self._precision_eigenvalues(lam).rsqrt())
+        self._head_dtype = weight.dtype if weight.is_floating_point() else torch.float32
+        self.fitted.fill_(True)
+        return self
+
+    @staticmethod
+    def _eigh(G: Tensor) -> tuple[Tensor, Tensor]:
+        """Symmetric eigendecomposition that never fails; eigenvalues clamped at 0."""
+        p = G.shape[0]
+        scale = G.diagonal().abs().max().clamp_min(1.0)
+        jitter = 0.0
+        for _ in range(8):
+            try:
+                g, U = torch.linalg.eigh(
+                    G + jitter * scale * torch.eye(p, dtype=_F64, device=G.device)
+                )
+                break
+            except RuntimeError:  # eigh did not converge: add jitter and retry
+                jitter = 1e-12 if jitter == 0.0 else jitter * 100.0
+        else:  # pragma: no cover - only for pathological matrices
+            g = torch.zeros(p, dtype=_F64, device=G.device)
+            U = torch.eye(p, dtype=_F64, device=G.device)
+        # round-off can make the eigenvalues of a PSD matrix slightly negative / tiny
+        tol = g.abs().max() * p * torch.finfo(_F64).eps
+        g = torch.where(g > tol, g, torch.zeros_like(g))
+        return g, U
+
+    def _precision_eigenvalues(self, lam: Tensor) -> Tensor:
+        """Eigenvalues ``g_k/σ_j² + λ`` of ``P_j``; ``lam`` of shape ``[*L]`` -> ``[*L, out, d+1]``."""
+        h = self.eigenvalues[None, :] / self.noise_variance[:, None]
+        return h + lam[..., None, None]
+
+    def _evidence_argmax(self, iters: int = 100) -> Tensor:
+        """Root of ``γ(λ) - λ‖θ*‖²`` in ``log λ`` (the unique evidence maximiser), clamped."""
+        h = self.eigenvalues[None, :] / self.noise_variance[:, None]
+        sq = self.theta_map.square().sum()
+        lo, hi = (math.log(v) for v in self.prior_precision_bounds)
+
+        def slope(t: float) -> float:
+            lam = math.exp(t)
+            return float((h / (h + lam)).sum() - lam * sq)
+
+        if slope(lo) <= 0:
+            t = lo
+        elif slope(hi) >= 0:
+            t = hi
+        else:
+            for _ in range(iters):
+                mid = 0.5 * (lo + hi)
+                if slope(mid) > 0:
+                    lo = mid
+                else:
+                    hi = mid
+                if hi - lo < 1e-12:
+                    break
+            t = 0.5 * (lo + hi)
+        return torch.tensor(math.exp(t), dtype=_F64, device=self.G_raw.device)
+
+    def _check_fitted(self, what: str) -> None:
+        if not bool(self.fitted):
+            raise RuntimeError(
+                f"LastLayerLaplace.{what}() called before fit(); call accumulate(features, "
+                "weights) on the data and then fit(weight, bias, noise_variance)."
+            )
+
+    # ------------------------------------------------------------------ diagnostics
+    def log_evidence(self, prior_precision: Tensor | float, log_likelihood: float = 0.0) -> Tensor:
+        """Laplace log evidence ``log Z(λ)`` of Thm. 3.3 for the fitted ``θ*`` and ``σ²``.
+
+        ``log Z(λ) = log p(D|θ*) + (P/2) log λ - (λ/2)‖θ*‖² - ½ Σ_j log det P_j(λ)`` (exact;
+        the ``2π`` terms cancel). ``log p(D|θ*)`` does not depend on ``λ`` and is not
+        stored; pass it as ``log_likelihood`` for the absolute value.
+
+        Args:
+            prior_precision: ``λ`` (float, or a tensor of any shape for a vectorised sweep).
+            log_likelihood: the weighted log-likelihood ``log p(D|θ*)``; 0 by default.
+
+        Returns:
+            float64 tensor of the shape of ``prior_precision``.
+        """
+        self._check_fitted("log_evidence")
+        lam = torch.as_tensor(prior_precision, dtype=_F64, device=self.G_raw.device)
+        n_params = self.theta_map.numel()
+        logdet = self._precision_eigenvalues(lam).log().sum(dim=(-2, -1))
+        sq = self.theta_map.square().sum()
+        return log_likelihood + 0.5 * n_params * lam.log() - 0.5 * lam * sq - 0.5 * logdet
+
+    def posterior_precision(self) -> Tensor:
+        """``P_j = G/σ_j² + λ I`` as float64 ``[out, d+1, d+1]``."""
+        self._check_fitted("posterior_precision")
+        U = self.eigenvectors
+        return (U[None] * self._precision_eigenvalues(self.prior_precision)[:, None, :]) @ U.T
+
+    def posterior_covariance(self) -> Tensor:
+        """``Σ_j = P_j^{-1}`` as float64 ``[out, d+1, d+1]``."""
+        self._check_fitted("posterior_covariance")
+        S = self.sample_transform
+        return S @ S.transpose(-1, -2)
+
+    @property
+    def sample_transform(self) -> Tensor:
+        """``S_j = U diag((g/σ_j² + λ)^{-1/2})`` (``S_j S_jᵀ = P_j^{-1}``), float64 ``[out, d+1, d+1]``."""
+        self._check_fitted("sample_transform")
+        return self.eigenvectors[None] * self.sample_scale[:, None, :]
+
+    # ------------------------------------------------------------------ sampling
+    def sample(
+        self,
+        num_samples: int,
+        generator: torch.Generator | None = None,
+        dtype: torch.dtype | None = None,
+    ) -> Tensor:
+        """Draw ``θ^{(m)}_j = θ*_j + S_j ε``, ``ε ~ N(0, I)``, independently per output.
+
+        Args:
+            num_samples: number of posterior samples ``M``.
+            generator: optional generator (on the module's device) for reproducibility.
+            dtype: output dtype; defaults to the dtype of the head passed to :meth:`fit`.
+
+        Returns:
+            ``[M, out, d+1]`` samples of ``[W | b]`` (last column = bias).
+        """
+        self._check_fitted("sample")
+        if int(num_samples) < 0:
+            raise ValueError(f"num_samples must be >= 0, got {num_samples}.")
+        eps = torch.randn(
+            int(num_samples),
+            *self.sample_scale.shape,
+            generator=generator,
+            dtype=_F64,
+            device=self.G_raw.device,
+        )
+        # S_j ε = U (s_j ⊙ ε): one [M·out, d+1] x [d+1, d+1] matmul
+        theta = self.theta_map + (eps * self.sample_scale) @ self.eigenvectors.T
+        return theta.to(dtype or self._head_dtype)
+
+    def weight_samples_split(
+        self,
+        num_samples: int,
+        generator: torch.Generator | None = None,
+        dtype: torch.dtype | None = None,
+    ) -> tuple[Tensor, Tensor]:
+        """:meth:`sample` split into ``W: [M, out, d]`` and ``b: [M, out]`` for a batched forward."""
+        theta = self.sample(num_samples, generator=generator, dtype=dtype)
+        return theta[..., :-1], theta[..., -1]
+
+    # ------------------------------------------------------------------ prediction
+    def predictive_variance(self, features: Tensor) -> Tensor:
+        """Epistemic variance ``φ̃ᵀ P_j^{-1} φ̃`` of the head output, closed form.
+
+        Args:
+            features: head inputs of shape ``[B, d]`` (any leading batch shape).
+
+        Returns:
+            ``[B, out]`` variances in the dtype of ``features``.
+        """
+        self._check_fitted("predictive_variance")
+        if features.ndim < 1 or features.shape[-1] != self.in_features:
+            raise ValueError(
+                f"features must have shape [B, {self.in_features}], got {tuple(features.shape)}."
+            )
+        phi = features.to(self.G_raw.device, _F64)
+        phi = torch.cat([phi, phi.new_ones(*phi.shape[:-1], 1)], dim=-1)
+        z = phi @ self.eigenvectors
+        var = z.square() @ self.sample_scale.square().T
+        out_dtype = features.dtype if features.is_floating_point() else self._head_dtype
+        return var.to(out_dtype)
+
+    forward = predictive_variance

@@ -1,0 +1,202 @@
+"""Policy extraction from the trajectory planner (Eq. 5) and its transition model."""
+
+from __future__ import annotations
+
+import torch
+from tensordict.nn import TensorDictModule
+from tensordict.utils import NestedKey
+from torch import nn
+from torchrl.envs.utils import ExplorationType, exploration_type
+
+from torchrl_dual.diffusion.model import TrajectoryDiffusion
+
+
+class PlannerSampler(nn.Module):
+    """Samples ``τ ~ p_θ(τ | τ_{s_0} = s)`` and returns ``(τ_{a_0}, τ_{s_1})`` in raw units.
+
+    Under ``ExplorationType.DETERMINISTIC`` (and ``MODE``/``MEAN``) the initial noise is
+    zero, so the same state always gives the same plan; otherwise it is drawn.
+
+    Args:
+        model (TrajectoryDiffusion): trained (and possibly distilled) planner.
+
+    Keyword Args:
+        num_steps (int, optional): sampling steps (a divisor of ``model.num_steps``);
+            defaults to ``model.num_steps``.
+        sampler (str): ``"ddim"`` or ``"ddpm"``. Defaults to ``"ddim"``.
+        action_low, action_high (float or Tensor, optional): bounds the action is
+            clamped to (an env's action spec).
+    """
+
+    def __init__(
+        self,
+        model: TrajectoryDiffusion,
+        *,
+        num_steps: int | None = None,
+        sampler: str = "ddim",
+        action_low: float | torch.Tensor | None = None,
+        action_high: float | torch.Tensor | None = None,
+    ) -> None:
+        super().__init__()
+        self.model = model
+        self.num_steps = num_steps
+        model.time_grid(num_steps or model.num_steps)  # validates num_steps early
+        self.sampler = sampler
+        self.action_low = action_low
+        self.action_high = action_high
+
+    def _initial_noise(self, cond: torch.Tensor) -> torch.Tensor:
+        if exploration_type() in (
+            ExplorationType.DETERMINISTIC,
+            ExplorationType.MODE,
+            ExplorationType.MEAN,
+        ):
+            return torch.zeros_like(cond)
+        return torch.randn_like(cond)
+
+    def plan(
+        self, observation: torch.Tensor, action: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """A whole window in raw units, ``[*B, H + 1, obs_dim + action_dim]``.
+
+        ``s_0`` (and ``a_0`` when given) are copied from the input, hence exact.
+        """
+        layout, norm = self.model.layout, self.model.normalizer
+        if observation.shape[-1] != layout.obs_dim:
+            raise ValueError(
+                f"observation must end with dim {layout.obs_dim} (the planner's obs_dim), "
+                f"got shape {tuple(observation.shape)}."
+            )
+        if not torch.isfinite(observation).all():
+            raise ValueError("observation holds NaN/inf entries; the planner cannot condition on it.")
+        action_norm = None if action is None else norm.normalize_action(action)
+        cond, mask = layout.conditioned_window(norm.normalize_observation(observation), action_norm)
+        window = self.model.sample(
+            cond,
+            mask,
+            num_steps=self.num_steps,
+            sampler=self.sampler,
+            noise=self._initial_noise(cond),
+        )
+        states = norm.denormalize_observation(layout.observations(window))
+        actions = norm.denormalize_action(layout.actions(window))
+        states[..., 0, :] = observation
+        if action is not None:
+            actions[..., 0, :] = action
+        return torch.cat([states, actions], dim=-1)
+
+    def forward(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        window = self.plan(observation)
+        layout = self.model.layout
+        action = layout.actions(window)[..., 0, :]
+        if self.action_low is not None or self.action_high is not None:
+            action = action.clamp(self.action_low, self.action_high)
+        return action, layout.observations(window)[..., 1, :]
+
+    def predict_next_observation(
+        self, observation: torch.Tensor, action: torch.Tensor
+    ) -> torch.Tensor:
+        """The transition model ``ŝ_1 ~ p_θ(τ_{s_1} | τ_{s_0} = s, τ_{a_0} = a)``."""
+        return self.model.layout.observations(self.plan(observation, action))[..., 1, :]
+
+
+class PlannerPolicy(TensorDictModule):
+    """The planner as a TorchRL policy: ``a ~ τ_{a_0}``, ``τ ~ p_θ(τ | τ_{s_0} = s)`` (Eq. 5).
+
+    Reads the observation and writes the first planned action ``τ_{a_0}`` and the
+    planned next state ``τ_{s_1}``. Wrapping the distilled one-step student gives
+    DUAL's fast policy; wrapping the ``N``-step teacher gives the Diffuser-style
+    baseline.
+
+    Args:
+        model (TrajectoryDiffusion): the planner.
+
+    Keyword Args:
+        num_steps (int, optional): sampling steps. Defaults to ``model.num_steps``.
+        sampler (str): ``"ddim"`` or ``"ddpm"``. Defaults to ``"ddim"``.
+        observation_key (NestedKey): input key. Defaults to ``"observation"``.
+        action_key (NestedKey): output action key. Defaults to ``"action"``.
+        next_observation_key (NestedKey): output key of ``τ_{s_1}``.
+            Defaults to ``"planned_next_observation"``.
+        action_low, action_high (float or Tensor, optional): clamp bounds.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
+        >>> model = TrajectoryDiffusion(TrajectoryLayout(3, 2, 4), num_steps=1, hidden=32, depth=1)
+        >>> policy = PlannerPolicy(model, action_low=-1.0, action_high=1.0)
+        >>> td = policy(TensorDict({"observation": torch.randn(5, 3)}, batch_size=[5]))
+        >>> td["action"].shape, td["planned_next_observation"].shape
+        (torch.Size([5, 2]), torch.Size([5, 3]))
+    """
+
+    def __init__(
+        self,
+        model: TrajectoryDiffusion,
+        *,
+        num_steps: int | None = None,
+        sampler: str = "ddim",
+        observation_key: NestedKey = "observation",
+        action_key: NestedKey = "action",
+        next_observation_key: NestedKey = "planned_next_observation",
+        action_low: float | torch.Tensor | None = None,
+        action_high: float | torch.Tensor | None = None,
+    ) -> None:
+        sampler_module = PlannerSampler(
+            model,
+            num_steps=num_steps,
+            sampler=sampler,
+            action_low=action_low,
+            action_high=action_high,
+        )
+        super().__init__(
+            sampler_module,
+            in_keys=[observation_key],
+            out_keys=[action_key, next_observation_key],
+        )
+
+
+class TransitionModel(TensorDictModule):
+    """``ŝ_1`` given ``(s_0, a_0)`` from the planner (Algorithm 1, line 5).
+
+    The planner is trained with ``a_0`` sometimes known (see
+    :class:`~torchrl_dual.objectives.DiffusionPlannerLoss`), so conditioning on
+    both gives the transition model used by the shift signal of Eq. (10).
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
+        >>> model = TrajectoryDiffusion(TrajectoryLayout(3, 2, 4), num_steps=1, hidden=32, depth=1)
+        >>> transition = TransitionModel(model)
+        >>> td = TensorDict({"observation": torch.randn(5, 3), "action": torch.randn(5, 2)}, [5])
+        >>> transition(td)["predicted_observation"].shape
+        torch.Size([5, 3])
+    """
+
+    def __init__(
+        self,
+        model: TrajectoryDiffusion,
+        *,
+        num_steps: int | None = None,
+        observation_key: NestedKey = "observation",
+        action_key: NestedKey = "action",
+        out_key: NestedKey = "predicted_observation",
+    ) -> None:
+        sampler = PlannerSampler(model, num_steps=num_steps)
+
+        class _Predict(nn.Module):
+            def __init__(self) -> None:
+                super().__init__()
+                self.sampler = sampler
+
+            def forward(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+                return self.sampler.predict_next_observation(observation, action)
+
+        super().__init__(_Predict(), in_keys=[observation_key, action_key], out_keys=[out_key])
+        self.sampler = sampler
+
+    def predict(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """Tensor-level call: ``ŝ_1`` for ``[*B, obs_dim]`` states and ``[*B, act_dim]`` actions."""
+        return self.sampler.predict_next_observation(observation, action)

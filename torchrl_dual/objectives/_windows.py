@@ -1,0 +1,76 @@
+"""Input parsing shared by the trajectory-diffusion losses."""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.utils import NestedKey
+
+from torchrl_dual.diffusion.model import TrajectoryDiffusion
+
+
+def _fetch(tensordict: TensorDictBase, key: NestedKey, role: str) -> torch.Tensor:
+    value = tensordict.get(key, default=None)
+    if value is None:
+        raise KeyError(
+            f"The input has no {role} entry {key!r}; it holds "
+            f"{sorted(map(str, tensordict.keys(True, True)))}. Rename the entry or call "
+            f"loss.set_keys({role}=...)."
+        )
+    return value
+
+
+def normalized_windows(
+    model: TrajectoryDiffusion,
+    tensordict: TensorDictBase,
+    *,
+    observation_key: NestedKey,
+    action_key: NestedKey,
+    mask_key: NestedKey,
+    action_condition_prob: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Reads ``[B, H + 1]`` windows, checks them, returns ``(x_0, mask)`` normalized.
+
+    The conditioning mask is read from ``mask_key`` when present; otherwise ``s_0``
+    is always known and ``a_0`` is known with probability ``action_condition_prob``
+    (one network then serves as policy ``p(τ | s_0)`` and as transition model
+    ``p(τ | s_0, a_0)``).
+    """
+    layout = model.layout
+    observation = _fetch(tensordict, observation_key, "observation")
+    action = _fetch(tensordict, action_key, "action")
+    for role, value, dim in (
+        ("observation", observation, layout.obs_dim),
+        ("action", action, layout.action_dim),
+    ):
+        expected = (layout.length, dim)
+        if value.ndim < 3 or tuple(value.shape[-2:]) != expected:
+            raise ValueError(
+                f"{role} must have shape [batch, {expected[0]}, {expected[1]}] "
+                f"(windows of H + 1 = {layout.length} steps, dim {dim}), got "
+                f"{tuple(value.shape)}. Sample windows with WindowReplayBuffer."
+            )
+        if not torch.isfinite(value).all():
+            bad = int((~torch.isfinite(value)).sum())
+            raise ValueError(f"{role} holds {bad} NaN/inf entries; clean the data first.")
+    norm = model.normalizer
+    x0 = layout.pack(norm.normalize_observation(observation), norm.normalize_action(action))
+    mask = tensordict.get(mask_key, default=None)
+    if mask is None:
+        batch = x0.shape[:-2]
+        know_action = torch.rand(batch, device=x0.device) < action_condition_prob
+        s0 = layout.condition_mask("s0", device=x0.device)
+        a0 = layout.condition_mask("s0_a0", device=x0.device) & ~s0
+        mask = s0 | (a0 & know_action[..., None, None])
+    elif mask.dtype != torch.bool or mask.shape[-2:] != layout.window_shape:
+        raise ValueError(
+            f"{mask_key!r} must be a boolean mask ending with {layout.window_shape}, got "
+            f"dtype {mask.dtype} and shape {tuple(mask.shape)}."
+        )
+    return x0.to(torch.get_default_dtype()), mask.expand_as(x0)
+
+
+def masked_mean(error: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Per-window mean of ``error`` over the entries the model must generate."""
+    free = (~mask).to(error.dtype)
+    return (error * free).sum((-2, -1)) / free.sum((-2, -1)).clamp_min(1.0)

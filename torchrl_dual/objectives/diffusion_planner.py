@@ -1,0 +1,133 @@
+"""The diffusion planner's denoising loss (Eq. 3)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDict, TensorDictBase, TensorDictParams
+from tensordict.utils import NestedKey
+from torchrl.objectives.common import LossModule
+
+from torchrl_dual.diffusion.model import TrajectoryDiffusion
+from torchrl_dual.objectives._windows import masked_mean, normalized_windows
+
+
+class DiffusionPlannerLoss(LossModule):
+    """Denoising loss of the trajectory diffusion planner, Eq. (3) of DUAL.
+
+    For a batch of windows ``τ⁰ = (s_0, a_0, …, s_H, a_H)``:
+
+    1. normalize states and actions with the model's fitted :class:`Normalizer`;
+    2. draw ``t ~ U(0, 1)`` and ``ε ~ N(0, I)``; form ``z_t = α_t·τ⁰ + σ_t·ε``;
+    3. write the known entries (``s_0``; ``a_0`` with probability
+       ``action_condition_prob``) back into ``z_t`` and predict ``v̂``;
+    4. return the mean of ``‖v̂ − v‖²`` over the entries that are not known, with
+       ``v = α_t·ε − σ_t·τ⁰``.
+
+    **Prediction target.** Eq. (3) regresses the noise ε. This loss regresses
+    ``v`` instead. All targets share the same optimum, the posterior mean
+    ``E[τ⁰ | z_t]`` (in x-space the ε-loss weighs time by ``SNR(t)`` and the
+    v-loss by ``SNR(t) + 1``). ``v`` is used because progressive distillation
+    needs ``x̂`` at ``t = 1``, where ``α_t = 0`` and ``x̂ = (z − σ·ε̂)/α`` from an
+    ε-prediction is undefined. The one-step student also samples there.
+
+    Args:
+        model (TrajectoryDiffusion): the planner, whose normalizer is fitted.
+
+    Keyword Args:
+        action_condition_prob (float): probability that ``a_0`` is also given, which
+            trains the transition model ``p(s_1 | s_0, a_0)`` (Algorithm 1, line 5)
+            into the same network. Defaults to ``0.5``.
+        reduction (str): ``"none"`` | ``"mean"`` | ``"sum"``. Defaults to ``"mean"``.
+
+    .. note::
+        The input is a ``[batch, H + 1]`` TensorDict of windows, for instance from
+        :class:`~torchrl_dual.diffusion.WindowReplayBuffer`. It needs
+        ``tensor_keys.observation`` and ``tensor_keys.action``, and may hold a boolean
+        ``tensor_keys.condition_mask`` of shape ``[batch, H + 1, obs_dim + action_dim]``.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
+        >>> layout = TrajectoryLayout(obs_dim=3, action_dim=2, horizon=4)
+        >>> model = TrajectoryDiffusion(layout, hidden=32, depth=1)
+        >>> loss_fn = DiffusionPlannerLoss(model)
+        >>> windows = TensorDict(
+        ...     {"observation": torch.randn(8, 5, 3), "action": torch.randn(8, 5, 2)},
+        ...     batch_size=[8, 5],
+        ... )
+        >>> loss_td = loss_fn(windows)
+        >>> loss_td["loss_diffusion"].backward()
+    """
+
+    @dataclass
+    class _AcceptedKeys:
+        """Configurable tensordict keys.
+
+        Attributes:
+            observation (NestedKey): states of the window, ``[B, H + 1, obs_dim]``.
+                Defaults to ``"observation"``.
+            action (NestedKey): actions of the window, ``[B, H + 1, action_dim]``.
+                Defaults to ``"action"``.
+            condition_mask (NestedKey): optional boolean mask of known entries.
+                Defaults to ``"condition_mask"``.
+        """
+
+        observation: NestedKey = "observation"
+        action: NestedKey = "action"
+        condition_mask: NestedKey = "condition_mask"
+
+    default_keys = _AcceptedKeys
+    out_keys = ["loss_diffusion", "x0_error"]
+
+    model: TrajectoryDiffusion
+    model_params: TensorDictParams
+    target_model_params: TensorDictParams
+
+    def __init__(
+        self,
+        model: TrajectoryDiffusion,
+        *,
+        action_condition_prob: float = 0.5,
+        reduction: str = "mean",
+    ) -> None:
+        super().__init__()
+        if not 0.0 <= action_condition_prob <= 1.0:
+            raise ValueError(f"action_condition_prob must lie in [0, 1], got {action_condition_prob}.")
+        self.convert_to_functional(model, "model")
+        self.action_condition_prob = action_condition_prob
+        self.reduction = reduction
+
+    def _forward_value_estimator_keys(self, **kwargs) -> None:
+        pass
+
+    @property
+    def in_keys(self) -> list[NestedKey]:
+        return [self.tensor_keys.observation, self.tensor_keys.action]
+
+    def denoising_loss(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, dict]:
+        """Per-window loss of Eq. (3) in v-parameterisation and diagnostics."""
+        x0, mask = normalized_windows(
+            self.model,
+            tensordict,
+            observation_key=self.tensor_keys.observation,
+            action_key=self.tensor_keys.action,
+            mask_key=self.tensor_keys.condition_mask,
+            action_condition_prob=self.action_condition_prob,
+        )
+        batch = x0.shape[:-2]
+        t = torch.rand(batch, device=x0.device)
+        eps = torch.randn_like(x0)
+        z = self.model.noise(x0, t, eps)
+        with self.model_params.to_module(self.model):
+            x_hat, _, v_hat = self.model.predict(z, t, x0, mask)
+        loss = masked_mean((v_hat - self.model.v_target(x0, t, eps)) ** 2, mask)
+        metadata = {"x0_error": masked_mean((x_hat - x0) ** 2, mask).mean().detach()}
+        return loss, metadata
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDict:
+        loss, metadata = self.denoising_loss(tensordict)
+        loss = self._reduce_loss(loss)
+        return TensorDict({"loss_diffusion": loss, **metadata}, batch_size=[])

@@ -1,0 +1,155 @@
+"""Progressive distillation of a trajectory sampler (Salimans & Ho, 2022)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDict, TensorDictBase, TensorDictParams
+from tensordict.utils import NestedKey
+from torchrl.objectives.common import LossModule
+
+from torchrl_dual.diffusion.model import TrajectoryDiffusion
+from torchrl_dual.objectives._windows import masked_mean, normalized_windows
+
+
+class DistillationLoss(LossModule):
+    """One round of progressive distillation: one student step = two teacher steps.
+
+    DUAL distils the ``N = 32``-step planner into a one-step sampler by halving
+    rounds (Section 3.1, "Progressive distillation for fast-sampling";
+    Algorithm 1, line 5). For a student with ``K = N_teacher / 2`` steps:
+
+    1. draw a window ``x`` and a grid time ``t = i / K`` (``i ∈ {1..K}``), set
+       ``s = t − 1/K`` and ``z_t = α_t·x + σ_t·ε`` (known entries kept clean);
+    2. run two deterministic DDIM steps of the frozen teacher,
+       ``z_t → z_{t − 1/2K} → z_s``;
+    3. the student's target is the ``x̃`` that takes ``z_t`` to ``z_s`` in ONE DDIM
+       step: ``x̃ = (z_s − (σ_s/σ_t)·z_t) / (α_s − (σ_s/σ_t)·α_t)``, which is the
+       teacher's own ``x̂`` when ``s = 0``;
+    4. the loss is ``max(SNR(t), 1)·‖x̂_student − x̃‖²`` ("truncated SNR" weighting),
+       averaged over the entries that are not known.
+
+    Args:
+        student (TrajectoryDiffusion): trainable, ``num_steps == teacher.num_steps // 2``;
+            initialise it from the teacher (see :func:`progressive_distillation`).
+        teacher (TrajectoryDiffusion): frozen; receives no gradient.
+
+    Keyword Args:
+        action_condition_prob (float): probability that ``a_0`` is known, as in
+            :class:`DiffusionPlannerLoss`, so the distilled transition model is
+            distilled too. Defaults to ``0.5``.
+        reduction (str): ``"none"`` | ``"mean"`` | ``"sum"``. Defaults to ``"mean"``.
+
+    Examples:
+        >>> import copy, torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
+        >>> layout = TrajectoryLayout(obs_dim=3, action_dim=2, horizon=4)
+        >>> teacher = TrajectoryDiffusion(layout, num_steps=4, hidden=32, depth=1)
+        >>> student = copy.deepcopy(teacher)
+        >>> student.num_steps = 2
+        >>> loss_fn = DistillationLoss(student, teacher)
+        >>> windows = TensorDict(
+        ...     {"observation": torch.randn(8, 5, 3), "action": torch.randn(8, 5, 2)},
+        ...     batch_size=[8, 5],
+        ... )
+        >>> loss_fn(windows)["loss_distillation"].backward()
+    """
+
+    @dataclass
+    class _AcceptedKeys:
+        """Configurable tensordict keys.
+
+        Attributes:
+            observation (NestedKey): states of the window. Defaults to ``"observation"``.
+            action (NestedKey): actions of the window. Defaults to ``"action"``.
+            condition_mask (NestedKey): optional boolean mask of known entries.
+                Defaults to ``"condition_mask"``.
+        """
+
+        observation: NestedKey = "observation"
+        action: NestedKey = "action"
+        condition_mask: NestedKey = "condition_mask"
+
+    default_keys = _AcceptedKeys
+    out_keys = ["loss_distillation", "target_gap"]
+
+    student: TrajectoryDiffusion
+    student_params: TensorDictParams
+    target_student_params: TensorDictParams
+
+    def __init__(
+        self,
+        student: TrajectoryDiffusion,
+        teacher: TrajectoryDiffusion,
+        *,
+        action_condition_prob: float = 0.5,
+        reduction: str = "mean",
+    ) -> None:
+        super().__init__()
+        if teacher.num_steps != 2 * student.num_steps:
+            raise ValueError(
+                f"A student takes half its teacher's steps: teacher has {teacher.num_steps}, "
+                f"student {student.num_steps}; set student.num_steps = {teacher.num_steps // 2}."
+            )
+        if student is teacher:
+            raise ValueError("student and teacher must be distinct modules (deepcopy the teacher).")
+        self.convert_to_functional(student, "student")
+        # The teacher is frozen: its weights are kept as buffers, never as parameters.
+        self.teacher_buffers = TensorDictParams(
+            TensorDict.from_module(teacher).detach().clone(), no_convert=True
+        )
+        self.__dict__["teacher"] = teacher
+        self.action_condition_prob = action_condition_prob
+        self.reduction = reduction
+
+    def _forward_value_estimator_keys(self, **kwargs) -> None:
+        pass
+
+    @property
+    def in_keys(self) -> list[NestedKey]:
+        return [self.tensor_keys.observation, self.tensor_keys.action]
+
+    @torch.no_grad()
+    def teacher_target(
+        self, z: torch.Tensor, i: torch.Tensor, cond: torch.Tensor, mask: torch.Tensor
+    ) -> torch.Tensor:
+        """The student's ``x̃`` for ``z`` at grid index ``i`` (two teacher DDIM steps)."""
+        steps = self.student.num_steps
+        t, mid, s = i / steps, (i - 0.5) / steps, (i - 1) / steps
+        teacher = self.teacher
+        with self.teacher_buffers.to_module(teacher):
+            z_mid = teacher.ddim_step(z, t, mid, cond, mask)
+            z_s = teacher.ddim_step(z_mid, mid, s, cond, mask)
+        alpha_t, sigma_t = teacher._scales(t, z)
+        alpha_s, sigma_s = teacher._scales(s, z)
+        ratio = sigma_s / sigma_t
+        return torch.where(mask, cond, (z_s - ratio * z) / (alpha_s - ratio * alpha_t))
+
+    def distillation_loss(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, dict]:
+        """Per-window truncated-SNR weighted x-error against the two-step target."""
+        x0, mask = normalized_windows(
+            self.student,
+            tensordict,
+            observation_key=self.tensor_keys.observation,
+            action_key=self.tensor_keys.action,
+            mask_key=self.tensor_keys.condition_mask,
+            action_condition_prob=self.action_condition_prob,
+        )
+        batch = x0.shape[:-2]
+        i = torch.randint(1, self.student.num_steps + 1, batch, device=x0.device).to(x0.dtype)
+        t = i / self.student.num_steps
+        z = torch.where(mask, x0, self.student.noise(x0, t, torch.randn_like(x0)))
+        target = self.teacher_target(z, i, x0, mask)
+        with self.student_params.to_module(self.student):
+            x_hat = self.student.predict(z, t, x0, mask)[0]
+        weight = self.student.schedule.snr(t).clamp(min=1.0, max=1e4)[..., None, None]
+        loss = masked_mean(weight * (x_hat - target) ** 2, mask)
+        metadata = {"target_gap": masked_mean((x_hat - target) ** 2, mask).mean().detach()}
+        return loss, metadata
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDict:
+        loss, metadata = self.distillation_loss(tensordict)
+        loss = self._reduce_loss(loss)
+        return TensorDict({"loss_distillation": loss, **metadata}, batch_size=[])

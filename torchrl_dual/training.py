@@ -1,0 +1,138 @@
+"""Small training drivers: an update loop, planner pre-training, progressive distillation."""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.objectives.common import LossModule
+from tqdm.auto import tqdm
+
+from torchrl_dual.diffusion.model import TrajectoryDiffusion
+from torchrl_dual.objectives.diffusion_planner import DiffusionPlannerLoss
+from torchrl_dual.objectives.distillation import DistillationLoss
+
+
+def run_updates(
+    loss_module: LossModule,
+    sample: Callable[[], TensorDictBase],
+    num_updates: int,
+    optimizer: torch.optim.Optimizer,
+    *,
+    grad_clip: float | None = 1.0,
+    desc: str = "updates",
+    logger=None,
+    log_prefix: str = "",
+    log_every: int = 100,
+    step_offset: int = 0,
+    progress: bool = True,
+) -> dict[str, float]:
+    """Runs ``num_updates`` gradient steps on the sum of the ``loss_*`` entries.
+
+    Scalar entries of the loss output are averaged over each ``log_every`` window
+    and sent to ``logger`` (a :class:`torchrl.record.loggers.Logger`) as
+    ``{log_prefix}{name}``; the last window's averages are returned.
+
+    Examples:
+        >>> import torch
+        >>> from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
+        >>> from torchrl_dual.objectives import DiffusionPlannerLoss
+        >>> from tensordict import TensorDict
+        >>> model = TrajectoryDiffusion(TrajectoryLayout(2, 1, 3), hidden=16, depth=1)
+        >>> loss = DiffusionPlannerLoss(model)
+        >>> batch = lambda: TensorDict({"observation": torch.randn(4, 4, 2),
+        ...     "action": torch.randn(4, 4, 1)}, batch_size=[4, 4])
+        >>> stats = run_updates(loss, batch, 3, torch.optim.Adam(loss.parameters()), progress=False)
+        >>> sorted(stats)
+        ['loss_diffusion', 'x0_error']
+    """
+    params = [p for p in loss_module.parameters() if p.requires_grad]
+    sums: dict[str, float] = {}
+    count = 0
+    averages: dict[str, float] = {}
+    bar = tqdm(range(num_updates), desc=desc, disable=not progress, leave=False)
+    for update in bar:
+        out = loss_module(sample())
+        loss = sum(value for key, value in out.items() if key.startswith("loss_"))
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        if grad_clip is not None:
+            torch.nn.utils.clip_grad_norm_(params, grad_clip)
+        optimizer.step()
+        for key, value in out.items():
+            if value.numel() == 1:
+                sums[key] = sums.get(key, 0.0) + float(value.detach())
+        count += 1
+        if count == log_every or update == num_updates - 1:
+            averages = {key: total / count for key, total in sums.items()}
+            bar.set_postfix({k: f"{v:.4f}" for k, v in averages.items() if k.startswith("loss_")})
+            if logger is not None:
+                for key, value in averages.items():
+                    logger.log_scalar(f"{log_prefix}{key}", value, step=step_offset + update + 1)
+            sums, count = {}, 0
+    return averages
+
+
+def train_planner(
+    model: TrajectoryDiffusion,
+    sample: Callable[[], TensorDictBase],
+    num_updates: int,
+    *,
+    lr: float = 3e-4,
+    action_condition_prob: float = 0.5,
+    **kwargs,
+) -> dict[str, float]:
+    """Pre-trains the planner with :class:`DiffusionPlannerLoss` (Algorithm 1, lines 3-4)."""
+    loss = DiffusionPlannerLoss(model, action_condition_prob=action_condition_prob)
+    optimizer = torch.optim.Adam(loss.parameters(), lr=lr)
+    kwargs.setdefault("desc", "planner")
+    return run_updates(loss, sample, num_updates, optimizer, **kwargs)
+
+
+def progressive_distillation(
+    teacher: TrajectoryDiffusion,
+    sample: Callable[[], TensorDictBase],
+    updates_per_round: int,
+    *,
+    final_steps: int = 1,
+    lr: float = 1e-4,
+    action_condition_prob: float = 0.5,
+    logger=None,
+    progress: bool = True,
+    **kwargs,
+) -> TrajectoryDiffusion:
+    """Halves the sampler's steps until ``final_steps`` (Algorithm 1, line 5).
+
+    Each round deep-copies its teacher into the student, halves ``num_steps`` and
+    minimises :class:`DistillationLoss`; the student becomes the next teacher.
+    ``N = 32`` to ``1`` takes five rounds: 32 → 16 → 8 → 4 → 2 → 1.
+
+    Returns:
+        the final student (the input ``teacher`` is left unchanged).
+    """
+    steps = teacher.num_steps
+    if final_steps < 1 or steps % final_steps or (steps // final_steps) & (steps // final_steps - 1):
+        raise ValueError(
+            f"final_steps={final_steps} must be N / 2^k for the teacher's N={steps}."
+        )
+    current = teacher
+    while current.num_steps > final_steps:
+        student = copy.deepcopy(current)
+        student.num_steps = current.num_steps // 2
+        loss = DistillationLoss(student, current, action_condition_prob=action_condition_prob)
+        optimizer = torch.optim.Adam(loss.parameters(), lr=lr)
+        run_updates(
+            loss,
+            sample,
+            updates_per_round,
+            optimizer,
+            desc=f"distil {current.num_steps}->{student.num_steps}",
+            logger=logger,
+            log_prefix=f"distill_{student.num_steps}/",
+            progress=progress,
+            **kwargs,
+        )
+        current = student
+    return current
