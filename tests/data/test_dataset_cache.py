@@ -22,8 +22,15 @@ from torchrl_dual.data import cache as cache_module
 def _dataset(n: int = 6, value: float = 1.0) -> OfflineDataset:
     obs = np.full((n, 2), value)
     return OfflineDataset(
-        make_transitions(obs, np.zeros((n, 1)), obs, np.arange(n), np.zeros(n, bool),
-                         np.ones(n, bool), np.arange(n)),
+        make_transitions(
+            obs,
+            np.zeros((n, 1)),
+            obs,
+            np.arange(n),
+            np.zeros(n, bool),
+            np.ones(n, bool),
+            np.arange(n),
+        ),
         reference_min=-1.0,
         reference_max=2.0,
         metadata={"source": "test", "value": value},

@@ -37,17 +37,21 @@ def test_well_formed_transitions_pass_and_are_returned():
 
 def test_missing_keys_are_all_listed():
     td = _transitions().exclude(("next", "reward"), "episode")
-    with pytest.raises(ValueError, match=r"missing the keys \[\"\('next', 'reward'\)\", 'episode'\]"):
+    with pytest.raises(ValueError, match=r"missing the keys \[\('next', 'reward'\), 'episode'\]"):
         validate_transitions(td)
 
 
 def test_wrong_observation_dim_reports_expected_and_got():
-    with pytest.raises(ValueError, match="'observation' has size 3 on its last dim, expected obs_dim=6"):
+    with pytest.raises(
+        ValueError, match="'observation' has size 3 on its last dim, expected obs_dim=6"
+    ):
         validate_transitions(_transitions(), obs_dim=6)
 
 
 def test_wrong_action_dim_reports_expected_and_got():
-    with pytest.raises(ValueError, match="'action' has size 2 on its last dim, expected action_dim=1"):
+    with pytest.raises(
+        ValueError, match="'action' has size 2 on its last dim, expected action_dim=1"
+    ):
         validate_transitions(_transitions(), action_dim=1)
 
 
@@ -55,14 +59,16 @@ def test_nan_entries_are_reported_with_field_name_and_count():
     td = _transitions()
     td["action"][1, 0] = float("nan")
     td["action"][2] = float("nan")
-    with pytest.raises(ValueError, match=r"'action' has 3 NaN and 0 inf entries \(first rows: \[1, 2\]\)"):
+    with pytest.raises(
+        ValueError, match=r"'action' has 3 NaN and 0 inf entries \(first rows: \[1, 2\]\)"
+    ):
         validate_transitions(td)
 
 
 def test_inf_reward_is_reported_with_its_nested_key():
     td = _transitions()
     td["next", "reward"][0] = float("inf")
-    with pytest.raises(ValueError, match=r"\('next', 'reward'\)' has 0 NaN and 1 inf"):
+    with pytest.raises(ValueError, match=r"\('next', 'reward'\) has 0 NaN and 1 inf"):
         validate_transitions(td)
 
 
@@ -98,7 +104,9 @@ def test_done_must_equal_terminated_or_truncated():
 def test_wrong_dtypes_and_shapes_are_rejected_with_a_fix():
     td = _transitions()
     td["observation"] = td["observation"].double()
-    with pytest.raises(ValueError, match=r"must be float32, got torch.float64. Cast with .float\(\)"):
+    with pytest.raises(
+        ValueError, match=r"must be float32, got torch.float64. Cast with .float\(\)"
+    ):
         validate_transitions(td)
     td = _transitions()
     td["next", "reward"] = td["next", "reward"].squeeze(-1)

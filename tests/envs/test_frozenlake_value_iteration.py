@@ -37,9 +37,12 @@ def test_policy_optimal_at_three_quarters_succeeds_0692_under_two_thirds():
 def test_optimal_policy_under_two_thirds_succeeds_0708():
     online = frozenlake_value_iteration("4x4", 2 / 3)
     assert online.optimal_success == pytest.approx(0.708, abs=1e-3)
-    assert online.optimal_success > frozenlake_value_iteration(
-        "4x4", 2 / 3, policy=frozenlake_optimal_policy("4x4", 3 / 4)
-    ).policy_success
+    assert (
+        online.optimal_success
+        > frozenlake_value_iteration(
+            "4x4", 2 / 3, policy=frozenlake_optimal_policy("4x4", 3 / 4)
+        ).policy_success
+    )
 
 
 def test_random_policy_and_time_dependent_optimum_bracket_the_optimal_policy():

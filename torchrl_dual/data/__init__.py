@@ -1,6 +1,11 @@
 """Offline data: transition layout, local generators, Minari loading, normalized scores."""
 
-from torchrl_dual.data.cache import load_cached_dataset, load_or_generate, save_cached_dataset
+from torchrl_dual.data.cache import (
+    default_cache_dir,
+    load_cached_dataset,
+    load_or_generate,
+    save_cached_dataset,
+)
 from torchrl_dual.data.frozenlake_dataset import (
     FROZENLAKE_GENERATOR_VERSION,
     generate_frozenlake_dataset,
@@ -11,7 +16,6 @@ from torchrl_dual.data.maze_controller import MazeWaypointController
 from torchrl_dual.data.maze_dataset import (
     MAZE_GENERATOR_VERSION,
     compute_maze_references,
-    default_cache_dir,
     generate_maze_dataset,
     load_or_generate_maze_dataset,
 )

@@ -35,6 +35,16 @@ _STALE_SECONDS = 3600.0
 logger = logging.getLogger(__name__)
 
 
+def default_cache_dir() -> Path:
+    """Root of the data-set cache: ``$TORCHRL_DUAL_CACHE`` or ``~/.cache/torchrl_dual``.
+
+    Examples:
+        >>> isinstance(default_cache_dir(), Path)
+        True
+    """
+    return Path(os.environ.get("TORCHRL_DUAL_CACHE", Path.home() / ".cache" / "torchrl_dual"))
+
+
 def _normalize(spec: dict[str, Any]) -> dict[str, Any]:
     return json.loads(json.dumps(spec, sort_keys=True))
 

@@ -20,9 +20,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from torchrl_dual.data.cache import load_or_generate
+from torchrl_dual.data.cache import default_cache_dir, load_or_generate
 from torchrl_dual.data.layout import make_transitions
-from torchrl_dual.data.maze_dataset import default_cache_dir
 from torchrl_dual.data.offline import OfflineDataset
 from torchrl_dual.envs.frozenlake import FROZENLAKE_NUM_ACTIONS, frozenlake_num_states
 from torchrl_dual.envs.frozenlake_mdp import (

@@ -35,7 +35,8 @@ TRANSITION_KEYS: tuple[NestedKey, ...] = (*FLOAT_KEYS, *FLAG_KEYS, "episode")
 
 
 def _name(key: NestedKey) -> str:
-    return key if isinstance(key, str) else repr(tuple(key))
+    """``'observation'`` or ``('next', 'reward')``: the key as the user would type it."""
+    return repr(key) if isinstance(key, str) else repr(tuple(key))
 
 
 def make_transitions(
@@ -120,7 +121,7 @@ def validate_transitions(
     missing = [_name(k) for k in TRANSITION_KEYS if k not in present]
     if missing:
         raise ValueError(
-            f"Transitions are missing the keys {missing}. Build them with "
+            f"Transitions are missing the keys [{', '.join(missing)}]. Build them with "
             "torchrl_dual.data.make_transitions(...) or add the entries (done = terminated | truncated)."
         )
     if td.batch_dims != 1:
@@ -134,24 +135,24 @@ def validate_transitions(
         value = td.get(key)
         if value.dtype != torch.float32:
             raise ValueError(
-                f"{_name(key)!r} must be float32, got {value.dtype}. Cast with .float()."
+                f"{_name(key)} must be float32, got {value.dtype}. Cast with .float()."
             )
         if key == ("next", "reward"):
             if value.shape != (n, 1):
                 raise ValueError(
-                    f"{_name(key)!r} must have shape [N, 1] = [{n}, 1], got {list(value.shape)}. "
+                    f"{_name(key)} must have shape [N, 1] = [{n}, 1], got {list(value.shape)}. "
                     "Use reward.unsqueeze(-1)."
                 )
         elif value.ndim != 2:
             raise ValueError(
-                f"{_name(key)!r} must have shape [N, dim], got {list(value.shape)}. "
+                f"{_name(key)} must have shape [N, dim], got {list(value.shape)}. "
                 "Flatten with .reshape(N, -1)."
             )
         expected = dims.get(key)
         if expected is not None and value.shape[-1] != expected:
             arg = "obs_dim" if "observation" in _name(key) else "action_dim"
             raise ValueError(
-                f"{_name(key)!r} has size {value.shape[-1]} on its last dim, expected "
+                f"{_name(key)} has size {value.shape[-1]} on its last dim, expected "
                 f"{arg}={expected}. Check the env/dataset pairing or the observation flattening."
             )
         bad = ~torch.isfinite(value)
@@ -160,7 +161,7 @@ def validate_transitions(
             n_inf = int(bad.sum()) - n_nan
             rows = bad.reshape(n, -1).any(-1).nonzero().squeeze(-1)[:5].tolist()
             raise ValueError(
-                f"{_name(key)!r} has {n_nan} NaN and {n_inf} inf entries (first rows: {rows}). "
+                f"{_name(key)} has {n_nan} NaN and {n_inf} inf entries (first rows: {rows}). "
                 "Drop or repair those transitions before training."
             )
     if td["observation"].shape[-1] != td["next", "observation"].shape[-1]:
@@ -172,7 +173,7 @@ def validate_transitions(
         value = td.get(key)
         if value.dtype != torch.bool or value.shape != (n, 1):
             raise ValueError(
-                f"{_name(key)!r} must be bool of shape [N, 1] = [{n}, 1], got {value.dtype} "
+                f"{_name(key)} must be bool of shape [N, 1] = [{n}, 1], got {value.dtype} "
                 f"{list(value.shape)}. Use .bool().reshape(-1, 1)."
             )
     done = td["next", "done"]

@@ -14,14 +14,13 @@ episodes: ``random_return`` (uniform actions in ``[-1, 1]``) and ``controller_re
 
 from __future__ import annotations
 
-import os
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from torchrl_dual.data.cache import load_or_generate
+from torchrl_dual.data.cache import default_cache_dir, load_or_generate
 from torchrl_dual.data.layout import make_transitions
 from torchrl_dual.data.maze_controller import MazeWaypointController
 from torchrl_dual.data.offline import OfflineDataset
@@ -33,11 +32,6 @@ from torchrl_dual.envs.pointmaze import (
 
 MAZE_GENERATOR_VERSION = 1
 """Bump when the generated data changes for identical arguments (invalidates caches)."""
-
-
-def default_cache_dir() -> Path:
-    """``$TORCHRL_DUAL_CACHE`` or ``~/.cache/torchrl_dual``."""
-    return Path(os.environ.get("TORCHRL_DUAL_CACHE", Path.home() / ".cache" / "torchrl_dual"))
 
 
 def _controller(env, action_noise: float, rng: np.random.Generator) -> MazeWaypointController:
@@ -244,6 +238,8 @@ def load_or_generate_maze_dataset(
     num_transitions: int = 100_000,
     seed: int = 0,
     cache_dir: str | Path | None = None,
+    *,
+    verbose: bool = True,
     **kwargs: Any,
 ) -> OfflineDataset:
     """Loads the PointMaze data set from the disk cache, generating it on a miss.
@@ -256,13 +252,17 @@ def load_or_generate_maze_dataset(
         num_transitions (int): number of transitions.
         seed (int): generation seed.
         cache_dir (str or Path, optional): defaults to :func:`default_cache_dir`.
+
+    Keyword Args:
+        verbose (bool): print the generation time on a cache miss. Defaults to ``True``.
         **kwargs: forwarded to :func:`generate_maze_dataset`.
 
     Examples:
         >>> import tempfile
         >>> root = tempfile.mkdtemp()
-        >>> a = load_or_generate_maze_dataset("umaze", 300, 0, root, num_reference_episodes=1)
-        >>> b = load_or_generate_maze_dataset("umaze", 300, 0, root, num_reference_episodes=1)
+        >>> kw = dict(num_reference_episodes=1, verbose=False)
+        >>> a = load_or_generate_maze_dataset("umaze", 300, 0, root, **kw)
+        >>> b = load_or_generate_maze_dataset("umaze", 300, 0, root, **kw)
         >>> bool((a.transitions["observation"] == b.transitions["observation"]).all())
         True
     """
@@ -279,8 +279,16 @@ def load_or_generate_maze_dataset(
         **kwargs,
     }
     path = root / f"pointmaze-{maze}-n{num_transitions}-seed{seed}"
-    return load_or_generate(
-        path,
-        spec,
-        lambda: generate_maze_dataset(maze, num_transitions, seed=seed, **kwargs),
-    )
+
+    def generate() -> OfflineDataset:
+        data = generate_maze_dataset(maze, num_transitions, seed=seed, **kwargs)
+        if verbose:
+            refs = data.metadata.get("references", {})
+            print(
+                f"Generated {num_transitions} PointMaze {maze} transitions in "
+                f"{data.metadata['generation_seconds']:.1f} s (+{refs.get('reference_seconds', 0.0):.1f} s "
+                f"for references), cached in {path}"
+            )
+        return data
+
+    return load_or_generate(path, spec, generate)

@@ -30,7 +30,9 @@ class ShiftAwareNoise(TensorDictModuleBase):
 
     where ``ŝ_t`` was predicted at ``t-1`` from ``(s_{t-1}, a_{t-1})`` by the transition
     model (DESIGN "Exploration noise"). ``d_t`` is written into the env data by the
-    env-side :class:`~torchrl_dual.transforms.ShiftDistance` transform.
+    env-side :class:`~torchrl_dual.transforms.ShiftDistance` transform. Alg. 1 writes the
+    same sample as ``a_t ~ π̂(·|s_t) + λ N(0, d_t)``; this module follows Eq. 10 and adds
+    ``λ d_t`` to the variance.
 
     Steps of :meth:`forward`:
 
@@ -49,18 +51,18 @@ class ShiftAwareNoise(TensorDictModuleBase):
     :class:`~torchrl.modules.AdditiveGaussianModule`), collectors and replay buffers
     store the executed action; an inverse transform would store the noiseless one.
 
-    ====================  ==============  ======================================
-    key (default)         shape           meaning
-    ====================  ==============  ======================================
-    ``observation``       ``[*B, S]``     s_t, input of the transition model
-    ``loc``               ``[*B, A]``     μ_θ(s_t), ensemble mean (Eq. 9)
-    ``scale``             ``[*B, A]``     σ_θ(s_t), ensemble std (Eq. 9)
-    ``shift_distance``    ``[*B, 1]``     d_t (optional; 0 when absent)
-    ``action``            ``[*B, A]``     executed a_t (output)
-    ``exploration_scale`` ``[*B, A]``     sqrt(σ² + λ d) (output, RANDOM only)
-    ``action_log_prob``   ``[*B]``        log N(a_t; μ, σ² + λd) (output, RANDOM)
-    ``predicted_observation`` ``[*B, S]`` ŝ_{t+1} (output)
-    ====================  ==============  ======================================
+    ===========================  ============  ==============================================
+    key (default)                shape         meaning
+    ===========================  ============  ==============================================
+    ``observation``              ``[*B, S]``   s_t, input of the transition model
+    ``loc``                      ``[*B, A]``   μ_θ(s_t), ensemble mean (Eq. 9)
+    ``scale``                    ``[*B, A]``   σ_θ(s_t), ensemble std (Eq. 9), not modified
+    ``shift_distance``           ``[*B, 1]``   d_t (optional; 0 when absent)
+    ``action``                   ``[*B, A]``   executed a_t (output)
+    ``exploration_scale``        ``[*B, A]``   sqrt(σ² + λ d) (output, RANDOM only)
+    ``action_log_prob``          ``[*B]``      log N(a_t; μ, σ² + λ d) (output, RANDOM only)
+    ``predicted_observation``    ``[*B, S]``   ŝ_{t+1} (output, all modes)
+    ===========================  ============  ==============================================
 
     Args:
         transition_model: callable ``(observation [*B, S], action [*B, A]) -> [*B, S]``,
@@ -71,8 +73,14 @@ class ShiftAwareNoise(TensorDictModuleBase):
         shift_weight: λ of Eq. 10 (a buffer, so it is checkpointed). Defaults to ``0.5``.
 
     Keyword Args:
-        observation_key, loc_key, scale_key, shift_key, action_key, prediction_key,
-        exploration_scale_key, log_prob_key (NestedKey): the keys of the table above.
+        observation_key (NestedKey): s_t. Defaults to ``"observation"``.
+        loc_key (NestedKey): μ_θ(s_t). Defaults to ``"loc"``.
+        scale_key (NestedKey): σ_θ(s_t). Defaults to ``"scale"``.
+        shift_key (NestedKey): d_t. Defaults to ``"shift_distance"``.
+        action_key (NestedKey): executed action. Defaults to ``"action"``.
+        prediction_key (NestedKey): ŝ_{t+1}. Defaults to ``"predicted_observation"``.
+        exploration_scale_key (NestedKey): total std. Defaults to ``"exploration_scale"``.
+        log_prob_key (NestedKey): log-density. Defaults to ``"action_log_prob"``.
         device (torch.device, optional): device of the ``shift_weight`` buffer.
 
     Examples:
@@ -99,7 +107,7 @@ class ShiftAwareNoise(TensorDictModuleBase):
         "{kwarg}=<your key>."
     )
     _SHAPE_ERR = (
-        "ShiftAwareNoise: {key!r} has shape {got}, expected {expected} ({why}). Fix: {fix}"
+        "ShiftAwareNoise: {key!r} has {what} {got}, expected {expected} ({why}). Fix: {fix}"
     )
     # Lower bound on the Eq. 10 variance so that σ = 0 and d = 0 stay finite.
     _MIN_VARIANCE = 1e-12
@@ -170,11 +178,12 @@ class ShiftAwareNoise(TensorDictModuleBase):
             raise KeyError(self._MISSING_KEY_ERR.format(key=key, what=what, kwarg=kwarg))
         return value
 
-    def _check(self, key, got, expected, why, fix) -> None:
+    def _check(self, key, got, expected, why, fix, what="shape") -> None:
         if tuple(got) != tuple(expected):
+            got, expected = tuple(got), tuple(expected)
             raise ValueError(
                 self._SHAPE_ERR.format(
-                    key=key, got=tuple(got), expected=tuple(expected), why=why, fix=fix
+                    key=key, what=what, got=got, expected=expected, why=why, fix=fix
                 )
             )
 
@@ -187,21 +196,24 @@ class ShiftAwareNoise(TensorDictModuleBase):
         """Samples a_t by Eq. 10 (RANDOM mode) and writes ŝ_{t+1} (all modes)."""
         loc = self._get(tensordict, self.loc_key, "μ(s), the ensemble mean of Eq. 9", "loc_key")
         observation = self._get(
-            tensordict, self.observation_key, "s_t, input of the transition model", "observation_key"
+            tensordict,
+            self.observation_key,
+            "s_t, input of the transition model",
+            "observation_key",
         )
         if loc.ndim < 1:
             raise ValueError(
                 f"ShiftAwareNoise: {self.loc_key!r} must have a trailing action dim [*B, A], "
-                f"got a scalar. Fix: unsqueeze(-1) the actor output."
+                "got a scalar. Fix: unsqueeze(-1) the actor output."
             )
         batch = tuple(loc.shape[:-1])
         self._check(
             self.observation_key,
             observation.shape[:-1],
             batch,
-            f"batch dims of {self.observation_key!r} [*B, S] must match {self.loc_key!r} "
-            f"{tuple(loc.shape)}",
+            f"[*B, S] with the batch dims *B of {self.loc_key!r} {tuple(loc.shape)}",
             "give the observation a trailing feature dim and the same batch dims as loc",
+            what="batch dims",
         )
         random = exploration_type() in (ExplorationType.RANDOM, None)
         if random:
@@ -247,9 +259,9 @@ class ShiftAwareNoise(TensorDictModuleBase):
         tensordict.set(self.prediction_key, prediction)
         return tensordict
 
-    def extra_repr(self) -> str:
+    def __repr__(self) -> str:
         return (
-            f"shift_weight={self.shift_weight.item():g}, loc_key={self.loc_key!r}, "
-            f"scale_key={self.scale_key!r}, shift_key={self.shift_key!r}, "
-            f"action_key={self.action_key!r}, prediction_key={self.prediction_key!r}"
+            f"{type(self).__name__}(shift_weight={self.shift_weight.item():g}, "
+            f"in_keys={self.in_keys}, out_keys={self.out_keys}, "
+            f"projected={self._spec is not None})"
         )

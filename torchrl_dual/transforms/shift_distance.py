@@ -97,9 +97,7 @@ class ShiftDistance(Transform):
             )
         return observation
 
-    def _step(
-        self, tensordict: TensorDictBase, next_tensordict: TensorDictBase
-    ) -> TensorDictBase:
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
         observation = self._get_observation(next_tensordict)
         prediction = tensordict.get(self.prediction_key, None)
         distance = self._distance(prediction, observation, next_tensordict.batch_size)

@@ -1,0 +1,209 @@
+"""Unit tests of ShiftAwareNoise, the shift-aware exploration noise of DUAL Eq. 10."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from tensordict import TensorDict
+from tensordict.nn import TensorDictModule, TensorDictSequential
+from torch import nn
+from torchrl.data import Bounded, Composite
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from torchrl_dual.modules.shift_aware import ShiftAwareNoise
+
+OBS_DIM, ACT_DIM = 3, 2
+
+
+def linear_model(observation, action):
+    """ŝ' = s + B a with a fixed B (the 'original dynamics' of the tests)."""
+    return observation + action @ torch.ones(ACT_DIM, OBS_DIM)
+
+
+def make_td(*batch, shift=None, loc=0.3, scale=0.1):
+    td = TensorDict(
+        observation=torch.randn(*batch, OBS_DIM),
+        loc=torch.full((*batch, ACT_DIM), loc),
+        scale=torch.full((*batch, ACT_DIM), scale),
+        batch_size=batch,
+    )
+    if shift is not None:
+        td["shift_distance"] = torch.as_tensor(shift, dtype=torch.float32).expand(*batch, 1)
+    return td
+
+
+def test_noise_std_is_sqrt_of_variance_plus_weighted_shift_per_env():
+    torch.manual_seed(0)
+    noise = ShiftAwareNoise(linear_model, shift_weight=0.5)
+    td = make_td(2, 20000)
+    td["shift_distance"] = torch.tensor([0.0, 2.0]).view(2, 1, 1).expand(2, 20000, 1)
+    out = noise(td)
+    expected = torch.tensor([0.1, (0.1**2 + 0.5 * 2.0) ** 0.5])  # Eq. 10
+    measured = (out["action"] - 0.3).std(dim=(1, 2))
+    torch.testing.assert_close(measured, expected, rtol=0.02, atol=0)
+    torch.testing.assert_close(out["exploration_scale"][:, 0, 0], expected)
+    assert (out["scale"] == 0.1).all()  # the Eq. 9 std is left untouched
+
+
+def test_log_prob_is_normal_density_of_executed_action_summed_over_action_dim():
+    noise = ShiftAwareNoise(linear_model, shift_weight=0.7)
+    out = noise(make_td(5, shift=0.4))
+    dist = torch.distributions.Normal(out["loc"], (0.1**2 + 0.7 * 0.4) ** 0.5)
+    torch.testing.assert_close(out["action_log_prob"], dist.log_prob(out["action"]).sum(-1))
+    assert out["action_log_prob"].shape == (5,)
+
+
+def test_zero_weight_reduces_to_plain_ensemble_gaussian():
+    torch.manual_seed(1)
+    noise = ShiftAwareNoise(linear_model, shift_weight=0.0)
+    out = noise(make_td(40000, shift=5.0))
+    torch.testing.assert_close(out["exploration_scale"], out["scale"])
+    assert (out["action"] - 0.3).std().item() == pytest.approx(0.1, rel=0.02)
+    dist = torch.distributions.Normal(out["loc"], out["scale"])
+    torch.testing.assert_close(out["action_log_prob"], dist.log_prob(out["action"]).sum(-1))
+
+
+def test_missing_shift_distance_counts_as_zero():
+    torch.manual_seed(2)
+    out = ShiftAwareNoise(linear_model, shift_weight=10.0)(make_td(20000))
+    torch.testing.assert_close(out["exploration_scale"], out["scale"])
+    assert (out["action"] - 0.3).std().item() == pytest.approx(0.1, rel=0.03)
+
+
+@pytest.mark.parametrize(
+    "mode", [ExplorationType.DETERMINISTIC, ExplorationType.MODE, ExplorationType.MEAN]
+)
+def test_deterministic_modes_return_loc_without_noise(mode):
+    noise = ShiftAwareNoise(linear_model)
+    td = make_td(4, shift=3.0)
+    with set_exploration_type(mode):
+        out = noise(td)
+    torch.testing.assert_close(out["action"], out["loc"])
+    assert "exploration_scale" not in out.keys() and "action_log_prob" not in out.keys()
+    torch.testing.assert_close(
+        out["predicted_observation"], linear_model(out["observation"], out["loc"])
+    )
+
+
+def test_random_mode_is_noisy_and_prediction_uses_executed_action():
+    noise = ShiftAwareNoise(linear_model)
+    with set_exploration_type(ExplorationType.RANDOM):
+        out = noise(make_td(4, shift=1.0))
+    assert (out["action"] != out["loc"]).all()
+    torch.testing.assert_close(
+        out["predicted_observation"], linear_model(out["observation"], out["action"])
+    )
+
+
+def test_action_is_projected_on_spec_given_late_and_prediction_uses_projected_action():
+    torch.manual_seed(3)
+    noise = ShiftAwareNoise(linear_model, shift_weight=1.0)
+    out = noise(make_td(1000, shift=4.0))
+    assert out["action"].abs().max() > 1.0  # no spec: no projection
+    noise.spec = Bounded(-0.5, 0.5, shape=(ACT_DIM,))
+    out = noise(make_td(1000, shift=4.0))
+    assert out["action"].abs().max() <= 0.5
+    assert (out["action"].abs() == 0.5).any()
+    torch.testing.assert_close(
+        out["predicted_observation"], linear_model(out["observation"], out["action"])
+    )
+    assert isinstance(noise.spec, Composite) and "action" in noise.spec.keys()
+
+
+def test_custom_keys_are_read_and_written():
+    noise = ShiftAwareNoise(
+        linear_model,
+        observation_key="obs",
+        loc_key=("policy", "mu"),
+        scale_key=("policy", "sigma"),
+        shift_key="d",
+        action_key="act",
+        prediction_key="s_hat",
+        exploration_scale_key="total_std",
+        log_prob_key="logp",
+    )
+    td = TensorDict(
+        obs=torch.zeros(3, OBS_DIM),
+        policy=TensorDict(mu=torch.zeros(3, ACT_DIM), sigma=torch.ones(3, ACT_DIM), batch_size=[3]),
+        d=torch.full((3, 1), 6.0),
+        batch_size=[3],
+    )
+    out = noise(td)
+    assert {"act", "s_hat", "total_std", "logp"} <= set(out.keys())
+    torch.testing.assert_close(out["total_std"], torch.full((3, ACT_DIM), 2.0))  # sqrt(1 + .5*6)
+    assert noise.in_keys == ["obs", ("policy", "mu"), ("policy", "sigma"), "d"]
+
+
+def test_sequential_with_actor_overwrites_the_actor_sample():
+    actor = TensorDictModule(
+        lambda s: (s[..., :ACT_DIM], torch.full_like(s[..., :ACT_DIM], 0.1), s[..., :ACT_DIM]),
+        ["observation"],
+        ["loc", "scale", "action"],
+    )
+    policy = TensorDictSequential(actor, ShiftAwareNoise(linear_model))
+    td = TensorDict(observation=torch.randn(4, OBS_DIM), batch_size=[4])
+    out = policy(td)
+    assert (out["action"] != out["loc"]).all()
+    assert out["exploration_scale"].shape == (4, ACT_DIM)
+
+
+def test_shift_weight_and_model_weights_are_in_state_dict():
+    model = nn.Linear(OBS_DIM + ACT_DIM, OBS_DIM)
+    noise = ShiftAwareNoise(lambda s, a: model(torch.cat([s, a], -1)), shift_weight=0.25)
+    assert noise.state_dict()["shift_weight"] == 0.25
+
+    class Model(nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.net = model
+
+        def forward(self, s, a):
+            return self.net(torch.cat([s, a], -1))
+
+    noise = ShiftAwareNoise(Model())
+    assert "transition_model.net.weight" in noise.state_dict()
+    assert noise(make_td(2))["predicted_observation"].shape == (2, OBS_DIM)
+
+
+@pytest.mark.parametrize(
+    "edit, error, match",
+    [
+        (lambda td: td.exclude("loc"), KeyError, r"'loc'.*loc_key="),
+        (lambda td: td.exclude("observation"), KeyError, r"'observation'.*observation_key="),
+        (lambda td: td.exclude("scale"), KeyError, r"'scale'.*scale_key="),
+        (
+            lambda td: td.set("scale", torch.ones(4, 1)),
+            ValueError,
+            r"'scale' has shape \(4, 1\), expected \(4, 2\).*expand",
+        ),
+        (
+            lambda td: td.set("shift_distance", torch.ones(4)),
+            ValueError,
+            r"'shift_distance' has shape \(4,\), expected \(4, 1\).*ShiftDistance",
+        ),
+        (
+            lambda td: td.set("observation", torch.ones(4, 1, OBS_DIM)),
+            ValueError,
+            r"'observation' has batch dims \(4, 1\), expected \(4,\)",
+        ),
+    ],
+    ids=["missing-loc", "missing-obs", "missing-scale", "scale", "shift", "obs-batch"],
+)
+def test_errors_name_key_shapes_and_fix(edit, error, match):
+    td = edit(make_td(4, shift=1.0))
+    with pytest.raises(error, match=match):
+        ShiftAwareNoise(linear_model)(td)
+
+
+def test_errors_for_bad_model_output_weight_and_spec():
+    bad = ShiftAwareNoise(lambda s, a: a)
+    with pytest.raises(
+        ValueError, match=r"'predicted_observation' has shape \(4, 2\), expected \(4, 3\)"
+    ):
+        bad(make_td(4))
+    with pytest.raises(ValueError, match="shift_weight"):
+        ShiftAwareNoise(linear_model, shift_weight=-1.0)
+    with pytest.raises(TypeError, match="callable"):
+        ShiftAwareNoise("not a model")
+    with pytest.raises(KeyError, match="action_key="):
+        ShiftAwareNoise(linear_model, Composite(other=Bounded(-1, 1, shape=(ACT_DIM,))))

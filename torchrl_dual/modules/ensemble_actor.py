@@ -1,0 +1,170 @@
+"""The Laplace ensemble policy of DUAL (Eq. 9)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from tensordict.utils import NestedKey
+from torchrl.envs.utils import ExplorationType, exploration_type
+
+from torchrl_dual.modules.laplace import LastLayerLaplace
+from torchrl_dual.modules.last_layer import LastLayerActor
+
+_DETERMINISTIC = (ExplorationType.DETERMINISTIC, ExplorationType.MODE, ExplorationType.MEAN)
+
+
+class LaplaceEnsembleActor(TensorDictModuleBase):
+    """Ensemble policy over ``M`` last-layer posterior samples, Eq. (9).
+
+    With ``θ_m ∼ N(θ*, Σ)`` from the last-layer Laplace posterior (Eq. 8) and
+    ``(τ_{a_0})_m`` the action of sub-policy ``m``:
+
+    ``μ(s) = (1/M) Σ_m (τ_{a_0})_m``,  ``σ²(s) = (1/M) Σ_m [(μ(s) − (τ_{a_0})_m)² + σ̄²]``.
+
+    The trunk ``φ(s)`` runs once; the ``M`` sampled heads are applied as one batched
+    contraction ``[*B, d] × [M, A, d] → [M, *B, A]``: no loop over members. Posterior
+    samples are drawn as deviations ``θ_m − θ*`` and added to the actor's *current* head,
+    so between two refits the ensemble stays centred on the policy being trained.
+
+    Under ``ExplorationType.RANDOM`` (or unset) it samples ``action ∼ N(μ, σ²)``; under
+    ``DETERMINISTIC``/``MODE``/``MEAN`` it returns the MAP mean action with no sampling.
+    It writes ``loc`` (μ), ``scale`` (σ), ``epistemic_variance`` (the first term of
+    σ², zero in deterministic mode), ``action`` and ``action_log_prob``.
+
+    Args:
+        actor (LastLayerActor): e.g. :class:`~torchrl_dual.modules.PlannerActor` or
+            :class:`~torchrl_dual.modules.LinearHeadActor` (which makes "IQL + LA").
+
+    Keyword Args:
+        num_samples (int): ``M``. Defaults to ``5`` (paper, Appendix A).
+        prior_precision (str or float): ``"evidence"`` or a fixed value, passed to
+            :class:`~torchrl_dual.modules.LastLayerLaplace`.
+        action_low, action_high (float or Tensor, optional): bounds the sampled action
+            is clamped to.
+        observation_key, loc_key, scale_key, epistemic_key, action_key, log_prob_key
+            (NestedKey): input and output keys.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl.modules import MLP
+        >>> from torchrl_dual.modules import LinearHeadActor
+        >>> actor = LinearHeadActor(MLP(in_features=3, out_features=2, num_cells=[16]), 2)
+        >>> policy = LaplaceEnsembleActor(actor, num_samples=5)
+        >>> data = TensorDict({"observation": torch.randn(64, 3)}, [64])
+        >>> _ = policy.fit_laplace([data])
+        >>> out = policy(TensorDict({"observation": torch.randn(4, 3)}, [4]))
+        >>> out["action"].shape, out["epistemic_variance"].shape
+        (torch.Size([4, 2]), torch.Size([4, 2]))
+    """
+
+    def __init__(
+        self,
+        actor: LastLayerActor,
+        *,
+        num_samples: int = 5,
+        prior_precision: str | float = "evidence",
+        action_low: float | torch.Tensor | None = None,
+        action_high: float | torch.Tensor | None = None,
+        observation_key: NestedKey = "observation",
+        loc_key: NestedKey = "loc",
+        scale_key: NestedKey = "scale",
+        epistemic_key: NestedKey = "epistemic_variance",
+        action_key: NestedKey = "action",
+        log_prob_key: NestedKey = "action_log_prob",
+    ) -> None:
+        super().__init__()
+        if num_samples < 1:
+            raise ValueError(f"num_samples (M) must be >= 1, got {num_samples}.")
+        self.actor = actor
+        in_features = actor.head.in_features
+        self.laplace = LastLayerLaplace(
+            in_features, actor.action_dim, prior_precision=prior_precision
+        )
+        self.num_samples = num_samples
+        self.action_low, self.action_high = action_low, action_high
+        self.in_keys = [observation_key]
+        self.out_keys = [loc_key, scale_key, epistemic_key, action_key, log_prob_key]
+
+    # ------------------------------------------------------------------ Eq. (8)
+    @torch.no_grad()
+    def fit_laplace(
+        self,
+        batches: Iterable[TensorDictBase],
+        *,
+        weight_fn: Callable[[TensorDictBase], torch.Tensor] | None = None,
+    ) -> LastLayerLaplace:
+        """(Re)fits the last-layer posterior on ``batches`` (Algorithm 1, line 8 and 17).
+
+        Streams the trunk features of every batch into the Gram matrix ``G`` with the
+        actor-loss weights ``w_i`` (``weight_fn(batch)``, e.g.
+        ``WeightedMAPActorLoss.advantage_weights``; uniform when omitted), then fits
+        ``P = G / σ_head² + λI`` around the current head. Feed the whole data set: the
+        posterior of Eq. (8) is over the summed loss.
+        """
+        self.laplace.reset()
+        observation_key = self.in_keys[0]
+        for batch in batches:
+            features = self.actor.features(batch.get(observation_key))
+            weights = None if weight_fn is None else weight_fn(batch)
+            self.laplace.accumulate(features, weights)
+        rows = self.actor.head_rows
+        noise_variance = (self.actor.std / self.actor.readout_scale().abs()) ** 2
+        self.laplace.fit(
+            self.actor.head.weight[rows], self.actor.head.bias[rows], noise_variance.detach()
+        )
+        return self.laplace
+
+    # ------------------------------------------------------------------ Eq. (9)
+    def member_actions(self, observation: torch.Tensor) -> torch.Tensor:
+        """Actions of the ``M`` sub-policies, ``[M, *B, A]``, in one batched pass."""
+        features = self.actor.features(observation)
+        head = self.actor.head_output(features)
+        weight, bias = self.laplace.weight_samples_split(self.num_samples)
+        theta = self.laplace.theta_map.to(weight.dtype)
+        d_weight, d_bias = weight - theta[..., :-1], bias - theta[..., -1]
+        deviation = torch.einsum("...d,mad->m...a", features, d_weight)
+        deviation = deviation + d_bias.reshape(self.num_samples, *[1] * (head.ndim - 1), -1)
+        return self.actor.readout(head + deviation, observation)
+
+    def _clamp(self, action: torch.Tensor) -> torch.Tensor:
+        if self.action_low is None and self.action_high is None:
+            return action
+        return action.clamp(self.action_low, self.action_high)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        observation = tensordict.get(self.in_keys[0], default=None)
+        if observation is None:
+            raise KeyError(
+                f"LaplaceEnsembleActor reads {self.in_keys[0]!r}, which the input lacks; it "
+                f"holds {sorted(map(str, tensordict.keys(True, True)))}."
+            )
+        aleatoric = self.actor.std ** 2
+        if exploration_type() in _DETERMINISTIC:
+            loc = self.actor(observation)
+            epistemic = torch.zeros_like(loc)
+            variance = aleatoric.expand_as(loc)
+            action = self._clamp(loc)
+        else:
+            if not bool(self.laplace.fitted):
+                raise RuntimeError(
+                    "LaplaceEnsembleActor samples from the last-layer posterior: call "
+                    "fit_laplace(...) on the offline data first."
+                )
+            members = self.member_actions(observation)
+            loc = members.mean(0)
+            epistemic = members.var(0, unbiased=False)
+            variance = epistemic + aleatoric
+            action = self._clamp(loc + variance.sqrt() * torch.randn_like(loc))
+        scale = variance.sqrt()
+        log_prob = torch.distributions.Normal(loc, scale).log_prob(action).sum(-1)
+        loc_key, scale_key, epistemic_key, action_key, log_prob_key = self.out_keys
+        tensordict.set(loc_key, loc)
+        tensordict.set(scale_key, scale)
+        tensordict.set(epistemic_key, epistemic)
+        tensordict.set(action_key, action)
+        tensordict.set(log_prob_key, log_prob)
+        return tensordict

@@ -1,0 +1,197 @@
+"""Actors whose mean action is an affine read-out of a final ``nn.Linear``.
+
+The weighted MAP actor loss (Eq. 7), its last-layer Laplace approximation (Eq. 8)
+and the ensemble policy (Eq. 9) all work on the split
+``μ(s) = scale ⊙ (W φ(s) + b)[rows] + shift(s)``: a trunk ``φ``, a linear head
+``(W, b)`` and a read-out that is affine in the head output. Two actors provide it:
+
+* :class:`PlannerActor`, DUAL's actor: the distilled one-step planner, whose
+  ``τ_{a_0} = α_1·z − σ_1·v̂`` is affine in the head output ``v̂``;
+* :class:`LinearHeadActor`, any network ending in ``nn.Linear`` (for instance a
+  TorchRL ``MLP`` actor), which turns IQL into "IQL + LA".
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+from torchrl_dual.diffusion.model import TrajectoryDiffusion
+
+LATENTS = ("zero", "sample")
+
+
+class LastLayerActor(nn.Module):
+    """Base class: a Gaussian actor ``N(μ(s), σ²)`` with a linear last layer.
+
+    Subclasses define :meth:`features`, the attribute :attr:`head` (an ``nn.Linear``),
+    the buffer ``head_rows`` (indices of the head outputs that form the action) and
+    :meth:`readout`. The learnable per-dimension ``log_std`` (σ̄ of Eq. 7 and Eq. 9)
+    lives here so that it is saved with the actor.
+    """
+
+    head: nn.Linear
+    head_rows: torch.Tensor
+
+    def __init__(self, action_dim: int, *, init_std: float = 0.3, min_std: float = 1e-3,
+                 max_std: float = 2.0) -> None:
+        super().__init__()
+        if not min_std <= init_std <= max_std:
+            raise ValueError(f"init_std={init_std} must lie in [min_std={min_std}, max_std={max_std}].")
+        self.action_dim = action_dim
+        self.log_std = nn.Parameter(torch.full((action_dim,), math.log(init_std)))
+        self.min_log_std, self.max_log_std = math.log(min_std), math.log(max_std)
+
+    @property
+    def std(self) -> torch.Tensor:
+        """The clamped aleatoric standard deviation ``σ̄`` per action dimension."""
+        return self.log_std.clamp(self.min_log_std, self.max_log_std).exp()
+
+    def features(self, observation: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError
+
+    def readout(
+        self, head_rows: torch.Tensor, observation: torch.Tensor
+    ) -> torch.Tensor:
+        """Maps the selected head outputs ``[..., A]`` to actions (affine)."""
+        raise NotImplementedError
+
+    def readout_scale(self) -> torch.Tensor:
+        """``|∂ action / ∂ head output|`` per action dimension, ``[A]``."""
+        raise NotImplementedError
+
+    def head_output(self, features: torch.Tensor) -> torch.Tensor:
+        """The action rows of the head, ``[..., A]``."""
+        weight = self.head.weight[self.head_rows]
+        bias = self.head.bias[self.head_rows]
+        return features @ weight.T + bias
+
+    def forward(self, observation: torch.Tensor) -> torch.Tensor:
+        """The mean action ``μ(s)``."""
+        return self.readout(self.head_output(self.features(observation)), observation)
+
+
+class PlannerActor(LastLayerActor):
+    """DUAL's actor: ``μ(s) = τ_{a_0}`` of the distilled one-step planner (Eq. 5, Eq. 7).
+
+    The one-step sampler maps ``z_1`` to ``x̂ = α_1·z_1 − σ_1·v̂(z_1 | s_0 = s)``; the
+    action rows of ``v̂`` come from the denoiser's final ``nn.Linear``, so ``τ_{a_0}``
+    is affine in that layer's weights and Eq. 8's Laplace is exact for it.
+
+    Args:
+        model (TrajectoryDiffusion): a one-step planner (``num_steps == 1``), typically
+            the output of :func:`~torchrl_dual.training.progressive_distillation`.
+            Training this actor fine-tunes the planner's weights.
+
+    Keyword Args:
+        latent (str): ``"zero"`` (default) feeds the mean latent ``z_1 = 0`` so ``μ(s)``
+            is a deterministic function of the state, as the Gaussian policy of Eq. 7
+            needs; ``"sample"`` draws ``z_1 ~ N(0, I)`` at every call.
+        init_std (float): initial ``σ̄``. Defaults to ``0.3`` (normalised by nothing:
+            raw action units).
+
+    Examples:
+        >>> import torch
+        >>> from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
+        >>> model = TrajectoryDiffusion(TrajectoryLayout(3, 2, 4), num_steps=1, hidden=32, depth=1)
+        >>> actor = PlannerActor(model)
+        >>> actor(torch.randn(7, 3)).shape
+        torch.Size([7, 2])
+    """
+
+    def __init__(self, model: TrajectoryDiffusion, *, latent: str = "zero", **kwargs) -> None:
+        if model.num_steps != 1:
+            raise ValueError(
+                f"PlannerActor needs a one-step planner, got num_steps={model.num_steps}; "
+                "run progressive_distillation(...) down to final_steps=1 first."
+            )
+        if latent not in LATENTS:
+            raise ValueError(f"Unknown latent {latent!r}; choose one of {LATENTS}.")
+        layout = model.layout
+        super().__init__(layout.action_dim, **kwargs)
+        self.model = model
+        self.latent = latent
+        self.head = model.denoiser.head
+        rows = torch.arange(layout.obs_dim, layout.transition_dim)  # row 0 = (s_0, a_0)
+        self.register_buffer("head_rows", rows)
+        alpha, sigma = model.schedule(torch.ones(()))
+        if latent == "sample" and float(alpha) > 1e-6:
+            raise ValueError(
+                f"latent='sample' needs a schedule that ends in pure noise (α_1 = 0), but the "
+                f"{model.schedule.kind!r} schedule has α_1 = {float(alpha):.2e}; use the cosine "
+                "schedule or latent='zero'."
+            )
+        # With z_1 = 0, or α_1 = 0, τ_{a_0} = -σ_1·v̂: the latent never enters the read-out.
+        self.sigma_1 = float(sigma)
+
+    def _latent_window(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        layout, norm = self.model.layout, self.model.normalizer
+        cond, mask = layout.conditioned_window(norm.normalize_observation(observation))
+        if self.latent == "sample":
+            cond = torch.where(mask, cond, torch.randn_like(cond))
+        return cond, mask
+
+    def features(self, observation: torch.Tensor) -> torch.Tensor:
+        if observation.shape[-1] != self.model.layout.obs_dim:
+            raise ValueError(
+                f"observation must end with dim {self.model.layout.obs_dim}, got "
+                f"{tuple(observation.shape)}."
+            )
+        z, mask = self._latent_window(observation)
+        t = torch.ones(z.shape[:-2], device=z.device)
+        return self.model.denoiser.features(z, t, mask)
+
+    def readout(self, head_rows: torch.Tensor, observation: torch.Tensor) -> torch.Tensor:
+        return self.model.normalizer.denormalize_action(-self.sigma_1 * head_rows)
+
+    def readout_scale(self) -> torch.Tensor:
+        return self.sigma_1 * self.model.normalizer.action_std
+
+
+class LinearHeadActor(LastLayerActor):
+    """Any network ending in ``nn.Linear`` as a Gaussian actor with a Laplace-ready head.
+
+    Args:
+        network (nn.Sequential): e.g. a TorchRL :class:`~torchrl.modules.MLP`; its last
+            module must be an ``nn.Linear``. The first ``action_dim`` outputs are the
+            mean action (the ``loc`` half when a ``NormalParamExtractor`` followed it).
+        action_dim (int): action dimension.
+
+    Keyword Args:
+        init_std (float): initial ``σ̄``. Defaults to ``0.3``.
+
+    Examples:
+        >>> import torch
+        >>> from torchrl.modules import MLP
+        >>> actor = LinearHeadActor(MLP(in_features=3, out_features=4, num_cells=[16, 16]), 2)
+        >>> actor(torch.randn(5, 3)).shape
+        torch.Size([5, 2])
+    """
+
+    def __init__(self, network: nn.Sequential, action_dim: int, **kwargs) -> None:
+        super().__init__(action_dim, **kwargs)
+        layers = list(network.children())
+        if not layers or not isinstance(layers[-1], nn.Linear):
+            raise TypeError(
+                "LinearHeadActor needs an nn.Sequential whose last module is nn.Linear, got "
+                f"{type(layers[-1]).__name__ if layers else 'an empty network'}."
+            )
+        if layers[-1].out_features < action_dim:
+            raise ValueError(
+                f"The last layer has {layers[-1].out_features} outputs, fewer than "
+                f"action_dim={action_dim}."
+            )
+        self.trunk = nn.Sequential(*layers[:-1])
+        self.head = layers[-1]
+        self.register_buffer("head_rows", torch.arange(action_dim))
+
+    def features(self, observation: torch.Tensor) -> torch.Tensor:
+        return self.trunk(observation)
+
+    def readout(self, head_rows: torch.Tensor, observation: torch.Tensor) -> torch.Tensor:
+        return head_rows
+
+    def readout_scale(self) -> torch.Tensor:
+        return torch.ones(self.action_dim, device=self.head.weight.device)

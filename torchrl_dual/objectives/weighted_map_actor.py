@@ -1,0 +1,244 @@
+"""The weighted MAP actor loss of DUAL (Eq. 7)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDict, TensorDictBase, TensorDictParams
+from tensordict.nn import TensorDictModule
+from tensordict.utils import NestedKey
+from torch.distributions import Normal
+from torchrl.objectives.common import LossModule
+
+from torchrl_dual.modules.last_layer import LastLayerActor
+
+WEIGHTINGS = ("advantage", "sac", "uniform")
+
+
+class WeightedMAPActorLoss(LossModule):
+    """Weighted maximum-a-posteriori actor loss, Eq. (7) of DUAL.
+
+    The actor is the Gaussian ``π_θ(a | s) = N(μ_θ(s), σ̄²)`` whose mean ``μ_θ(s) = τ_{a_0}``
+    comes from the distilled one-step planner (:class:`~torchrl_dual.modules.PlannerActor`)
+    or any :class:`~torchrl_dual.modules.LastLayerActor`, and ``σ̄`` is a learnable, clamped,
+    per-dimension standard deviation. Eq. (7) reads
+
+    ``L_π(θ) = −E_{(s,a)∼D}[Q_φ(s, a) · log π_θ(a | s)] − log p(θ)``.
+
+    Raw Q-values can be negative (sparse or negative rewards), which turns the weighted
+    likelihood into a repulsion from data actions and makes ``exp(−L_π)`` unnormalisable,
+    which breaks the posterior reading of Eq. (8). The loss therefore uses positive weights:
+
+    * ``"advantage"`` (default): IQL's ``w = min(exp(β·(Q(s,a) − V(s))), w_max)``, with Q the
+      minimum over the critic ensemble. The loss stays a weighted log-likelihood, so
+      Thm. 3.3 and the closed-form Laplace of Eq. (8) apply as stated;
+    * ``"sac"``: the Cal-QL / SAC actor loss ``−E_{s∼D, a∼π}[Q(s, a) − α·log π(a | s)]``
+      with a reparameterised ``a``, the paper's Cal-QL variant (note after Thm. 3.3);
+    * ``"uniform"``: ``w = 1``, plain behaviour cloning of the planner's first action.
+
+    The prior ``p(θ)`` is flat, as in the paper (density 1); the Laplace step picks its
+    own prior precision by the evidence. Gradients reach only the actor: critic
+    parameters are read detached.
+
+    Args:
+        actor (LastLayerActor): the actor whose ``μ`` and ``σ̄`` are trained.
+
+    Keyword Args:
+        qvalue_network (TensorDictModule, optional): writes ``tensor_keys.state_action_value``
+            from observation and action. Required unless ``weighting="uniform"``.
+        value_network (TensorDictModule, optional): writes ``tensor_keys.value``;
+            required for ``"advantage"``.
+        qvalue_params (TensorDictBase, optional): parameters for ``qvalue_network`` with a
+            leading ensemble dimension (e.g. ``IQLLoss.target_qvalue_network_params``);
+            the minimum over the ensemble is used. Defaults to the module's own weights.
+        value_params (TensorDictBase, optional): parameters for ``value_network``.
+        weighting (str): one of :data:`WEIGHTINGS`. Defaults to ``"advantage"``.
+        temperature (float): ``β`` of the advantage weights. Defaults to ``3.0``.
+        max_weight (float): ``w_max``. Defaults to ``100.0``.
+        entropy_coef (float): ``α`` of the ``"sac"`` variant. Defaults to ``0.2``.
+        reduction (str): ``"none"`` | ``"mean"`` | ``"sum"``. Defaults to ``"mean"``.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl.modules import MLP
+        >>> from torchrl_dual.modules import LinearHeadActor
+        >>> actor = LinearHeadActor(MLP(in_features=3, out_features=2, num_cells=[16]), 2)
+        >>> loss_fn = WeightedMAPActorLoss(actor, weighting="uniform")
+        >>> td = TensorDict({"observation": torch.randn(8, 3), "action": torch.randn(8, 2)}, [8])
+        >>> loss_fn(td)["loss_actor"].backward()
+    """
+
+    @dataclass
+    class _AcceptedKeys:
+        """Configurable tensordict keys.
+
+        Attributes:
+            observation (NestedKey): the state. Defaults to ``"observation"``.
+            action (NestedKey): the data action. Defaults to ``"action"``.
+            state_action_value (NestedKey): the critic's Q output.
+                Defaults to ``"state_action_value"``.
+            value (NestedKey): the value network's output. Defaults to ``"state_value"``.
+            weight (NestedKey): where the per-sample weights are written (for the
+                Laplace fit to reuse them). Defaults to ``"actor_weight"``.
+        """
+
+        observation: NestedKey = "observation"
+        action: NestedKey = "action"
+        state_action_value: NestedKey = "state_action_value"
+        value: NestedKey = "state_value"
+        weight: NestedKey = "actor_weight"
+
+    default_keys = _AcceptedKeys
+    out_keys = ["loss_actor", "weight_mean", "log_prob", "actor_std"]
+
+    actor: LastLayerActor
+    actor_params: TensorDictParams
+    target_actor_params: TensorDictParams
+
+    def __init__(
+        self,
+        actor: LastLayerActor,
+        *,
+        qvalue_network: TensorDictModule | None = None,
+        value_network: TensorDictModule | None = None,
+        qvalue_params: TensorDictBase | None = None,
+        value_params: TensorDictBase | None = None,
+        weighting: str = "advantage",
+        temperature: float = 3.0,
+        max_weight: float = 100.0,
+        entropy_coef: float = 0.2,
+        reduction: str = "mean",
+    ) -> None:
+        super().__init__()
+        if weighting not in WEIGHTINGS:
+            raise ValueError(f"Unknown weighting {weighting!r}; choose one of {WEIGHTINGS}.")
+        if weighting != "uniform" and qvalue_network is None:
+            raise ValueError(f"weighting={weighting!r} needs a qvalue_network.")
+        if weighting == "advantage" and value_network is None:
+            raise ValueError("weighting='advantage' needs a value_network (V(s) of IQL).")
+        self.convert_to_functional(actor, "actor")
+        # Critic modules and weights belong to the critic's loss: kept unregistered so the
+        # actor's optimizer and state_dict never see them.
+        self.__dict__["qvalue_network"] = qvalue_network
+        self.__dict__["value_network"] = value_network
+        self.__dict__["qvalue_params"] = qvalue_params
+        self.__dict__["value_params"] = value_params
+        self.weighting = weighting
+        self.temperature = temperature
+        self.max_weight = max_weight
+        self.entropy_coef = entropy_coef
+        self.reduction = reduction
+
+    @classmethod
+    def from_iql(cls, actor: LastLayerActor, iql_loss, **kwargs) -> WeightedMAPActorLoss:
+        """Builds the advantage-weighted loss on the critics of a TorchRL ``IQLLoss``."""
+        loss = cls(
+            actor,
+            qvalue_network=iql_loss.qvalue_network,
+            value_network=iql_loss.value_network,
+            qvalue_params=iql_loss.target_qvalue_network_params,
+            value_params=iql_loss.value_network_params,
+            **kwargs,
+        )
+        loss.set_keys(
+            state_action_value=iql_loss.tensor_keys.state_action_value,
+            value=iql_loss.tensor_keys.value,
+        )
+        return loss
+
+    def _forward_value_estimator_keys(self, **kwargs) -> None:
+        pass
+
+    @property
+    def in_keys(self) -> list[NestedKey]:
+        return [self.tensor_keys.observation, self.tensor_keys.action]
+
+    # ------------------------------------------------------------------ critics
+    def _evaluate(self, network, params, tensordict: TensorDictBase, key: NestedKey):
+        td = tensordict.select(*network.in_keys, strict=False)
+        if params is None:
+            return network(td).get(key)
+        params = params.detach()
+        if params.batch_dims == 0:
+            with params.to_module(network):
+                return network(td).get(key)
+        outputs = []
+        for member in params.unbind(0):  # a twin critic: two small calls
+            with member.to_module(network):
+                outputs.append(network(td.clone(False)).get(key))
+        return torch.stack(outputs).min(0).values
+
+    def q_value(self, tensordict: TensorDictBase) -> torch.Tensor:
+        """``min_k Q_k(s, a)`` with detached critic weights, shape ``[*B]``."""
+        return self._evaluate(
+            self.qvalue_network, self.qvalue_params, tensordict,
+            self.tensor_keys.state_action_value,
+        ).squeeze(-1)
+
+    @torch.no_grad()
+    def advantage_weights(self, tensordict: TensorDictBase) -> torch.Tensor:
+        """``min(exp(β·(Q(s,a) − V(s))), w_max)``, shape ``[*B]``."""
+        q = self.q_value(tensordict)
+        v = self._evaluate(
+            self.value_network, self.value_params, tensordict, self.tensor_keys.value
+        ).squeeze(-1)
+        return torch.exp(self.temperature * (q - v)).clamp_max(self.max_weight)
+
+    # ------------------------------------------------------------------ loss
+    def _inputs(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
+        values = []
+        for role, dim in (("observation", None), ("action", self.actor.action_dim)):
+            key = getattr(self.tensor_keys, role)
+            value = tensordict.get(key, default=None)
+            if value is None:
+                raise KeyError(
+                    f"The input has no {role} entry {key!r}; it holds "
+                    f"{sorted(map(str, tensordict.keys(True, True)))}. Rename it or call "
+                    f"loss.set_keys({role}=...)."
+                )
+            if dim is not None and value.shape[-1] != dim:
+                raise ValueError(
+                    f"{role} must end with dim {dim}, got shape {tuple(value.shape)}."
+                )
+            if not torch.isfinite(value).all():
+                bad = int((~torch.isfinite(value)).sum())
+                raise ValueError(f"{role} holds {bad} NaN/inf entries; clean the batch first.")
+            values.append(value)
+        return values[0], values[1]
+
+    def actor_loss(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, dict]:
+        """Per-sample loss of Eq. (7) for the configured weighting, and diagnostics."""
+        observation, action = self._inputs(tensordict)
+        with self.actor_params.to_module(self.actor):
+            loc = self.actor(observation)
+            dist = Normal(loc, self.actor.std.expand_as(loc))
+            if self.weighting == "sac":
+                sample = dist.rsample()
+                log_prob = dist.log_prob(sample).sum(-1)
+                td = tensordict.select(*self.qvalue_network.in_keys, strict=False).clone(False)
+                td.set(self.tensor_keys.action, sample)
+                loss = self.entropy_coef * log_prob - self.q_value(td)
+                weight = torch.ones_like(log_prob)
+            else:
+                log_prob = dist.log_prob(action).sum(-1)
+                if self.weighting == "advantage":
+                    weight = self.advantage_weights(tensordict)
+                else:
+                    weight = torch.ones_like(log_prob)
+                loss = -weight * log_prob
+        metadata = {
+            "weight_mean": weight.mean().detach(),
+            "log_prob": log_prob.mean().detach(),
+            "actor_std": self.actor.std.mean().detach(),
+            "_weight": weight.detach(),
+        }
+        return loss, metadata
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDict:
+        loss, metadata = self.actor_loss(tensordict)
+        weight = metadata.pop("_weight")
+        tensordict.set(self.tensor_keys.weight, weight)
+        loss = self._reduce_loss(loss, tensordict=tensordict)
+        return TensorDict({"loss_actor": loss, **metadata}, batch_size=[])
