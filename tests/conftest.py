@@ -59,10 +59,11 @@ def create_mock_model(
 ) -> TrajectoryDiffusion:
     """A tiny planner; with ``fit`` its normalizer holds non-trivial statistics."""
     layout = layout or create_mock_layout()
-    torch.manual_seed(seed)
-    model = TrajectoryDiffusion(
-        layout, denoiser, num_steps=num_steps, hidden=HIDDEN, depth=DEPTH
-    )
+    with torch.random.fork_rng():  # seeded weights, global generator left as it was
+        torch.manual_seed(seed)
+        model = TrajectoryDiffusion(
+            layout, denoiser, num_steps=num_steps, hidden=HIDDEN, depth=DEPTH
+        )
     if fit:
         gen = torch.Generator().manual_seed(seed + 1)
         obs = torch.randn(256, layout.obs_dim, generator=gen) * 3.0 + 1.5
@@ -146,7 +147,7 @@ def train(loss_module: nn.Module, sample, num_updates: int, *, lr: float = 1e-3)
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
-        history.append(float(loss))
+        history.append(loss.detach().item())
     return history
 
 

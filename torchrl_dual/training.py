@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import torch
 from tensordict import TensorDictBase
@@ -13,6 +13,36 @@ from tqdm.auto import tqdm
 from torchrl_dual.diffusion.model import TrajectoryDiffusion
 from torchrl_dual.objectives.diffusion_planner import DiffusionPlannerLoss
 from torchrl_dual.objectives.distillation import DistillationLoss
+
+
+class ExponentialMovingAverage:
+    """An exponential moving average of a module's floating-point parameters.
+
+    Examples:
+        >>> import torch
+        >>> net = torch.nn.Linear(2, 1)
+        >>> ema = ExponentialMovingAverage(net, decay=0.9)
+        >>> with torch.no_grad():
+        ...     _ = net.weight.add_(1.0)
+        >>> ema.update(); ema.copy_to(net)
+    """
+
+    def __init__(self, module: torch.nn.Module, decay: float = 0.999) -> None:
+        if not 0.0 <= decay < 1.0:
+            raise ValueError(f"EMA decay must lie in [0, 1), got {decay}.")
+        self.decay = decay
+        self.params = [p for p in module.parameters() if p.is_floating_point()]
+        self.shadow = [p.detach().clone() for p in self.params]
+
+    @torch.no_grad()
+    def update(self) -> None:
+        torch._foreach_lerp_(self.shadow, [p.detach() for p in self.params], 1.0 - self.decay)
+
+    @torch.no_grad()
+    def copy_to(self, module: torch.nn.Module) -> None:
+        """Writes the averages into ``module`` (the module the EMA was built on)."""
+        for param, average in zip(module.parameters(), self.shadow):
+            param.copy_(average)
 
 
 def run_updates(
@@ -28,6 +58,8 @@ def run_updates(
     log_every: int = 100,
     step_offset: int = 0,
     progress: bool = True,
+    cosine_lr: bool = False,
+    ema: ExponentialMovingAverage | None = None,
 ) -> dict[str, float]:
     """Runs ``num_updates`` gradient steps on the sum of the ``loss_*`` entries.
 
@@ -49,6 +81,11 @@ def run_updates(
         ['loss_diffusion', 'x0_error']
     """
     params = [p for p in loss_module.parameters() if p.requires_grad]
+    scheduler = (
+        torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, max(num_updates, 1))
+        if cosine_lr
+        else None
+    )
     sums: dict[str, float] = {}
     count = 0
     averages: dict[str, float] = {}
@@ -61,6 +98,10 @@ def run_updates(
         if grad_clip is not None:
             torch.nn.utils.clip_grad_norm_(params, grad_clip)
         optimizer.step()
+        if scheduler is not None:
+            scheduler.step()
+        if ema is not None:
+            ema.update()
         for key, value in out.items():
             if value.numel() == 1:
                 sums[key] = sums.get(key, 0.0) + float(value.detach())
@@ -94,11 +135,12 @@ def train_planner(
 def progressive_distillation(
     teacher: TrajectoryDiffusion,
     sample: Callable[[], TensorDictBase],
-    updates_per_round: int,
+    updates_per_round: int | Sequence[int],
     *,
     final_steps: int = 1,
     lr: float = 1e-4,
     action_condition_prob: float = 0.5,
+    ema_decay: float | None = 0.995,
     logger=None,
     progress: bool = True,
     **kwargs,
@@ -107,7 +149,11 @@ def progressive_distillation(
 
     Each round deep-copies its teacher into the student, halves ``num_steps`` and
     minimises :class:`DistillationLoss`; the student becomes the next teacher.
-    ``N = 32`` to ``1`` takes five rounds: 32 → 16 → 8 → 4 → 2 → 1.
+    ``N = 32`` to ``1`` takes five rounds: 32 → 16 → 8 → 4 → 2 → 1. The last rounds are
+    the hardest (a one-step map must split modes sharply), so ``updates_per_round`` may
+    be a sequence, one entry per round, that spends more updates there. Within a round
+    the learning rate decays along a cosine and the student kept at the end is the
+    exponential moving average of its weights (``ema_decay``; ``None`` keeps the last).
 
     Returns:
         the final student (the input ``teacher`` is left unchanged).
@@ -117,22 +163,35 @@ def progressive_distillation(
         raise ValueError(
             f"final_steps={final_steps} must be N / 2^k for the teacher's N={steps}."
         )
+    num_rounds = (steps // final_steps).bit_length() - 1
+    if isinstance(updates_per_round, int):
+        updates_per_round = [updates_per_round] * num_rounds
+    if len(updates_per_round) != num_rounds:
+        raise ValueError(
+            f"updates_per_round has {len(updates_per_round)} entries but distilling "
+            f"{steps} -> {final_steps} steps takes {num_rounds} rounds."
+        )
     current = teacher
-    while current.num_steps > final_steps:
+    for round_updates in updates_per_round:
         student = copy.deepcopy(current)
         student.num_steps = current.num_steps // 2
         loss = DistillationLoss(student, current, action_condition_prob=action_condition_prob)
         optimizer = torch.optim.Adam(loss.parameters(), lr=lr)
+        ema = None if ema_decay is None else ExponentialMovingAverage(student, ema_decay)
         run_updates(
             loss,
             sample,
-            updates_per_round,
+            round_updates,
             optimizer,
             desc=f"distil {current.num_steps}->{student.num_steps}",
             logger=logger,
             log_prefix=f"distill_{student.num_steps}/",
             progress=progress,
+            cosine_lr=True,
+            ema=ema,
             **kwargs,
         )
+        if ema is not None:
+            ema.copy_to(student)
         current = student
     return current

@@ -163,7 +163,9 @@ def test_state_dict_round_trip_restores_weights_num_steps_and_normalizer(make_mo
         assert torch.equal(target.state_dict()[name], value), name
     cond, mask = source.layout.conditioned_window(torch.randn(2, source.layout.obs_dim))
     noise = torch.randn_like(cond)
-    assert torch.equal(source.sample(cond, mask, noise=noise), target.sample(cond, mask, noise=noise))
+    assert torch.equal(
+        source.sample(cond, mask, noise=noise), target.sample(cond, mask, noise=noise)
+    )
     assert {"_num_steps", "normalizer.obs_mean", "normalizer.action_std"} <= set(
         source.state_dict()
     )

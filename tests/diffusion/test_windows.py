@@ -25,7 +25,7 @@ def _transitions(lengths=LENGTHS, traj_key="episode"):
             "action": torch.randn(total, 2),
             traj_key: episode,
             "step": step,
-            "index": torch.arange(total),
+            "global_step": torch.arange(total),
         },
         batch_size=[total],
     )
@@ -40,7 +40,7 @@ def test_windows_never_cross_an_episode_boundary():
         episode = windows["episode"]
         assert (episode == episode[:, :1]).all()
         assert (windows["step"].diff(dim=1) == 1).all()
-        assert (windows["index"].diff(dim=1) == 1).all()
+        assert (windows["global_step"].diff(dim=1) == 1).all()
         seen |= set(episode[:, 0].tolist())
     long_enough = {i for i, n in enumerate(LENGTHS) if n >= HORIZON + 1}
     assert seen == long_enough
@@ -49,8 +49,8 @@ def test_windows_never_cross_an_episode_boundary():
 def test_windows_carry_the_stored_values_of_their_steps():
     data = _transitions()
     windows = WindowReplayBuffer(data, horizon=HORIZON, batch_size=16).sample()
-    assert torch.equal(windows["observation"], data["observation"][windows["index"]])
-    assert torch.equal(windows["action"], data["action"][windows["index"]])
+    assert torch.equal(windows["observation"], data["observation"][windows["global_step"]])
+    assert torch.equal(windows["action"], data["action"][windows["global_step"]])
 
 
 def test_an_episode_exactly_one_window_long_is_sampled_whole():

@@ -108,7 +108,13 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         self.laplace.reset()
         observation_key = self.in_keys[0]
         for batch in batches:
-            features = self.actor.features(batch.get(observation_key))
+            observation = batch.get(observation_key, default=None)
+            if observation is None:
+                raise KeyError(
+                    f"fit_laplace reads {observation_key!r}, which a batch lacks; it holds "
+                    f"{sorted(map(str, batch.keys(True, True)))}."
+                )
+            features = self.actor.features(observation)
             weights = None if weight_fn is None else weight_fn(batch)
             self.laplace.accumulate(features, weights)
         rows = self.actor.head_rows

@@ -81,6 +81,9 @@ class ShiftAwareNoise(TensorDictModuleBase):
         prediction_key (NestedKey): ŝ_{t+1}. Defaults to ``"predicted_observation"``.
         exploration_scale_key (NestedKey): total std. Defaults to ``"exploration_scale"``.
         log_prob_key (NestedKey): log-density. Defaults to ``"action_log_prob"``.
+        action_projection (callable, optional): applied to the action after the spec
+            projection, before it is stored and fed to the transition model; e.g. the
+            argmax one-hot map of a discrete env, so the stored action is the executed one.
         device (torch.device, optional): device of the ``shift_weight`` buffer.
 
     Examples:
@@ -126,6 +129,7 @@ class ShiftAwareNoise(TensorDictModuleBase):
         prediction_key: NestedKey = "predicted_observation",
         exploration_scale_key: NestedKey = "exploration_scale",
         log_prob_key: NestedKey = "action_log_prob",
+        action_projection: Callable[[Tensor], Tensor] | None = None,
         device: torch.device | None = None,
     ):
         if not callable(transition_model):
@@ -150,6 +154,7 @@ class ShiftAwareNoise(TensorDictModuleBase):
         self.out_keys = [action_key, exploration_scale_key, log_prob_key, prediction_key]
         super().__init__()
         self.transition_model = transition_model
+        self.action_projection = action_projection
         self.register_buffer(
             "shift_weight", torch.tensor(float(shift_weight), dtype=torch.float32, device=device)
         )
@@ -188,9 +193,11 @@ class ShiftAwareNoise(TensorDictModuleBase):
             )
 
     def _project(self, action: Tensor) -> Tensor:
-        if self._spec is None:
-            return action
-        return self._spec[self.action_key].project(action)
+        if self._spec is not None:
+            action = self._spec[self.action_key].project(action)
+        if self.action_projection is not None:
+            action = self.action_projection(action)
+        return action
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         """Samples a_t by Eq. 10 (RANDOM mode) and writes ŝ_{t+1} (all modes)."""

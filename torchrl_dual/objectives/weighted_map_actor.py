@@ -159,7 +159,7 @@ class WeightedMAPActorLoss(LossModule):
     def _evaluate(self, network, params, tensordict: TensorDictBase, key: NestedKey):
         td = tensordict.select(*network.in_keys, strict=False)
         if params is None:
-            return network(td).get(key)
+            params = TensorDict.from_module(network)
         params = params.detach()
         if params.batch_dims == 0:
             with params.to_module(network):

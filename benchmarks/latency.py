@@ -1,0 +1,248 @@
+"""Batch-1 action latency: Gaussian MLP actor vs the N-step planner vs the distilled planner.
+
+Measures, in one process, the time one policy call takes on a ``[1, obs_dim]`` observation
+(what an env step costs the agent). Distillation exists for speed (DESIGN.md,
+"Performance principles"), so the student is always timed next to its teacher.
+
+Weights are untrained: the cost of a forward pass does not depend on the weight values,
+only on the architecture and the number of sampling steps.
+
+Candidates live in :data:`BUILDERS` (name -> builder). To add one, e.g. ``dual_m5``, write
+``def build_dual_m5(cfg) -> TensorDictModuleBase`` and register it; the table and the JSON
+pick it up. Timings are interleaved (round-robin over candidates) so that load from other
+processes affects every candidate alike.
+
+Usage::
+
+    python benchmarks/latency.py                          # PointMaze sizes, 1 thread
+    python benchmarks/latency.py --threads 2 --json latency.json
+    python benchmarks/latency.py --only planner_n1 mlp_actor --reps 2000
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDict
+from tensordict.nn import TensorDictModule, TensorDictModuleBase
+from torchrl.data import Bounded
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.modules import MLP, NormalParamExtractor, ProbabilisticActor, TanhNormal
+
+from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
+from torchrl_dual.modules.planner_policy import PlannerPolicy
+
+
+@dataclass
+class Config:
+    obs_dim: int = 6  # PointMaze: position, velocity, goal
+    action_dim: int = 2
+    horizon: int = 8  # H; the planner diffuses H + 1 rows (paper, Appendix A)
+    hidden: int = 256  # width of the MLP actor and of the planner denoiser
+    depth: int = 3  # MLP hidden layers / denoiser residual blocks
+    teacher_steps: int = 32  # N of the teacher planner
+
+
+# ----------------------------------------------------------------------------- builders
+def build_mlp_actor(cfg: Config) -> TensorDictModuleBase:
+    """TorchRL's Gaussian actor: MLP -> (loc, scale) -> TanhNormal."""
+    net = torch.nn.Sequential(
+        MLP(
+            in_features=cfg.obs_dim,
+            out_features=2 * cfg.action_dim,
+            num_cells=[cfg.hidden] * cfg.depth,
+            activation_class=torch.nn.SiLU,
+        ),
+        NormalParamExtractor(),
+    )
+    spec = Bounded(-1.0, 1.0, shape=(cfg.action_dim,))
+    return ProbabilisticActor(
+        TensorDictModule(net, in_keys=["observation"], out_keys=["loc", "scale"]),
+        in_keys=["loc", "scale"],
+        spec=spec,
+        distribution_class=TanhNormal,
+        distribution_kwargs={"low": spec.space.low, "high": spec.space.high},
+    )
+
+
+def _planner(cfg: Config, num_steps: int) -> TensorDictModuleBase:
+    layout = TrajectoryLayout(cfg.obs_dim, cfg.action_dim, cfg.horizon)
+    model = TrajectoryDiffusion(layout, num_steps=num_steps, hidden=cfg.hidden, depth=cfg.depth)
+    return PlannerPolicy(model, action_low=-1.0, action_high=1.0)
+
+
+def build_planner_n32(cfg: Config) -> TensorDictModuleBase:
+    """The teacher: ``TrajectoryDiffusion`` sampled with N DDIM steps."""
+    return _planner(cfg, cfg.teacher_steps)
+
+
+def build_planner_n1(cfg: Config) -> TensorDictModuleBase:
+    """The distilled student: same architecture, one DDIM step."""
+    return _planner(cfg, 1)
+
+
+BUILDERS: dict[str, Callable[[Config], TensorDictModuleBase]] = {
+    "mlp_actor": build_mlp_actor,
+    "planner_n32": build_planner_n32,
+    "planner_n1": build_planner_n1,
+}
+REFERENCES = ("mlp_actor", "planner_n32")
+
+
+# ----------------------------------------------------------------------------- timing
+def measure(
+    policies: dict[str, TensorDictModuleBase],
+    observation: torch.Tensor,
+    *,
+    reps: int,
+    warmup: int,
+    rounds: int,
+) -> dict[str, list[float]]:
+    """Per-call wall times in ms, collected round-robin over the candidates."""
+    tds = {name: TensorDict({"observation": observation.clone()}, [1]) for name in policies}
+    times: dict[str, list[float]] = {name: [] for name in policies}
+    per_round = max(1, reps // rounds)
+    with torch.no_grad():
+        for name, policy in policies.items():
+            for _ in range(warmup):
+                policy(tds[name])
+        for _ in range(rounds):
+            for name, policy in policies.items():
+                td = tds[name]
+                for _ in range(per_round):
+                    start = time.perf_counter_ns()
+                    policy(td)
+                    times[name].append((time.perf_counter_ns() - start) / 1e6)
+    return times
+
+
+def summarise(times: dict[str, list[float]]) -> dict[str, dict[str, float]]:
+    rows = {}
+    for name, values in times.items():
+        rows[name] = {
+            "median": statistics.median(values),
+            "p90": statistics.quantiles(values, n=10)[-1],
+        }
+    return rows
+
+
+def markdown_table(rows: dict[str, dict[str, float]]) -> str:
+    def ratio(name, ref):
+        return f"{rows[name]['median'] / rows[ref]['median']:.3g}" if ref in rows else "n/a"
+
+    lines = [
+        "| name | median ms | p90 ms | ratio vs mlp_actor | ratio vs planner_n32 |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for name, row in rows.items():
+        lines.append(
+            f"| {name} | {row['median']:.3f} | {row['p90']:.3f} | "
+            f"{ratio(name, 'mlp_actor')} | {ratio(name, 'planner_n32')} |"
+        )
+    return "\n".join(lines)
+
+
+def profile(
+    policy: TensorDictModuleBase, observation: torch.Tensor, reps: int, exploration
+) -> None:
+    """Prints the functions where ``reps`` calls of ``policy`` spend their time."""
+    import cProfile
+    import pstats
+
+    td = TensorDict({"observation": observation.clone()}, [1])
+    profiler = cProfile.Profile()
+    with torch.no_grad(), set_exploration_type(exploration):
+        for _ in range(10):
+            policy(td)
+        profiler.enable()
+        for _ in range(reps):
+            policy(td)
+        profiler.disable()
+    print()
+    pstats.Stats(profiler).sort_stats("tottime").print_stats(15)
+
+
+def main(argv: list[str] | None = None) -> dict[str, float]:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    defaults = Config()
+    parser.add_argument("--obs-dim", type=int, default=defaults.obs_dim)
+    parser.add_argument("--action-dim", type=int, default=defaults.action_dim)
+    parser.add_argument("--horizon", type=int, default=defaults.horizon)
+    parser.add_argument("--hidden", type=int, default=defaults.hidden)
+    parser.add_argument("--depth", type=int, default=defaults.depth)
+    parser.add_argument("--teacher-steps", type=int, default=defaults.teacher_steps)
+    parser.add_argument("--threads", type=int, default=1, help="torch.set_num_threads")
+    parser.add_argument("--reps", type=int, default=1000, help="timed calls per candidate")
+    parser.add_argument("--warmup", type=int, default=50, help="untimed calls per candidate")
+    parser.add_argument("--rounds", type=int, default=10, help="round-robin rounds")
+    parser.add_argument(
+        "--exploration",
+        choices=("random", "deterministic"),
+        default="random",
+        help="exploration type during timing (random = data collection)",
+    )
+    parser.add_argument("--only", nargs="+", choices=sorted(BUILDERS), default=None)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", metavar="PATH", help="write {name: median_ms} here")
+    parser.add_argument(
+        "--profile",
+        metavar="NAME",
+        choices=sorted(BUILDERS),
+        help="after timing, print a cProfile of --reps calls of this candidate",
+    )
+    args = parser.parse_args(argv)
+
+    torch.set_num_threads(args.threads)
+    torch.manual_seed(args.seed)
+    cfg = Config(
+        args.obs_dim, args.action_dim, args.horizon, args.hidden, args.depth, args.teacher_steps
+    )
+    names = args.only or list(BUILDERS)
+    policies = {name: BUILDERS[name](cfg).eval() for name in names}
+    observation = torch.randn(1, cfg.obs_dim)
+    exploration = {"random": ExplorationType.RANDOM, "deterministic": ExplorationType.DETERMINISTIC}
+    with set_exploration_type(exploration[args.exploration]):
+        times = measure(
+            policies, observation, reps=args.reps, warmup=args.warmup, rounds=args.rounds
+        )
+    rows = summarise(times)
+
+    print(
+        f"batch-1 policy latency | torch {torch.__version__} | threads={torch.get_num_threads()} "
+        f"| {platform.processor() or platform.machine()} | obs_dim={cfg.obs_dim} "
+        f"action_dim={cfg.action_dim} horizon={cfg.horizon} hidden={cfg.hidden} "
+        f"depth={cfg.depth} | exploration={args.exploration} | {args.reps} reps after "
+        f"{args.warmup} warm-up | untrained weights (latency does not depend on them)\n"
+    )
+    print(markdown_table(rows))
+    if {"mlp_actor", "planner_n32", "planner_n1"} <= set(rows):
+        speedup = rows["planner_n32"]["median"] / rows["planner_n1"]["median"]
+        overhead = rows["planner_n1"]["median"] / rows["mlp_actor"]["median"]
+        print(
+            f"\ngoal (distillation issue): planner_n1 >= 20x faster than planner_n32: "
+            f"{speedup:.1f}x ({'met' if speedup >= 20 else 'MISSED'}); within 2x of "
+            f"mlp_actor: {overhead:.2f}x ({'met' if overhead <= 2 else 'MISSED'})"
+        )
+    medians = {name: row["median"] for name, row in rows.items()}
+    if args.profile:
+        profile(
+            BUILDERS[args.profile](cfg).eval(),
+            observation,
+            args.reps,
+            exploration[args.exploration],
+        )
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(medians, f, indent=2)
+    return medians
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,287 @@
+"""The state of one DUAL run and the steps of Algorithm 1 that act on it.
+
+:class:`DualRun` owns the data, networks, losses, optimizers, replay buffers, logger
+and counters of a run, checkpoints all of them atomically, and resumes from them.
+``recipes/o2o.py`` calls its methods in the order of Algorithm 1.
+"""
+
+from __future__ import annotations
+
+import random
+from pathlib import Path
+
+import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
+from tensordict import TensorDictBase
+from torchrl.collectors import Collector
+from torchrl.data import OfflineToOnlineReplayBuffer
+from torchrl.envs.utils import ExplorationType
+from torchrl.record.loggers import get_logger
+from tqdm.auto import tqdm
+
+from torchrl_dual import TransitionModel
+from torchrl_dual.checkpoint import RunCheckpoint, rng_state, set_rng_state
+from torchrl_dual.data import TRANSITION_KEYS
+from torchrl_dual.diffusion import WindowReplayBuffer
+from torchrl_dual.modules import PlannerActor
+from torchrl_dual.training import progressive_distillation, train_planner
+
+import o2o_setup as setup
+
+STAGES = ("planner", "distillation", "actor_critic", "laplace", "offline_eval")
+# Settings that may change when a run is resumed; everything else must match.
+_RESUMABLE_KEYS = ("resume", "progress", "interrupt_at_frames", "num_threads", "device")
+
+
+class DualRun:
+    """Everything one run of Algorithm 1 needs, with checkpoint and resume."""
+
+    def __init__(self, cfg: DictConfig) -> None:
+        self.cfg = cfg
+        torch.set_num_threads(cfg.num_threads)
+        self.seed_everything(cfg.seed)
+        self.output_dir = Path(cfg.output_dir)
+        fingerprint = {
+            k: v for k, v in OmegaConf.to_container(cfg, resolve=True).items()
+            if k not in _RESUMABLE_KEYS
+        }
+        self.checkpoint = RunCheckpoint(self.output_dir / "checkpoint.pt", fingerprint)
+        if self.checkpoint.exists() and not cfg.resume:
+            raise FileExistsError(
+                f"{self.checkpoint.path} exists: pass resume=true to continue that run, or "
+                "choose another output_dir (or delete it) to start afresh."
+            )
+        # ---- data and envs (Alg. 1 line 1)
+        self.data = setup.make_offline_dataset(cfg)
+        self.env = setup.make_train_env(cfg)
+        setup.check_dims(self.env, self.data)
+        self.evaluate_policy = setup.make_evaluator(cfg, self.data)
+        self.windows = WindowReplayBuffer(
+            self.data.transitions, cfg.planner.horizon, cfg.planner.batch_size
+        )
+        self.offline_buffer = setup.make_offline_buffer(self.data, cfg)
+        # ---- networks: teacher g_θ', one-step transition model and actor π_θ
+        self.teacher = setup.make_planner(cfg, self.data)
+        self.transition = TransitionModel(setup.one_step_like(self.teacher))
+        self.actor = PlannerActor(
+            setup.one_step_like(self.teacher), latent=cfg.actor.latent,
+            init_std=cfg.actor.init_std,
+        )
+        self.critic = setup.make_critic(cfg, self.actor, self.data)
+        self.actor_loss = setup.make_actor_loss(cfg, self.actor, self.critic)
+        self.actor_optimizer = torch.optim.Adam(self.actor_loss.parameters(), lr=cfg.actor.lr)
+        self.ensemble, self.policy = setup.make_policies(cfg, self.actor, self.transition, self.env)
+        self.replay = OfflineToOnlineReplayBuffer(
+            self.offline_buffer,
+            online_capacity=max(cfg.budget.online_frames, 1),
+            offline_fraction=cfg.online.offline_fraction,
+            batch_size=cfg.online.batch_size,
+        )
+        # ---- counters
+        self.stages_done: list[str] = []
+        self.frames = 0
+        self.updates = 0
+        self.updates_since_refit = 0
+        self.update_credit = 0.0
+        self.next_episode = int(self.data.transitions["episode"].max()) + 1
+        self.history: list[dict] = []
+        logger_state = None
+        if cfg.resume and self.checkpoint.exists():
+            logger_state = self.load()
+        self.logger = get_logger(
+            cfg.logger.backend, str(self.output_dir / "logs"), "dual", state_dict=logger_state
+        )
+
+    # ------------------------------------------------------------------ bookkeeping
+    @staticmethod
+    def seed_everything(seed: int) -> None:
+        random.seed(seed)
+        np.random.seed(seed)
+        torch.manual_seed(seed)
+
+    def _modules(self) -> dict:
+        return {
+            "teacher": self.teacher,
+            "transition": self.transition,
+            "ensemble": self.ensemble,  # the actor, its σ̄ and the Laplace posterior
+            "critic": self.critic.loss,
+            "critic_optimizer": self.critic.optimizer,
+            "actor_optimizer": self.actor_optimizer,
+        }
+
+    def save(self) -> None:
+        """Checkpoints everything needed to continue (atomic write)."""
+        online = self.replay.online_buffer
+        state = {name: module.state_dict() for name, module in self._modules().items()}
+        state.update(
+            stages_done=list(self.stages_done),
+            frames=self.frames,
+            updates=self.updates,
+            updates_since_refit=self.updates_since_refit,
+            update_credit=self.update_credit,
+            next_episode=self.next_episode,
+            history=list(self.history),
+            online_data=online[: len(online)].clone() if len(online) else None,
+            rng=rng_state(),
+            logger=self.logger.state_dict() if hasattr(self.logger, "state_dict") else None,
+        )
+        self.checkpoint.save(state)
+
+    def load(self):
+        state = self.checkpoint.load()
+        try:
+            for name, module in self._modules().items():
+                module.load_state_dict(state[name])
+        except (KeyError, RuntimeError) as err:
+            raise RuntimeError(
+                f"The checkpoint {self.checkpoint.path} does not fit this run's networks "
+                f"({err}). Resume with the settings that wrote it, or use another output_dir."
+            ) from err
+        for key in ("stages_done", "frames", "updates", "updates_since_refit",
+                    "update_credit", "next_episode", "history"):
+            setattr(self, key, state[key])
+        if state["online_data"] is not None:
+            self.replay.extend(state["online_data"])
+        set_rng_state(state["rng"])
+        return state["logger"]
+
+    def stage(self, name: str, fn) -> None:
+        """Runs one offline step of Algorithm 1 unless a resumed run already did it."""
+        if name in self.stages_done:
+            print(f"[dual] {name}: done in the checkpoint, skipped")
+            return
+        fn()
+        self.stages_done.append(name)
+        self.save()
+
+    def log(self, values: dict, step: int, prefix: str) -> None:
+        for key, value in values.items():
+            self.logger.log_scalar(f"{prefix}{key}", float(value), step=step)
+
+    # ------------------------------------------------------------------ offline phase
+    def pretrain_planner(self) -> None:
+        """Alg. 1 lines 3-4: θ' ← θ' − λ_g ∇ L_VLB on D_offline (Eq. 3)."""
+        p = self.cfg.planner
+        train_planner(
+            self.teacher, self.windows.sample, self.cfg.budget.planner_updates, lr=p.lr,
+            action_condition_prob=p.action_condition_prob, logger=self.logger,
+            log_prefix="planner/", progress=self.cfg.progress,
+        )
+
+    def distill(self) -> None:
+        """Alg. 1 line 5: distil g_θ' into the one-step π_θ and p(s'|s, a; θ)."""
+        student = progressive_distillation(
+            self.teacher, self.windows.sample, list(self.cfg.budget.distill_updates),
+            lr=self.cfg.distillation.lr, action_condition_prob=self.cfg.planner.action_condition_prob,
+            logger=self.logger, progress=self.cfg.progress,
+        )
+        self.transition.sampler.model.load_state_dict(student.state_dict())
+        self.actor.model.load_state_dict(student.state_dict())
+
+    def update(self, batch: TensorDictBase) -> dict:
+        """One critic (IQL) and one actor (Eq. 7) gradient step, Alg. 1 lines 7-8 / 15-16."""
+        critic = self.critic
+        q_loss, _ = critic.loss.qvalue_loss(batch)
+        v_loss, _ = critic.loss.value_loss(batch)
+        critic.optimizer.zero_grad(set_to_none=True)
+        (q_loss + v_loss).backward()
+        critic.optimizer.step()
+        critic.target_updater.step()
+        out = self.actor_loss(batch)
+        self.actor_optimizer.zero_grad(set_to_none=True)
+        out["loss_actor"].backward()
+        self.actor_optimizer.step()
+        self.updates += 1
+        self.updates_since_refit += 1
+        return {"loss_qvalue": q_loss.item(), "loss_value": v_loss.item(),
+                **{k: v.item() for k, v in out.items()}}
+
+    def pretrain_actor_critic(self) -> None:
+        """Alg. 1 lines 6-8: pre-train Q_φ and π_θ on D_offline."""
+        bar = tqdm(range(self.cfg.budget.offline_updates), desc="actor+critic",
+                   disable=not self.cfg.progress, leave=False)
+        for i in bar:
+            metrics = self.update(self.offline_buffer.sample().to(self.cfg.device))
+            if i % 100 == 0:
+                self.log(metrics, self.updates, "offline/")
+                bar.set_postfix(actor=f"{metrics['loss_actor']:.3f}")
+
+    def _all_transitions(self, chunk: int = 8192):
+        for source in (self.data.transitions, self.replay.online_buffer):
+            for start in range(0, len(source), chunk):
+                batch = source[start:start + chunk]
+                yield batch.to(self.cfg.device)
+
+    def fit_laplace(self) -> None:
+        """Alg. 1 lines 9 and 17: last-layer Laplace of L_π on D (Eq. 8)."""
+        with torch.no_grad():
+            laplace = self.ensemble.fit_laplace(
+                self._all_transitions(), weight_fn=self.actor_loss.advantage_weights
+            )
+        self.updates_since_refit = 0
+        self.log({"prior_precision": laplace.prior_precision}, self.updates, "laplace/")
+
+    def evaluate(self, label: str) -> dict:
+        result = self.evaluate_policy(self.ensemble)
+        result.update(frames=self.frames, label=label)
+        self.history.append(result)
+        self.log({k: v for k, v in result.items() if k != "label"}, self.frames, "eval/")
+        print(f"[dual] {label} @ {self.frames} frames: normalized score "
+              f"{result['normalized_score']:.1f} (return {result['return']:.3f})")
+        return result
+
+    # ------------------------------------------------------------------ online phase
+    def collector(self) -> Collector:
+        """Alg. 1 lines 11-12: act with Eq. 9 + Eq. 10 in the online env."""
+        remaining = self.cfg.budget.online_frames - self.frames
+        self.env.set_seed(self.cfg.seed + 1 + self.frames)
+        return Collector(
+            self.env, self.policy, frames_per_batch=self.cfg.budget.frames_per_batch,
+            total_frames=max(remaining, 0), exploration_type=ExplorationType.RANDOM,
+            device=self.cfg.device, auto_register_policy_transforms=False,
+        )
+
+    def store(self, batch: TensorDictBase) -> dict:
+        """Alg. 1 line 13: D_online ← D_online ∪ {(s_t, a_t, s_t+1, r_t)}."""
+        batch = batch.reshape(-1)
+        done = batch["next", "done"].squeeze(-1).long()
+        episode = self.next_episode + torch.cumsum(done, 0) - done
+        self.next_episode = int(episode[-1]) + int(done[-1])
+        keys = [k for k in TRANSITION_KEYS if k != "episode"]
+        online = batch.select(*keys).clone()
+        online.set("episode", episode)
+        self.replay.extend(online.cpu())
+        self.frames += batch.numel()
+        finished = batch["next", "reward"].sum()
+        return {"reward_per_step": float(finished) / batch.numel(),
+                "shift_distance": float(batch["next", "shift_distance"].mean()),
+                "epistemic_std": float(batch["epistemic_variance"].mean().sqrt())}
+
+    def train_online(self, num_frames: int) -> dict:
+        """Alg. 1 lines 14-16: UTD-ratio updates on D_offline ∪ D_online."""
+        self.update_credit += self.cfg.online.utd_ratio * num_frames
+        metrics: dict = {}
+        while self.update_credit >= 1:
+            metrics = self.update(self.replay.sample().to(self.cfg.device))
+            self.update_credit -= 1
+        return metrics
+
+    def finish(self) -> None:
+        """Writes the learning curve and prints where everything is."""
+        self.save()
+        from plots import plot_learning_curve
+
+        png = plot_learning_curve(self.history, self.output_dir / "learning_curve.png",
+                                  title=f"DUAL on {self.cfg.env.name}")
+        offline = next((h for h in self.history if h["label"] == "offline"), None)
+        final = self.history[-1] if self.history else None
+        print("[dual] done.")
+        if offline is not None:
+            print(f"[dual] normalized score after the offline phase: {offline['normalized_score']:.1f}")
+        if final is not None:
+            print(f"[dual] normalized score at the end of the online phase: "
+                  f"{final['normalized_score']:.1f}")
+        print(f"[dual] metrics CSV: {self.output_dir / 'logs' / 'dual' / 'scalars'}")
+        print(f"[dual] learning curve: {png}")
+

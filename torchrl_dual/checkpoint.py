@@ -1,0 +1,101 @@
+"""Atomic, validated run checkpoints."""
+
+from __future__ import annotations
+
+import os
+import random
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+FORMAT_VERSION = 1
+
+
+def rng_state() -> dict[str, Any]:
+    """The states of Python's, NumPy's and torch's global generators."""
+    return {
+        "python": random.getstate(),
+        "numpy": np.random.get_state(),
+        "torch": torch.get_rng_state(),
+    }
+
+
+def set_rng_state(state: dict[str, Any]) -> None:
+    """Restores what :func:`rng_state` returned."""
+    random.setstate(state["python"])
+    np.random.set_state(state["numpy"])
+    torch.set_rng_state(state["torch"])
+
+
+class RunCheckpoint:
+    """One checkpoint file per run, written atomically and checked on load.
+
+    :meth:`save` writes to a temporary file in the same directory and renames it over
+    the previous checkpoint (``os.replace``), so a run killed mid-write leaves the last
+    complete checkpoint intact. :meth:`load` checks the file's format and that it was
+    written by a run with the same ``fingerprint`` (the settings that must not change
+    on resume), and says what to do when either check fails.
+
+    Args:
+        path (str or Path): checkpoint file.
+        fingerprint (dict): JSON-like settings that a resumed run must share.
+
+    Examples:
+        >>> import tempfile, torch
+        >>> ckpt = RunCheckpoint(tempfile.mkdtemp() + "/ckpt.pt", {"env": "umaze"})
+        >>> ckpt.save({"step": 3, "weights": torch.ones(2)})
+        >>> ckpt.load()["step"]
+        3
+    """
+
+    def __init__(self, path: str | Path, fingerprint: dict[str, Any]) -> None:
+        self.path = Path(path)
+        self.fingerprint = fingerprint
+
+    def exists(self) -> bool:
+        return self.path.is_file()
+
+    def save(self, state: dict[str, Any]) -> None:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        payload = {
+            "format_version": FORMAT_VERSION,
+            "fingerprint": self.fingerprint,
+            "state": state,
+        }
+        tmp = self.path.with_name(self.path.name + ".tmp")
+        torch.save(payload, tmp)
+        os.replace(tmp, self.path)
+
+    def load(self) -> dict[str, Any]:
+        if not self.exists():
+            raise FileNotFoundError(
+                f"No checkpoint at {self.path}; run without resume=true to start afresh."
+            )
+        try:
+            payload = torch.load(self.path, map_location="cpu", weights_only=False)
+        except Exception as err:  # noqa: BLE001 - any unpickling failure means corruption
+            raise RuntimeError(
+                f"The checkpoint {self.path} is corrupt or unreadable ({type(err).__name__}: "
+                f"{err}). Delete it to start afresh, or point output_dir elsewhere."
+            ) from err
+        if not isinstance(payload, dict) or payload.get("format_version") != FORMAT_VERSION:
+            raise RuntimeError(
+                f"{self.path} is not a torchrl-dual checkpoint of format {FORMAT_VERSION}; "
+                "delete it or use another output_dir."
+            )
+        saved = payload["fingerprint"]
+        if saved != self.fingerprint:
+            keys = sorted(set(saved) | set(self.fingerprint))
+            diff = [
+                f"{k}: checkpoint={saved.get(k)!r} now={self.fingerprint.get(k)!r}"
+                for k in keys
+                if saved.get(k) != self.fingerprint.get(k)
+            ]
+            raise RuntimeError(
+                f"The checkpoint {self.path} comes from an incompatible run ("
+                + "; ".join(diff)
+                + "). Resume with the original settings, or use another output_dir."
+            )
+        return payload["state"]
