@@ -79,16 +79,12 @@ def test_time_grid_rejects_a_step_count_that_does_not_divide_n(bad, make_model):
     model = make_model(num_steps=32)
     with pytest.raises(ValueError, match=rf"num_steps={bad} must be a positive divisor .*N=32"):
         model.time_grid(bad)
-    if bad:  # num_steps=0 in sample(): see the xfail test below
+    if bad:  # num_steps=0 must not silently mean N
         cond, mask = model.layout.conditioned_window(torch.zeros(1, model.layout.obs_dim))
         with pytest.raises(ValueError, match="divisor"):
             model.sample(cond, mask, num_steps=bad)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="library bug: sample() reads `num_steps or self.num_steps`, so 0 silently means N",
-)
 def test_sample_rejects_zero_steps(make_model):
     model = make_model(num_steps=4)
     cond, mask = model.layout.conditioned_window(torch.zeros(1, model.layout.obs_dim))

@@ -69,11 +69,6 @@ def test_policy_is_deterministic_under_deterministic_exploration(make_model):
     assert torch.equal(first["planned_next_observation"], second["planned_next_observation"])
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="library bug: with sampler='ddpm', ddpm_step draws fresh noise even under "
-    "DETERMINISTIC, contradicting PlannerSampler's docstring",
-)
 def test_ddpm_policy_is_deterministic_under_deterministic_exploration(make_model):
     policy = PlannerPolicy(make_model(num_steps=4), sampler="ddpm")
     td = TensorDict({"observation": _observation(policy.module.model)}, batch_size=[5])

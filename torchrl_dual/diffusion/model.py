@@ -82,6 +82,12 @@ class TrajectoryDiffusion(nn.Module):
     def num_steps(self, value: int) -> None:
         self._num_steps.fill_(value)
 
+    def reset_parameters_recursive(self) -> None:
+        """Re-initialises every layer of the denoiser (TorchRL's loss-module protocol)."""
+        for module in self.denoiser.modules():
+            if module is not self.denoiser and hasattr(module, "reset_parameters"):
+                module.reset_parameters()
+
     # ---------------------------------------------------------------- forward process
     def _scales(self, t: torch.Tensor, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         alpha, sigma = self.schedule(t.to(like.dtype))
@@ -185,7 +191,9 @@ class TrajectoryDiffusion(nn.Module):
                 f"got {tuple(cond.shape)}."
             )
         mask = mask.expand_as(cond)
-        times = self.time_grid(num_steps or self.num_steps, device=cond.device)
+        times = self.time_grid(
+            self.num_steps if num_steps is None else num_steps, device=cond.device
+        )
         if noise is None:
             noise = torch.randn(cond.shape, generator=generator, device=cond.device)
         z = torch.where(mask, cond, noise.to(cond.dtype))

@@ -14,8 +14,9 @@ from torchrl_dual.diffusion.model import TrajectoryDiffusion
 class PlannerSampler(nn.Module):
     """Samples ``τ ~ p_θ(τ | τ_{s_0} = s)`` and returns ``(τ_{a_0}, τ_{s_1})`` in raw units.
 
-    Under ``ExplorationType.DETERMINISTIC`` (and ``MODE``/``MEAN``) the initial noise is
-    zero, so the same state always gives the same plan; otherwise it is drawn.
+    Under ``ExplorationType.DETERMINISTIC`` (and ``MODE``/``MEAN``) the plan is the DDIM
+    (probability-flow) image of the zero latent, whatever ``sampler`` says, so the same
+    state always gives the same plan; otherwise the latent is drawn and ``sampler`` used.
 
     Args:
         model (TrajectoryDiffusion): trained (and possibly distilled) planner.
@@ -40,19 +41,18 @@ class PlannerSampler(nn.Module):
         super().__init__()
         self.model = model
         self.num_steps = num_steps
-        model.time_grid(num_steps or model.num_steps)  # validates num_steps early
+        model.time_grid(model.num_steps if num_steps is None else num_steps)  # validate early
         self.sampler = sampler
         self.action_low = action_low
         self.action_high = action_high
 
-    def _initial_noise(self, cond: torch.Tensor) -> torch.Tensor:
-        if exploration_type() in (
+    @staticmethod
+    def _deterministic() -> bool:
+        return exploration_type() in (
             ExplorationType.DETERMINISTIC,
             ExplorationType.MODE,
             ExplorationType.MEAN,
-        ):
-            return torch.zeros_like(cond)
-        return torch.randn_like(cond)
+        )
 
     def plan(
         self, observation: torch.Tensor, action: torch.Tensor | None = None
@@ -71,12 +71,13 @@ class PlannerSampler(nn.Module):
             raise ValueError("observation holds NaN/inf entries; the planner cannot condition on it.")
         action_norm = None if action is None else norm.normalize_action(action)
         cond, mask = layout.conditioned_window(norm.normalize_observation(observation), action_norm)
+        deterministic = self._deterministic()
         window = self.model.sample(
             cond,
             mask,
             num_steps=self.num_steps,
-            sampler=self.sampler,
-            noise=self._initial_noise(cond),
+            sampler="ddim" if deterministic else self.sampler,
+            noise=torch.zeros_like(cond) if deterministic else None,
         )
         states = norm.denormalize_observation(layout.observations(window))
         actions = norm.denormalize_action(layout.actions(window))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import torch
@@ -96,7 +97,9 @@ class DistillationLoss(LossModule):
         if student is teacher:
             raise ValueError("student and teacher must be distinct modules (deepcopy the teacher).")
         self.convert_to_functional(student, "student")
-        # The teacher is frozen: its weights are kept as buffers, never as parameters.
+        # The teacher is frozen: a private copy whose weights are buffers, never parameters
+        # (the caller's teacher is neither modified nor reset by reset_parameters_recursive).
+        teacher = copy.deepcopy(teacher).requires_grad_(False)
         self.teacher_buffers = TensorDictParams(
             TensorDict.from_module(teacher).detach().clone(), no_convert=True
         )
@@ -106,6 +109,10 @@ class DistillationLoss(LossModule):
 
     def _forward_value_estimator_keys(self, **kwargs) -> None:
         pass
+
+    def reset_parameters_recursive(self) -> None:
+        """Re-initialises the student only; the teacher is a frozen reference."""
+        self._reset_module_parameters("student", self.student)
 
     @property
     def in_keys(self) -> list[NestedKey]:
