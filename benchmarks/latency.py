@@ -22,6 +22,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import platform
 import statistics
@@ -31,13 +32,19 @@ from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDict
-from tensordict.nn import TensorDictModule, TensorDictModuleBase
+from tensordict.nn import TensorDictModule, TensorDictModuleBase, TensorDictSequential
 from torchrl.data import Bounded
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import MLP, NormalParamExtractor, ProbabilisticActor, TanhNormal
 
 from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
-from torchrl_dual.modules.planner_policy import PlannerPolicy
+from torchrl_dual.modules import (
+    LaplaceEnsembleActor,
+    PlannerActor,
+    PlannerPolicy,
+    ShiftAwareNoise,
+    TransitionModel,
+)
 
 
 @dataclass
@@ -88,10 +95,27 @@ def build_planner_n1(cfg: Config) -> TensorDictModuleBase:
     return _planner(cfg, 1)
 
 
+def build_dual_m5(cfg: Config) -> TensorDictModuleBase:
+    """DUAL's online policy: one-step planner actor + Laplace ensemble (M = 5, Eq. 9)
+    + shift-aware noise (Eq. 10) whose transition model is a second one-step pass."""
+    layout = TrajectoryLayout(cfg.obs_dim, cfg.action_dim, cfg.horizon)
+    model = TrajectoryDiffusion(layout, num_steps=1, hidden=cfg.hidden, depth=cfg.depth)
+    ensemble = LaplaceEnsembleActor(
+        PlannerActor(model), num_samples=5, action_low=-1.0, action_high=1.0
+    )
+    ensemble.fit_laplace([TensorDict({"observation": torch.randn(512, cfg.obs_dim)}, [512])])
+    transition = TransitionModel(copy.deepcopy(model))
+    noise = ShiftAwareNoise(
+        transition.predict, spec=Bounded(-1.0, 1.0, shape=(cfg.action_dim,)), shift_weight=0.5
+    )
+    return TensorDictSequential(ensemble, noise)
+
+
 BUILDERS: dict[str, Callable[[Config], TensorDictModuleBase]] = {
     "mlp_actor": build_mlp_actor,
     "planner_n32": build_planner_n32,
     "planner_n1": build_planner_n1,
+    "dual_m5": build_dual_m5,
 }
 REFERENCES = ("mlp_actor", "planner_n32")
 

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import torch
-from tensordict.nn import TensorDictModule
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import NestedKey
 from torch import nn
 from torchrl.envs.utils import ExplorationType, exploration_type
@@ -101,13 +102,13 @@ class PlannerSampler(nn.Module):
         return self.model.layout.observations(self.plan(observation, action))[..., 1, :]
 
 
-class PlannerPolicy(TensorDictModule):
+class PlannerPolicy(TensorDictModuleBase):
     """The planner as a TorchRL policy: ``a ~ τ_{a_0}``, ``τ ~ p_θ(τ | τ_{s_0} = s)`` (Eq. 5).
 
     Reads the observation and writes the first planned action ``τ_{a_0}`` and the
     planned next state ``τ_{s_1}``. Wrapping the distilled one-step student gives
     DUAL's fast policy; wrapping the ``N``-step teacher gives the Diffuser-style
-    baseline.
+    baseline. The sampler is :attr:`module` (a :class:`PlannerSampler`).
 
     Args:
         model (TrajectoryDiffusion): the planner.
@@ -144,26 +145,33 @@ class PlannerPolicy(TensorDictModule):
         action_low: float | torch.Tensor | None = None,
         action_high: float | torch.Tensor | None = None,
     ) -> None:
-        sampler_module = PlannerSampler(
+        super().__init__()
+        self.module = PlannerSampler(
             model,
             num_steps=num_steps,
             sampler=sampler,
             action_low=action_low,
             action_high=action_high,
         )
-        super().__init__(
-            sampler_module,
-            in_keys=[observation_key],
-            out_keys=[action_key, next_observation_key],
-        )
+        self.in_keys = [observation_key]
+        self.out_keys = [action_key, next_observation_key]
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        # Plain get/set: the outputs are written without TensorDictModule's generic
+        # output handling, which costs as much as a one-step sample at batch 1.
+        action, next_observation = self.module(_read(tensordict, self.in_keys[0]))
+        tensordict.set(self.out_keys[0], action)
+        tensordict.set(self.out_keys[1], next_observation)
+        return tensordict
 
 
-class TransitionModel(TensorDictModule):
+class TransitionModel(TensorDictModuleBase):
     """``ŝ_1`` given ``(s_0, a_0)`` from the planner (Algorithm 1, line 5).
 
     The planner is trained with ``a_0`` sometimes known (see
     :class:`~torchrl_dual.objectives.DiffusionPlannerLoss`), so conditioning on
-    both gives the transition model used by the shift signal of Eq. (10).
+    both gives the transition model used by the shift signal of Eq. (10). Under
+    deterministic exploration the prediction is the DDIM image of the zero latent.
 
     Examples:
         >>> import torch
@@ -185,19 +193,27 @@ class TransitionModel(TensorDictModule):
         action_key: NestedKey = "action",
         out_key: NestedKey = "predicted_observation",
     ) -> None:
-        sampler = PlannerSampler(model, num_steps=num_steps)
-
-        class _Predict(nn.Module):
-            def __init__(self) -> None:
-                super().__init__()
-                self.sampler = sampler
-
-            def forward(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-                return self.sampler.predict_next_observation(observation, action)
-
-        super().__init__(_Predict(), in_keys=[observation_key, action_key], out_keys=[out_key])
-        self.sampler = sampler
+        super().__init__()
+        self.sampler = PlannerSampler(model, num_steps=num_steps)
+        self.in_keys = [observation_key, action_key]
+        self.out_keys = [out_key]
 
     def predict(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """Tensor-level call: ``ŝ_1`` for ``[*B, obs_dim]`` states and ``[*B, act_dim]`` actions."""
         return self.sampler.predict_next_observation(observation, action)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        observation = _read(tensordict, self.in_keys[0])
+        action = _read(tensordict, self.in_keys[1])
+        tensordict.set(self.out_keys[0], self.predict(observation, action))
+        return tensordict
+
+
+def _read(tensordict: TensorDictBase, key: NestedKey) -> torch.Tensor:
+    value = tensordict.get(key, default=None)
+    if value is None:
+        raise KeyError(
+            f"The planner reads {key!r}, which the input lacks; it holds "
+            f"{sorted(map(str, tensordict.keys(True, True)))}."
+        )
+    return value
