@@ -11,6 +11,7 @@ import random
 from pathlib import Path
 
 import numpy as np
+import o2o_setup as setup
 import torch
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDictBase
@@ -26,8 +27,6 @@ from torchrl_dual.data import TRANSITION_KEYS
 from torchrl_dual.diffusion import WindowReplayBuffer
 from torchrl_dual.modules import PlannerActor
 from torchrl_dual.training import progressive_distillation, train_planner
-
-import o2o_setup as setup
 
 STAGES = ("planner", "distillation", "actor_critic", "laplace", "offline_eval")
 # Settings that may change when a run is resumed; everything else must match.

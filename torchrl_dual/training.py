@@ -41,7 +41,7 @@ class ExponentialMovingAverage:
     @torch.no_grad()
     def copy_to(self, module: torch.nn.Module) -> None:
         """Writes the averages into ``module`` (the module the EMA was built on)."""
-        for param, average in zip(module.parameters(), self.shadow):
+        for param, average in zip(module.parameters(), self.shadow, strict=True):
             param.copy_(average)
 
 

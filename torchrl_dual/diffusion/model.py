@@ -198,7 +198,7 @@ class TrajectoryDiffusion(nn.Module):
             noise = torch.randn(cond.shape, generator=generator, device=cond.device)
         z = torch.where(mask, cond, noise.to(cond.dtype))
         batch = cond.shape[:-2]
-        for t, s in zip(times[:-1], times[1:]):
+        for t, s in zip(times[:-1], times[1:], strict=True):
             t_b, s_b = t.expand(batch), s.expand(batch)
             if sampler == "ddim":
                 z = self.ddim_step(z, t_b, s_b, cond, mask)

@@ -1,8 +1,8 @@
 """TorchRL modules of DUAL: planner policy, Laplace head, ensemble actor, exploration."""
 
-from torchrl_dual.modules.last_layer import LastLayerActor, LinearHeadActor, PlannerActor
 from torchrl_dual.modules.ensemble_actor import LaplaceEnsembleActor
 from torchrl_dual.modules.laplace import LastLayerLaplace
+from torchrl_dual.modules.last_layer import LastLayerActor, LinearHeadActor, PlannerActor
 from torchrl_dual.modules.planner_policy import PlannerPolicy, PlannerSampler, TransitionModel
 from torchrl_dual.modules.shift_aware import ShiftAwareNoise
 
