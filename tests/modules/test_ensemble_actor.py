@@ -86,7 +86,8 @@ def test_trunk_and_head_run_once_per_forward_for_any_ensemble_size(
     counted(policy.actor, "head_output")
     counted(policy.laplace, "weight_samples_split")
     out = policy(_obs_td(7))
-    assert calls == {"features": 1, "head_output": 1, "weight_samples_split": 1}
+    # The M sub-policies are drawn at fit time, not on the action path.
+    assert calls == {"features": 1, "head_output": 1, "weight_samples_split": 0}
     assert policy.member_actions(_obs_td(7)["observation"]).shape == (num_samples, 7, ACT)
     assert out["action"].shape == out["loc"].shape == out["epistemic_variance"].shape == (7, ACT)
     assert out["action_log_prob"].shape == (7,)
@@ -101,6 +102,7 @@ def test_member_actions_equal_explicit_per_member_heads(kind, make_model):
     policy = _fitted_policy(kind, make_model, num_samples=6)
     observation = _obs_td(5)["observation"]
     torch.manual_seed(123)
+    policy.resample()
     members = policy.member_actions(observation)
     torch.manual_seed(123)
     weight, bias = policy.laplace.weight_samples_split(6)
@@ -122,6 +124,7 @@ def test_members_are_centred_on_the_current_head_between_refits(kind, make_model
     with torch.no_grad():
         policy.actor.head.bias.add_(0.3)  # the actor trains on after the fit
     torch.manual_seed(0)
+    policy.resample()
     members = policy.member_actions(observation)
     torch.manual_seed(0)
     weight, bias = policy.laplace.weight_samples_split(6)
@@ -186,8 +189,26 @@ def test_random_mode_calls_differ(make_model):
     with set_exploration_type(ExplorationType.RANDOM):
         first, second = policy(td.clone()), policy(td.clone())
     assert not torch.allclose(first["action"], second["action"])
-    assert not torch.allclose(first["loc"], second["loc"])  # new posterior draws each call
+    # The M sub-policies are maintained between refits: same ensemble, same μ(s).
+    torch.testing.assert_close(first["loc"], second["loc"])
     assert (first["epistemic_variance"] > 0).all()
+
+
+def test_resample_each_call_draws_new_sub_policies_at_every_step(make_model):
+    policy = _fitted_policy("planner", make_model)
+    policy.resample_each_call = True
+    td = _obs_td(5)
+    with set_exploration_type(ExplorationType.RANDOM):
+        first, second = policy(td.clone()), policy(td.clone())
+    assert not torch.allclose(first["loc"], second["loc"])
+
+
+def test_resample_draws_a_new_ensemble_and_refit_redraws(make_model):
+    policy = _fitted_policy("linear_head", make_model)
+    before = policy.weight_deviation.clone()
+    policy.resample()
+    assert not torch.equal(before, policy.weight_deviation)
+    assert "weight_deviation" in policy.state_dict()
 
 
 # ----------------------------------------------------------------------------- (e) distance

@@ -26,7 +26,7 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
 
     The trunk ``φ(s)`` runs once; the ``M`` sampled heads are applied as one batched
     contraction ``[*B, d] × [M, A, d] → [M, *B, A]``: no loop over members. Posterior
-    samples are drawn as deviations ``θ_m − θ*`` and added to the actor's *current* head,
+    samples are kept as deviations ``θ_m − θ*`` and added to the actor's *current* head,
     so between two refits the ensemble stays centred on the policy being trained.
 
     Under ``ExplorationType.RANDOM`` (or unset) it samples ``action ∼ N(μ, σ²)``; under
@@ -44,6 +44,10 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
             :class:`~torchrl_dual.modules.LastLayerLaplace`.
         action_low, action_high (float or Tensor, optional): bounds the sampled action
             is clamped to.
+        resample_each_call (bool): draw new ``θ_m`` at every call. By default the ``M``
+            sub-policies are drawn at each :meth:`fit_laplace` and kept ("maintained",
+            Section 3.3) until the next refit or :meth:`resample`, which also spares the
+            action path the draw.
         observation_key, loc_key, scale_key, epistemic_key, action_key, log_prob_key
             (NestedKey): input and output keys.
 
@@ -69,6 +73,7 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         prior_precision: str | float = "evidence",
         action_low: float | torch.Tensor | None = None,
         action_high: float | torch.Tensor | None = None,
+        resample_each_call: bool = False,
         observation_key: NestedKey = "observation",
         loc_key: NestedKey = "loc",
         scale_key: NestedKey = "scale",
@@ -85,6 +90,11 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
             in_features, actor.action_dim, prior_precision=prior_precision
         )
         self.num_samples = num_samples
+        self.resample_each_call = resample_each_call
+        self.register_buffer(
+            "weight_deviation", torch.zeros(num_samples, actor.action_dim, in_features)
+        )
+        self.register_buffer("bias_deviation", torch.zeros(num_samples, actor.action_dim))
         self.action_low, self.action_high = action_low, action_high
         self.in_keys = [observation_key]
         self.out_keys = [loc_key, scale_key, epistemic_key, action_key, log_prob_key]
@@ -122,18 +132,27 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         self.laplace.fit(
             self.actor.head.weight[rows], self.actor.head.bias[rows], noise_variance.detach()
         )
+        self.resample()
         return self.laplace
+
+    @torch.no_grad()
+    def resample(self, generator: torch.Generator | None = None) -> None:
+        """Draws the ``M`` sub-policies ``θ_m ∼ N(θ*, Σ)`` anew, stored as deviations ``θ_m − θ*``."""
+        weight, bias = self.laplace.weight_samples_split(self.num_samples, generator=generator)
+        theta = self.laplace.theta_map.to(weight.dtype)
+        self.weight_deviation.copy_(weight - theta[..., :-1])
+        self.bias_deviation.copy_(bias - theta[..., -1])
 
     # ------------------------------------------------------------------ Eq. (9)
     def member_actions(self, observation: torch.Tensor) -> torch.Tensor:
         """Actions of the ``M`` sub-policies, ``[M, *B, A]``, in one batched pass."""
         features = self.actor.features(observation)
         head = self.actor.head_output(features)
-        weight, bias = self.laplace.weight_samples_split(self.num_samples)
-        theta = self.laplace.theta_map.to(weight.dtype)
-        d_weight, d_bias = weight - theta[..., :-1], bias - theta[..., -1]
-        deviation = torch.einsum("...d,mad->m...a", features, d_weight)
-        deviation = deviation + d_bias.reshape(self.num_samples, *[1] * (head.ndim - 1), -1)
+        if self.resample_each_call:
+            self.resample()
+        deviation = torch.einsum("...d,mad->m...a", features, self.weight_deviation)
+        bias = self.bias_deviation.reshape(self.num_samples, *[1] * (head.ndim - 1), -1)
+        deviation = deviation + bias
         return self.actor.readout(head + deviation, observation)
 
     def _clamp(self, action: torch.Tensor) -> torch.Tensor:
