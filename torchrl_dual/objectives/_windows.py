@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 from tensordict import TensorDictBase
 from tensordict.utils import NestedKey
+from torchrl.objectives.common import LossModule
 
 from torchrl_dual.diffusion.model import TrajectoryDiffusion
 
 
-def _fetch(tensordict: TensorDictBase, key: NestedKey, role: str) -> torch.Tensor:
+def fetch(tensordict: TensorDictBase, key: NestedKey, role: str) -> torch.Tensor:
     value = tensordict.get(key, default=None)
     if value is None:
         raise KeyError(
@@ -37,8 +40,8 @@ def normalized_windows(
     ``p(τ | s_0, a_0)``).
     """
     layout = model.layout
-    observation = _fetch(tensordict, observation_key, "observation")
-    action = _fetch(tensordict, action_key, "action")
+    observation = fetch(tensordict, observation_key, "observation")
+    action = fetch(tensordict, action_key, "action")
     for role, value, dim in (
         ("observation", observation, layout.obs_dim),
         ("action", action, layout.action_dim),
@@ -74,3 +77,46 @@ def masked_mean(error: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """Per-window mean of ``error`` over the entries the model must generate."""
     free = (~mask).to(error.dtype)
     return (error * free).sum((-2, -1)) / free.sum((-2, -1)).clamp_min(1.0)
+
+
+class TrajectoryWindowLoss(LossModule):
+    """Shared keys and input parsing of the losses that read ``[B, H + 1]`` windows."""
+
+    @dataclass
+    class _AcceptedKeys:
+        """Configurable tensordict keys.
+
+        Attributes:
+            observation (NestedKey): states of the window, ``[B, H + 1, obs_dim]``.
+                Defaults to ``"observation"``.
+            action (NestedKey): actions of the window, ``[B, H + 1, action_dim]``.
+                Defaults to ``"action"``.
+            condition_mask (NestedKey): optional boolean mask of known entries,
+                ``[B, H + 1, obs_dim + action_dim]``. Defaults to ``"condition_mask"``.
+        """
+
+        observation: NestedKey = "observation"
+        action: NestedKey = "action"
+        condition_mask: NestedKey = "condition_mask"
+
+    default_keys = _AcceptedKeys
+    action_condition_prob: float
+
+    def _forward_value_estimator_keys(self, **kwargs) -> None:
+        pass
+
+    @property
+    def in_keys(self) -> list[NestedKey]:
+        return [self.tensor_keys.observation, self.tensor_keys.action]
+
+    def _windows(
+        self, model: TrajectoryDiffusion, tensordict: TensorDictBase
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        return normalized_windows(
+            model,
+            tensordict,
+            observation_key=self.tensor_keys.observation,
+            action_key=self.tensor_keys.action,
+            mask_key=self.tensor_keys.condition_mask,
+            action_condition_prob=self.action_condition_prob,
+        )

@@ -2,18 +2,14 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 from tensordict import TensorDict, TensorDictBase, TensorDictParams
-from tensordict.utils import NestedKey
-from torchrl.objectives.common import LossModule
 
 from torchrl_dual.diffusion.model import TrajectoryDiffusion
-from torchrl_dual.objectives._windows import masked_mean, normalized_windows
+from torchrl_dual.objectives._windows import TrajectoryWindowLoss, masked_mean
 
 
-class DiffusionPlannerLoss(LossModule):
+class DiffusionPlannerLoss(TrajectoryWindowLoss):
     """Denoising loss of the trajectory diffusion planner, Eq. (3) of DUAL.
 
     For a batch of windows ``τ⁰ = (s_0, a_0, …, s_H, a_H)``:
@@ -62,24 +58,6 @@ class DiffusionPlannerLoss(LossModule):
         >>> loss_td["loss_diffusion"].backward()
     """
 
-    @dataclass
-    class _AcceptedKeys:
-        """Configurable tensordict keys.
-
-        Attributes:
-            observation (NestedKey): states of the window, ``[B, H + 1, obs_dim]``.
-                Defaults to ``"observation"``.
-            action (NestedKey): actions of the window, ``[B, H + 1, action_dim]``.
-                Defaults to ``"action"``.
-            condition_mask (NestedKey): optional boolean mask of known entries.
-                Defaults to ``"condition_mask"``.
-        """
-
-        observation: NestedKey = "observation"
-        action: NestedKey = "action"
-        condition_mask: NestedKey = "condition_mask"
-
-    default_keys = _AcceptedKeys
     out_keys = ["loss_diffusion", "x0_error"]
 
     model: TrajectoryDiffusion
@@ -100,23 +78,9 @@ class DiffusionPlannerLoss(LossModule):
         self.action_condition_prob = action_condition_prob
         self.reduction = reduction
 
-    def _forward_value_estimator_keys(self, **kwargs) -> None:
-        pass
-
-    @property
-    def in_keys(self) -> list[NestedKey]:
-        return [self.tensor_keys.observation, self.tensor_keys.action]
-
     def denoising_loss(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, dict]:
         """Per-window loss of Eq. (3) in v-parameterisation and diagnostics."""
-        x0, mask = normalized_windows(
-            self.model,
-            tensordict,
-            observation_key=self.tensor_keys.observation,
-            action_key=self.tensor_keys.action,
-            mask_key=self.tensor_keys.condition_mask,
-            action_condition_prob=self.action_condition_prob,
-        )
+        x0, mask = self._windows(self.model, tensordict)
         batch = x0.shape[:-2]
         t = torch.rand(batch, device=x0.device)
         eps = torch.randn_like(x0)

@@ -3,18 +3,15 @@
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDict, TensorDictBase, TensorDictParams
-from tensordict.utils import NestedKey
-from torchrl.objectives.common import LossModule
 
 from torchrl_dual.diffusion.model import TrajectoryDiffusion
-from torchrl_dual.objectives._windows import masked_mean, normalized_windows
+from torchrl_dual.objectives._windows import TrajectoryWindowLoss, masked_mean
 
 
-class DistillationLoss(LossModule):
+class DistillationLoss(TrajectoryWindowLoss):
     """One round of progressive distillation: one student step = two teacher steps.
 
     DUAL distils the ``N = 32``-step planner into a one-step sampler by halving
@@ -58,22 +55,6 @@ class DistillationLoss(LossModule):
         >>> loss_fn(windows)["loss_distillation"].backward()
     """
 
-    @dataclass
-    class _AcceptedKeys:
-        """Configurable tensordict keys.
-
-        Attributes:
-            observation (NestedKey): states of the window. Defaults to ``"observation"``.
-            action (NestedKey): actions of the window. Defaults to ``"action"``.
-            condition_mask (NestedKey): optional boolean mask of known entries.
-                Defaults to ``"condition_mask"``.
-        """
-
-        observation: NestedKey = "observation"
-        action: NestedKey = "action"
-        condition_mask: NestedKey = "condition_mask"
-
-    default_keys = _AcceptedKeys
     out_keys = ["loss_distillation", "target_gap"]
 
     student: TrajectoryDiffusion
@@ -107,16 +88,9 @@ class DistillationLoss(LossModule):
         self.action_condition_prob = action_condition_prob
         self.reduction = reduction
 
-    def _forward_value_estimator_keys(self, **kwargs) -> None:
-        pass
-
     def reset_parameters_recursive(self) -> None:
         """Re-initialises the student only; the teacher is a frozen reference."""
         self._reset_module_parameters("student", self.student)
-
-    @property
-    def in_keys(self) -> list[NestedKey]:
-        return [self.tensor_keys.observation, self.tensor_keys.action]
 
     @torch.no_grad()
     def teacher_target(
@@ -136,14 +110,7 @@ class DistillationLoss(LossModule):
 
     def distillation_loss(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, dict]:
         """Per-window truncated-SNR weighted x-error against the two-step target."""
-        x0, mask = normalized_windows(
-            self.student,
-            tensordict,
-            observation_key=self.tensor_keys.observation,
-            action_key=self.tensor_keys.action,
-            mask_key=self.tensor_keys.condition_mask,
-            action_condition_prob=self.action_condition_prob,
-        )
+        x0, mask = self._windows(self.student, tensordict)
         batch = x0.shape[:-2]
         i = torch.randint(1, self.student.num_steps + 1, batch, device=x0.device).to(x0.dtype)
         t = i / self.student.num_steps

@@ -12,6 +12,7 @@ from torch.distributions import Normal
 from torchrl.objectives.common import LossModule
 
 from torchrl_dual.modules.last_layer import LastLayerActor
+from torchrl_dual.objectives._windows import fetch
 
 WEIGHTINGS = ("advantage", "sac", "uniform")
 
@@ -190,14 +191,7 @@ class WeightedMAPActorLoss(LossModule):
     def _inputs(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         values = []
         for role, dim in (("observation", None), ("action", self.actor.action_dim)):
-            key = getattr(self.tensor_keys, role)
-            value = tensordict.get(key, default=None)
-            if value is None:
-                raise KeyError(
-                    f"The input has no {role} entry {key!r}; it holds "
-                    f"{sorted(map(str, tensordict.keys(True, True)))}. Rename it or call "
-                    f"loss.set_keys({role}=...)."
-                )
+            value = fetch(tensordict, getattr(self.tensor_keys, role), role)
             if dim is not None and value.shape[-1] != dim:
                 raise ValueError(
                     f"{role} must end with dim {dim}, got shape {tuple(value.shape)}."
