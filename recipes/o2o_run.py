@@ -51,6 +51,8 @@ class DualRun:
                 f"{self.checkpoint.path} exists: pass resume=true to continue that run, or "
                 "choose another output_dir (or delete it) to start afresh."
             )
+        if cfg.resume and self.checkpoint.exists():
+            self.checkpoint.load()  # fail fast on a corrupt or incompatible checkpoint
         # ---- data and envs (Alg. 1 line 1)
         self.data = setup.make_offline_dataset(cfg)
         self.env = setup.make_train_env(cfg)

@@ -87,11 +87,9 @@ class RunCheckpoint:
             )
         saved = payload["fingerprint"]
         if saved != self.fingerprint:
-            keys = sorted(set(saved) | set(self.fingerprint))
             diff = [
-                f"{k}: checkpoint={saved.get(k)!r} now={self.fingerprint.get(k)!r}"
-                for k in keys
-                if saved.get(k) != self.fingerprint.get(k)
+                f"{key}: checkpoint={old!r} now={new!r}"
+                for key, old, new in _differences(saved, self.fingerprint)
             ]
             raise RuntimeError(
                 f"The checkpoint {self.path} comes from an incompatible run ("
@@ -99,3 +97,16 @@ class RunCheckpoint:
                 + "). Resume with the original settings, or use another output_dir."
             )
         return payload["state"]
+
+
+_MISSING = "<missing>"
+
+
+def _differences(saved: Any, now: Any, prefix: str = "") -> list[tuple[str, Any, Any]]:
+    """The ``(dotted.key, saved, now)`` leaves where two nested dicts differ."""
+    if isinstance(saved, dict) and isinstance(now, dict):
+        out = []
+        for key in sorted(set(saved) | set(now), key=str):
+            out += _differences(saved.get(key, _MISSING), now.get(key, _MISSING), f"{prefix}{key}.")
+        return out
+    return [] if saved == now else [(prefix.rstrip("."), saved, now)]
