@@ -8,6 +8,8 @@ from collections.abc import Callable
 import torch
 from torch import Tensor, nn
 
+from torchrl_dual.modules.laplace_numerics import evidence_maximiser, psd_eigh
+
 __all__ = ["LastLayerLaplace"]
 
 _F64 = torch.float64
@@ -317,7 +319,7 @@ class LastLayerLaplace(nn.Module):
             else self._check_prior_config(prior_precision)
         )
 
-        g, U = self._eigh(self.gram())
+        g, U = psd_eigh(self.gram())
         self.theta_map.copy_(theta)
         self.noise_variance.copy_(sigma2)
         self.eigenvalues.copy_(g)
@@ -332,58 +334,16 @@ class LastLayerLaplace(nn.Module):
         self.fitted.fill_(True)
         return self
 
-    @staticmethod
-    def _eigh(G: Tensor) -> tuple[Tensor, Tensor]:
-        """Symmetric eigendecomposition that never fails; eigenvalues clamped at 0."""
-        p = G.shape[0]
-        scale = G.diagonal().abs().max().clamp_min(1.0)
-        jitter = 0.0
-        for _ in range(8):
-            try:
-                g, U = torch.linalg.eigh(
-                    G + jitter * scale * torch.eye(p, dtype=_F64, device=G.device)
-                )
-                break
-            except RuntimeError:  # eigh did not converge: add jitter and retry
-                jitter = 1e-12 if jitter == 0.0 else jitter * 100.0
-        else:  # pragma: no cover - only for pathological matrices
-            g = torch.zeros(p, dtype=_F64, device=G.device)
-            U = torch.eye(p, dtype=_F64, device=G.device)
-        # round-off can make the eigenvalues of a PSD matrix slightly negative / tiny
-        tol = g.abs().max() * p * torch.finfo(_F64).eps
-        g = torch.where(g > tol, g, torch.zeros_like(g))
-        return g, U
-
     def _precision_eigenvalues(self, lam: Tensor) -> Tensor:
         """Eigenvalues ``g_k/σ_j² + λ`` of ``P_j``; ``lam`` of shape ``[*L]`` -> ``[*L, out, d+1]``."""
         h = self.eigenvalues[None, :] / self.noise_variance[:, None]
         return h + lam[..., None, None]
 
-    def _evidence_argmax(self, iters: int = 100) -> Tensor:
-        """Root of ``γ(λ) - λ‖θ*‖²`` in ``log λ`` (the unique evidence maximiser), clamped."""
+    def _evidence_argmax(self) -> Tensor:
+        """The evidence-maximising ``λ`` for the current fit (see :func:`evidence_maximiser`)."""
         h = self.eigenvalues[None, :] / self.noise_variance[:, None]
-        sq = self.theta_map.square().sum()
-        lo, hi = (math.log(v) for v in self.prior_precision_bounds)
-
-        def slope(t: float) -> float:
-            lam = math.exp(t)
-            return float((h / (h + lam)).sum() - lam * sq)
-
-        if slope(lo) <= 0:
-            t = lo
-        elif slope(hi) >= 0:
-            t = hi
-        else:
-            for _ in range(iters):
-                mid = 0.5 * (lo + hi)
-                if slope(mid) > 0:
-                    lo = mid
-                else:
-                    hi = mid
-                if hi - lo < 1e-12:
-                    break
-            t = 0.5 * (lo + hi)
-        return torch.tensor(math.exp(t), dtype=_F64, device=self.G_raw.device)
+        lam = evidence_maximiser(h, self.theta_map.square().sum(), self.prior_precision_bounds)
+        return torch.tensor(lam, dtype=_F64, device=self.G_raw.device)
 
     def _check_fitted(self, what: str) -> None:
         if not bool(self.fitted):
