@@ -217,8 +217,12 @@ class DualRun:
     def fit_laplace(self) -> None:
         """Alg. 1 lines 9 and 17: last-layer Laplace of L_π on D (Eq. 8)."""
         with torch.no_grad():
+            # The Hessian of Eq. (7) carries the actor loss's own weights (uniform for
+            # "uniform"; "sac" has no per-sample weights, so its GGN uses uniform ones).
+            advantage = self.cfg.actor.weighting == "advantage"
             laplace = self.ensemble.fit_laplace(
-                self._all_transitions(), weight_fn=self.actor_loss.advantage_weights
+                self._all_transitions(),
+                weight_fn=self.actor_loss.advantage_weights if advantage else None,
             )
         self.updates_since_refit = 0
         self.log({"prior_precision": laplace.prior_precision}, self.updates, "laplace/")

@@ -41,6 +41,7 @@ from torchrl_dual.evaluation import evaluate_episodes, frozenlake_policy_actions
 from torchrl_dual.transforms import ShiftDistance
 
 ENV_KINDS = ("pointmaze", "frozenlake")
+CRITICS = ("iql",)
 
 
 # ----------------------------------------------------------------------------- data and envs
@@ -204,6 +205,8 @@ class _GaussianHead(nn.Module):
 def make_critic(cfg: DictConfig, actor: PlannerActor, data: OfflineDataset) -> Critic:
     """IQL's expectile value network V and twin Q networks (TorchRL ``IQLLoss``)."""
     c = cfg.critic
+    if c.name not in CRITICS:
+        raise ValueError(f"Unknown critic {c.name!r}; choose one of {CRITICS}.")
     cells = [c.hidden] * c.depth
 
     class _QNet(nn.Module):

@@ -163,3 +163,18 @@ def test_policy_accepts_an_unbatched_observation_as_an_env_step_gives(num_steps,
     out = PlannerPolicy(model, num_steps=num_steps)(TensorDict({"observation": observation}, []))
     assert out["action"].shape == (model.layout.action_dim,)
     assert out["planned_next_observation"].shape == (model.layout.obs_dim,)
+
+
+def test_transition_model_predicts_the_zero_latent_mean_even_while_exploring(make_model):
+    model = make_model(num_steps=1)
+    observation = _observation(model)
+    action = torch.rand(observation.shape[0], model.layout.action_dim)
+    with set_exploration_type(ExplorationType.RANDOM):
+        first = TransitionModel(model).predict(observation, action)
+        second = TransitionModel(model).predict(observation, action)
+        sampled = TransitionModel(model, latent="sample")
+        draws = sampled.predict(observation, action), sampled.predict(observation, action)
+    torch.testing.assert_close(first, second)
+    assert not torch.allclose(*draws)
+    with pytest.raises(ValueError, match="latent"):
+        TransitionModel(model, latent="mean")

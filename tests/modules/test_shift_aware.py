@@ -207,3 +207,29 @@ def test_errors_for_bad_model_output_weight_and_spec():
         ShiftAwareNoise("not a model")
     with pytest.raises(KeyError, match="action_key="):
         ShiftAwareNoise(linear_model, Composite(other=Bounded(-1, 1, shape=(ACT_DIM,))))
+
+
+def test_action_projection_stores_and_predicts_with_the_executed_one_hot_action():
+    seen = {}
+
+    def transition(observation, action):
+        seen["action"] = action
+        return observation
+
+    def one_hot(action):
+        return torch.nn.functional.one_hot(action.argmax(-1), action.shape[-1]).to(action.dtype)
+
+    noise = ShiftAwareNoise(transition, action_projection=one_hot)
+    td = TensorDict(
+        {
+            "observation": torch.zeros(64, 3),
+            "loc": torch.tensor([0.1, 0.9, 0.2, 0.0]).expand(64, 4),
+            "scale": torch.full((64, 4), 0.3),
+        },
+        [64],
+    )
+    out = noise(td)
+    action = out["action"]
+    assert torch.equal(action.sum(-1), torch.ones(64))
+    assert set(action.unique().tolist()) <= {0.0, 1.0}
+    assert torch.equal(seen["action"], action)

@@ -107,7 +107,7 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         *,
         weight_fn: Callable[[TensorDictBase], torch.Tensor] | None = None,
     ) -> LastLayerLaplace:
-        """(Re)fits the last-layer posterior on ``batches`` (Algorithm 1, line 8 and 17).
+        """(Re)fits the last-layer posterior on ``batches`` (Algorithm 1, lines 9 and 17).
 
         Streams the trunk features of every batch into the Gram matrix ``G`` with the
         actor-loss weights ``w_i`` (``weight_fn(batch)``, e.g.

@@ -56,7 +56,11 @@ class PlannerSampler(nn.Module):
         )
 
     def plan(
-        self, observation: torch.Tensor, action: torch.Tensor | None = None
+        self,
+        observation: torch.Tensor,
+        action: torch.Tensor | None = None,
+        *,
+        deterministic: bool | None = None,
     ) -> torch.Tensor:
         """A whole window in raw units, ``[*B, H + 1, obs_dim + action_dim]``.
 
@@ -72,7 +76,8 @@ class PlannerSampler(nn.Module):
             raise ValueError("observation holds NaN/inf entries; the planner cannot condition on it.")
         action_norm = None if action is None else norm.normalize_action(action)
         cond, mask = layout.conditioned_window(norm.normalize_observation(observation), action_norm)
-        deterministic = self._deterministic()
+        if deterministic is None:
+            deterministic = self._deterministic()
         window = self.model.sample(
             cond,
             mask,
@@ -96,10 +101,15 @@ class PlannerSampler(nn.Module):
         return action, layout.observations(window)[..., 1, :]
 
     def predict_next_observation(
-        self, observation: torch.Tensor, action: torch.Tensor
+        self,
+        observation: torch.Tensor,
+        action: torch.Tensor,
+        *,
+        deterministic: bool | None = None,
     ) -> torch.Tensor:
         """The transition model ``ŝ_1 ~ p_θ(τ_{s_1} | τ_{s_0} = s, τ_{a_0} = a)``."""
-        return self.model.layout.observations(self.plan(observation, action))[..., 1, :]
+        window = self.plan(observation, action, deterministic=deterministic)
+        return self.model.layout.observations(window)[..., 1, :]
 
 
 class PlannerPolicy(TensorDictModuleBase):
@@ -170,8 +180,10 @@ class TransitionModel(TensorDictModuleBase):
 
     The planner is trained with ``a_0`` sometimes known (see
     :class:`~torchrl_dual.objectives.DiffusionPlannerLoss`), so conditioning on
-    both gives the transition model used by the shift signal of Eq. (10). Under
-    deterministic exploration the prediction is the DDIM image of the zero latent.
+    both gives the transition model used by the shift signal of Eq. (10). By default
+    (``latent="zero"``) the prediction is the DDIM image of the zero latent in every
+    exploration mode, so ``d_t = ‖ŝ_t − s_t‖`` measures the shift and not the model's
+    own sampling noise; ``latent="sample"`` draws it under random exploration.
 
     Examples:
         >>> import torch
@@ -192,15 +204,21 @@ class TransitionModel(TensorDictModuleBase):
         observation_key: NestedKey = "observation",
         action_key: NestedKey = "action",
         out_key: NestedKey = "predicted_observation",
+        latent: str = "zero",
     ) -> None:
         super().__init__()
+        if latent not in ("zero", "sample"):
+            raise ValueError(f"Unknown latent {latent!r}; choose 'zero' or 'sample'.")
         self.sampler = PlannerSampler(model, num_steps=num_steps)
+        self.deterministic = True if latent == "zero" else None
         self.in_keys = [observation_key, action_key]
         self.out_keys = [out_key]
 
     def predict(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """Tensor-level call: ``ŝ_1`` for ``[*B, obs_dim]`` states and ``[*B, act_dim]`` actions."""
-        return self.sampler.predict_next_observation(observation, action)
+        return self.sampler.predict_next_observation(
+            observation, action, deterministic=self.deterministic
+        )
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         observation = _read(tensordict, self.in_keys[0])
