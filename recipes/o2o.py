@@ -54,8 +54,10 @@ def run(cfg: DictConfig) -> DualRun:
                 raise KeyboardInterrupt
     except KeyboardInterrupt:
         dual.save()
-        print(f"[dual] interrupted at {dual.frames} online frames; checkpoint saved. "
-              "Continue with resume=true.")
+        print(
+            f"[dual] interrupted at {dual.frames} online frames; checkpoint saved. "
+            "Continue with resume=true."
+        )
         return dual
     if not dual.history or dual.history[-1]["frames"] != dual.frames:
         dual.evaluate("online")

@@ -42,7 +42,8 @@ class DualRun:
         self.seed_everything(cfg.seed)
         self.output_dir = Path(cfg.output_dir)
         fingerprint = {
-            k: v for k, v in OmegaConf.to_container(cfg, resolve=True).items()
+            k: v
+            for k, v in OmegaConf.to_container(cfg, resolve=True).items()
             if k not in _RESUMABLE_KEYS
         }
         self.checkpoint = RunCheckpoint(self.output_dir / "checkpoint.pt", fingerprint)
@@ -66,7 +67,8 @@ class DualRun:
         self.teacher = setup.make_planner(cfg, self.data)
         self.transition = TransitionModel(setup.one_step_like(self.teacher))
         self.actor = PlannerActor(
-            setup.one_step_like(self.teacher), latent=cfg.actor.latent,
+            setup.one_step_like(self.teacher),
+            latent=cfg.actor.latent,
             init_std=cfg.actor.init_std,
         )
         self.critic = setup.make_critic(cfg, self.actor, self.data)
@@ -139,8 +141,15 @@ class DualRun:
                 f"The checkpoint {self.checkpoint.path} does not fit this run's networks "
                 f"({err}). Resume with the settings that wrote it, or use another output_dir."
             ) from err
-        for key in ("stages_done", "frames", "updates", "updates_since_refit",
-                    "update_credit", "next_episode", "history"):
+        for key in (
+            "stages_done",
+            "frames",
+            "updates",
+            "updates_since_refit",
+            "update_credit",
+            "next_episode",
+            "history",
+        ):
             setattr(self, key, state[key])
         if state["online_data"] is not None:
             self.replay.extend(state["online_data"])
@@ -165,17 +174,26 @@ class DualRun:
         """Alg. 1 lines 3-4: θ' ← θ' − λ_g ∇ L_VLB on D_offline (Eq. 3)."""
         p = self.cfg.planner
         train_planner(
-            self.teacher, self.windows.sample, self.cfg.budget.planner_updates, lr=p.lr,
-            action_condition_prob=p.action_condition_prob, logger=self.logger,
-            log_prefix="planner/", progress=self.cfg.progress,
+            self.teacher,
+            self.windows.sample,
+            self.cfg.budget.planner_updates,
+            lr=p.lr,
+            action_condition_prob=p.action_condition_prob,
+            logger=self.logger,
+            log_prefix="planner/",
+            progress=self.cfg.progress,
         )
 
     def distill(self) -> None:
         """Alg. 1 line 5: distil g_θ' into the one-step π_θ and p(s'|s, a; θ)."""
         student = progressive_distillation(
-            self.teacher, self.windows.sample, list(self.cfg.budget.distill_updates),
-            lr=self.cfg.distillation.lr, action_condition_prob=self.cfg.planner.action_condition_prob,
-            logger=self.logger, progress=self.cfg.progress,
+            self.teacher,
+            self.windows.sample,
+            list(self.cfg.budget.distill_updates),
+            lr=self.cfg.distillation.lr,
+            action_condition_prob=self.cfg.planner.action_condition_prob,
+            logger=self.logger,
+            progress=self.cfg.progress,
         )
         self.transition.sampler.model.load_state_dict(student.state_dict())
         self.actor.model.load_state_dict(student.state_dict())
@@ -195,13 +213,20 @@ class DualRun:
         self.actor_optimizer.step()
         self.updates += 1
         self.updates_since_refit += 1
-        return {"loss_qvalue": q_loss.item(), "loss_value": v_loss.item(),
-                **{k: v.item() for k, v in out.items()}}
+        return {
+            "loss_qvalue": q_loss.item(),
+            "loss_value": v_loss.item(),
+            **{k: v.item() for k, v in out.items()},
+        }
 
     def pretrain_actor_critic(self) -> None:
         """Alg. 1 lines 6-8: pre-train Q_φ and π_θ on D_offline."""
-        bar = tqdm(range(self.cfg.budget.offline_updates), desc="actor+critic",
-                   disable=not self.cfg.progress, leave=False)
+        bar = tqdm(
+            range(self.cfg.budget.offline_updates),
+            desc="actor+critic",
+            disable=not self.cfg.progress,
+            leave=False,
+        )
         for i in bar:
             metrics = self.update(self.offline_buffer.sample().to(self.cfg.device))
             if i % 100 == 0:
@@ -211,7 +236,7 @@ class DualRun:
     def _all_transitions(self, chunk: int = 8192):
         for source in (self.data.transitions, self.replay.online_buffer):
             for start in range(0, len(source), chunk):
-                batch = source[start:start + chunk]
+                batch = source[start : start + chunk]
                 yield batch.to(self.cfg.device)
 
     def fit_laplace(self) -> None:
@@ -232,8 +257,10 @@ class DualRun:
         result.update(frames=self.frames, label=label)
         self.history.append(result)
         self.log({k: v for k, v in result.items() if k != "label"}, self.frames, "eval/")
-        print(f"[dual] {label} @ {self.frames} frames: normalized score "
-              f"{result['normalized_score']:.1f} (return {result['return']:.3f})")
+        print(
+            f"[dual] {label} @ {self.frames} frames: normalized score "
+            f"{result['normalized_score']:.1f} (return {result['return']:.3f})"
+        )
         return result
 
     # ------------------------------------------------------------------ online phase
@@ -242,9 +269,13 @@ class DualRun:
         remaining = self.cfg.budget.online_frames - self.frames
         self.env.set_seed(self.cfg.seed + 1 + self.frames)
         return Collector(
-            self.env, self.policy, frames_per_batch=self.cfg.budget.frames_per_batch,
-            total_frames=max(remaining, 0), exploration_type=ExplorationType.RANDOM,
-            device=self.cfg.device, auto_register_policy_transforms=False,
+            self.env,
+            self.policy,
+            frames_per_batch=self.cfg.budget.frames_per_batch,
+            total_frames=max(remaining, 0),
+            exploration_type=ExplorationType.RANDOM,
+            device=self.cfg.device,
+            auto_register_policy_transforms=False,
         )
 
     def store(self, batch: TensorDictBase) -> dict:
@@ -259,9 +290,11 @@ class DualRun:
         self.replay.extend(online.cpu())
         self.frames += batch.numel()
         finished = batch["next", "reward"].sum()
-        return {"reward_per_step": float(finished) / batch.numel(),
-                "shift_distance": float(batch["next", "shift_distance"].mean()),
-                "epistemic_std": float(batch["epistemic_variance"].mean().sqrt())}
+        return {
+            "reward_per_step": float(finished) / batch.numel(),
+            "shift_distance": float(batch["next", "shift_distance"].mean()),
+            "epistemic_std": float(batch["epistemic_variance"].mean().sqrt()),
+        }
 
     def train_online(self, num_frames: int) -> dict:
         """Alg. 1 lines 14-16: UTD-ratio updates on D_offline ∪ D_online."""
@@ -277,16 +310,22 @@ class DualRun:
         self.save()
         from plots import plot_learning_curve
 
-        png = plot_learning_curve(self.history, self.output_dir / "learning_curve.png",
-                                  title=f"DUAL on {self.cfg.env.name}")
+        png = plot_learning_curve(
+            self.history,
+            self.output_dir / "learning_curve.png",
+            title=f"DUAL on {self.cfg.env.name}",
+        )
         offline = next((h for h in self.history if h["label"] == "offline"), None)
         final = self.history[-1] if self.history else None
         print("[dual] done.")
         if offline is not None:
-            print(f"[dual] normalized score after the offline phase: {offline['normalized_score']:.1f}")
+            print(
+                f"[dual] normalized score after the offline phase: {offline['normalized_score']:.1f}"
+            )
         if final is not None:
-            print(f"[dual] normalized score at the end of the online phase: "
-                  f"{final['normalized_score']:.1f}")
+            print(
+                f"[dual] normalized score at the end of the online phase: "
+                f"{final['normalized_score']:.1f}"
+            )
         print(f"[dual] metrics CSV: {self.output_dir / 'logs' / 'dual' / 'scalars'}")
         print(f"[dual] learning curve: {png}")
-

@@ -114,7 +114,9 @@ def make_evaluator(cfg: DictConfig, data: OfflineDataset) -> Callable[[nn.Module
             actions = frozenlake_policy_actions(policy, num_states, device)
             success = float(
                 frozenlake_success_probability(
-                    actions, env.map_name, env.online_success_rate,
+                    actions,
+                    env.map_name,
+                    env.online_success_rate,
                     horizon=env.max_episode_steps,
                 )
             )
@@ -212,8 +214,12 @@ def make_critic(cfg: DictConfig, actor: PlannerActor, data: OfflineDataset) -> C
     class _QNet(nn.Module):
         def __init__(self) -> None:
             super().__init__()
-            self.mlp = MLP(in_features=data.obs_dim + data.action_dim, out_features=1,
-                           num_cells=cells, activation_class=nn.ReLU)
+            self.mlp = MLP(
+                in_features=data.obs_dim + data.action_dim,
+                out_features=1,
+                num_cells=cells,
+                activation_class=nn.ReLU,
+            )
 
         def forward(self, observation, action):
             return self.mlp(torch.cat([observation, action], -1))
@@ -228,8 +234,9 @@ def make_critic(cfg: DictConfig, actor: PlannerActor, data: OfflineDataset) -> C
         in_keys=["loc", "scale"],
         distribution_class=torch.distributions.Normal,
     )
-    loss = IQLLoss(policy, qvalue, value, expectile=c.expectile, num_qvalue_nets=2,
-                   loss_function="l2").to(cfg.device)
+    loss = IQLLoss(
+        policy, qvalue, value, expectile=c.expectile, num_qvalue_nets=2, loss_function="l2"
+    ).to(cfg.device)
     loss.make_value_estimator(gamma=c.discount)
     params = list(loss.qvalue_network_params.values(True, True)) + list(
         loss.value_network_params.values(True, True)
@@ -242,7 +249,10 @@ def make_actor_loss(cfg: DictConfig, actor: PlannerActor, critic: Critic) -> Wei
     """The weighted MAP actor loss of Eq. (7) on the IQL critics."""
     a = cfg.actor
     return WeightedMAPActorLoss.from_iql(
-        actor, critic.loss, weighting=a.weighting, temperature=a.temperature,
+        actor,
+        critic.loss,
+        weighting=a.weighting,
+        temperature=a.temperature,
         max_weight=a.max_weight,
     )
 

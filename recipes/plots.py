@@ -16,8 +16,10 @@ def plot_learning_curve(history: list[dict], path: Path, *, title: str = "") -> 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError:
-        print("[dual] matplotlib is not installed: no learning-curve PNG "
-              "(pip install 'torchrl-dual[plots]').")
+        print(
+            "[dual] matplotlib is not installed: no learning-curve PNG "
+            "(pip install 'torchrl-dual[plots]')."
+        )
         return None
     frames = [h["frames"] for h in history]
     scores = [h["normalized_score"] for h in history]

@@ -159,10 +159,12 @@ def progressive_distillation(
         the final student (the input ``teacher`` is left unchanged).
     """
     steps = teacher.num_steps
-    if final_steps < 1 or steps % final_steps or (steps // final_steps) & (steps // final_steps - 1):
-        raise ValueError(
-            f"final_steps={final_steps} must be N / 2^k for the teacher's N={steps}."
-        )
+    if (
+        final_steps < 1
+        or steps % final_steps
+        or (steps // final_steps) & (steps // final_steps - 1)
+    ):
+        raise ValueError(f"final_steps={final_steps} must be N / 2^k for the teacher's N={steps}.")
     num_rounds = (steps // final_steps).bit_length() - 1
     if isinstance(updates_per_round, int):
         updates_per_round = [updates_per_round] * num_rounds

@@ -167,7 +167,7 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
                 f"LaplaceEnsembleActor reads {self.in_keys[0]!r}, which the input lacks; it "
                 f"holds {sorted(map(str, tensordict.keys(True, True)))}."
             )
-        aleatoric = self.actor.std ** 2
+        aleatoric = self.actor.std**2
         if exploration_type() in _DETERMINISTIC:
             loc = self.actor(observation)
             epistemic = torch.zeros_like(loc)

@@ -35,11 +35,14 @@ class LastLayerActor(nn.Module):
     head: nn.Linear
     head_rows: torch.Tensor
 
-    def __init__(self, action_dim: int, *, init_std: float = 0.3, min_std: float = 1e-3,
-                 max_std: float = 2.0) -> None:
+    def __init__(
+        self, action_dim: int, *, init_std: float = 0.3, min_std: float = 1e-3, max_std: float = 2.0
+    ) -> None:
         super().__init__()
         if not min_std <= init_std <= max_std:
-            raise ValueError(f"init_std={init_std} must lie in [min_std={min_std}, max_std={max_std}].")
+            raise ValueError(
+                f"init_std={init_std} must lie in [min_std={min_std}, max_std={max_std}]."
+            )
         self.action_dim = action_dim
         self.log_std = nn.Parameter(torch.full((action_dim,), math.log(init_std)))
         self.min_log_std, self.max_log_std = math.log(min_std), math.log(max_std)
@@ -52,9 +55,7 @@ class LastLayerActor(nn.Module):
     def features(self, observation: torch.Tensor) -> torch.Tensor:
         raise NotImplementedError
 
-    def readout(
-        self, head_rows: torch.Tensor, observation: torch.Tensor
-    ) -> torch.Tensor:
+    def readout(self, head_rows: torch.Tensor, observation: torch.Tensor) -> torch.Tensor:
         """Maps the selected head outputs ``[..., A]`` to actions (affine)."""
         raise NotImplementedError
 

@@ -73,7 +73,9 @@ class PlannerSampler(nn.Module):
                 f"got shape {tuple(observation.shape)}."
             )
         if not torch.isfinite(observation).all():
-            raise ValueError("observation holds NaN/inf entries; the planner cannot condition on it.")
+            raise ValueError(
+                "observation holds NaN/inf entries; the planner cannot condition on it."
+            )
         action_norm = None if action is None else norm.normalize_action(action)
         cond, mask = layout.conditioned_window(norm.normalize_observation(observation), action_norm)
         if deterministic is None:

@@ -73,7 +73,9 @@ class DiffusionPlannerLoss(TrajectoryWindowLoss):
     ) -> None:
         super().__init__()
         if not 0.0 <= action_condition_prob <= 1.0:
-            raise ValueError(f"action_condition_prob must lie in [0, 1], got {action_condition_prob}.")
+            raise ValueError(
+                f"action_condition_prob must lie in [0, 1], got {action_condition_prob}."
+            )
         self.convert_to_functional(model, "model")
         self.action_condition_prob = action_condition_prob
         self.reduction = reduction

@@ -174,7 +174,9 @@ class WeightedMAPActorLoss(LossModule):
     def q_value(self, tensordict: TensorDictBase) -> torch.Tensor:
         """``min_k Q_k(s, a)`` with detached critic weights, shape ``[*B]``."""
         return self._evaluate(
-            self.qvalue_network, self.qvalue_params, tensordict,
+            self.qvalue_network,
+            self.qvalue_params,
+            tensordict,
             self.tensor_keys.state_action_value,
         ).squeeze(-1)
 
@@ -193,9 +195,7 @@ class WeightedMAPActorLoss(LossModule):
         for role, dim in (("observation", None), ("action", self.actor.action_dim)):
             value = fetch(tensordict, getattr(self.tensor_keys, role), role)
             if dim is not None and value.shape[-1] != dim:
-                raise ValueError(
-                    f"{role} must end with dim {dim}, got shape {tuple(value.shape)}."
-                )
+                raise ValueError(f"{role} must end with dim {dim}, got shape {tuple(value.shape)}.")
             if not torch.isfinite(value).all():
                 bad = int((~torch.isfinite(value)).sum())
                 raise ValueError(f"{role} holds {bad} NaN/inf entries; clean the batch first.")
