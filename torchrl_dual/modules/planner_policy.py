@@ -55,17 +55,14 @@ class PlannerSampler(nn.Module):
             ExplorationType.MEAN,
         )
 
-    def plan(
+    def normalized_window(
         self,
         observation: torch.Tensor,
         action: torch.Tensor | None = None,
         *,
         deterministic: bool | None = None,
     ) -> torch.Tensor:
-        """A whole window in raw units, ``[*B, H + 1, obs_dim + action_dim]``.
-
-        ``s_0`` (and ``a_0`` when given) are copied from the input, hence exact.
-        """
+        """The sampled window in normalized units, ``[*B, H + 1, obs_dim + action_dim]``."""
         layout, norm = self.model.layout, self.model.normalizer
         if observation.shape[-1] != layout.obs_dim:
             raise ValueError(
@@ -80,13 +77,27 @@ class PlannerSampler(nn.Module):
         cond, mask = layout.conditioned_window(norm.normalize_observation(observation), action_norm)
         if deterministic is None:
             deterministic = self._deterministic()
-        window = self.model.sample(
+        return self.model.sample(
             cond,
             mask,
             num_steps=self.num_steps,
             sampler="ddim" if deterministic else self.sampler,
-            noise=torch.zeros_like(cond) if deterministic else None,
+            noise=cond if deterministic else None,  # known entries of cond, zeros elsewhere
         )
+
+    def plan(
+        self,
+        observation: torch.Tensor,
+        action: torch.Tensor | None = None,
+        *,
+        deterministic: bool | None = None,
+    ) -> torch.Tensor:
+        """A whole window in raw units, ``[*B, H + 1, obs_dim + action_dim]``.
+
+        ``s_0`` (and ``a_0`` when given) are copied from the input, hence exact.
+        """
+        layout, norm = self.model.layout, self.model.normalizer
+        window = self.normalized_window(observation, action, deterministic=deterministic)
         states = norm.denormalize_observation(layout.observations(window))
         actions = norm.denormalize_action(layout.actions(window))
         states[..., 0, :] = observation
@@ -95,12 +106,12 @@ class PlannerSampler(nn.Module):
         return torch.cat([states, actions], dim=-1)
 
     def forward(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        window = self.plan(observation)
-        layout = self.model.layout
-        action = layout.actions(window)[..., 0, :]
+        layout, norm = self.model.layout, self.model.normalizer
+        window = self.normalized_window(observation)
+        action = norm.denormalize_action(window[..., 0, layout.obs_dim :])
         if self.action_low is not None or self.action_high is not None:
             action = action.clamp(self.action_low, self.action_high)
-        return action, layout.observations(window)[..., 1, :]
+        return action, norm.denormalize_observation(window[..., 1, : layout.obs_dim])
 
     def predict_next_observation(
         self,
@@ -110,8 +121,10 @@ class PlannerSampler(nn.Module):
         deterministic: bool | None = None,
     ) -> torch.Tensor:
         """The transition model ``ŝ_1 ~ p_θ(τ_{s_1} | τ_{s_0} = s, τ_{a_0} = a)``."""
-        window = self.plan(observation, action, deterministic=deterministic)
-        return self.model.layout.observations(window)[..., 1, :]
+        window = self.normalized_window(observation, action, deterministic=deterministic)
+        return self.model.normalizer.denormalize_observation(
+            window[..., 1, : self.model.layout.obs_dim]
+        )
 
 
 class PlannerPolicy(TensorDictModuleBase):
