@@ -153,6 +153,8 @@ class DualRun:
             setattr(self, key, state[key])
         if state["online_data"] is not None:
             self.replay.extend(state["online_data"])
+            # The collector starts a new episode on resume: never reuse the cut one's id.
+            self.next_episode = int(state["online_data"]["episode"].max()) + 1
         set_rng_state(state["rng"])
         return state["logger"]
 
@@ -289,9 +291,8 @@ class DualRun:
         online.set("episode", episode)
         self.replay.extend(online.cpu())
         self.frames += batch.numel()
-        finished = batch["next", "reward"].sum()
         return {
-            "reward_per_step": float(finished) / batch.numel(),
+            "reward_per_step": float(batch["next", "reward"].mean()),
             "shift_distance": float(batch["next", "shift_distance"].mean()),
             "epistemic_std": float(batch["epistemic_variance"].mean().sqrt()),
         }
