@@ -60,7 +60,7 @@ class DualRun:
         setup.check_dims(self.env, self.data)
         self.evaluate_policy = setup.make_evaluator(cfg, self.data)
         self.windows = WindowReplayBuffer(
-            self.data.transitions, cfg.planner.horizon, cfg.planner.batch_size
+            self.data.transitions, cfg.planner.horizon, cfg.planner.batch_size, device=cfg.device
         )
         self.offline_buffer = setup.make_offline_buffer(self.data, cfg)
         # ---- networks: teacher g_θ', one-step transition model and actor π_θ

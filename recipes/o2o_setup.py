@@ -275,4 +275,4 @@ def make_policies(
         shift_weight=cfg.exploration.shift_weight,
         action_projection=one_hot_argmax if cfg.env.kind == "frozenlake" else None,
     )
-    return ensemble, TensorDictSequential(ensemble, noise)
+    return ensemble.to(cfg.device), TensorDictSequential(ensemble, noise).to(cfg.device)
