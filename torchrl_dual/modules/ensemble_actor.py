@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterable
 
 import torch
@@ -13,6 +14,7 @@ from torchrl.envs.utils import ExplorationType, exploration_type
 from torchrl_dual.modules.laplace import LastLayerLaplace
 from torchrl_dual.modules.last_layer import LastLayerActor
 
+_HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
 _DETERMINISTIC = (ExplorationType.DETERMINISTIC, ExplorationType.MODE, ExplorationType.MEAN)
 
 
@@ -185,7 +187,8 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
             variance = epistemic + aleatoric
             action = self._clamp(loc + variance.sqrt() * torch.randn_like(loc))
         scale = variance.sqrt()
-        log_prob = torch.distributions.Normal(loc, scale).log_prob(action).sum(-1)
+        # Gaussian log-density written out: no Distribution object on the action path.
+        log_prob = (-0.5 * ((action - loc) / scale) ** 2 - scale.log() - _HALF_LOG_2PI).sum(-1)
         loc_key, scale_key, epistemic_key, action_key, log_prob_key = self.out_keys
         tensordict.set(loc_key, loc)
         tensordict.set(scale_key, scale)
