@@ -101,7 +101,11 @@ def build_dual_m5(cfg: Config) -> TensorDictModuleBase:
     layout = TrajectoryLayout(cfg.obs_dim, cfg.action_dim, cfg.horizon)
     model = TrajectoryDiffusion(layout, num_steps=1, hidden=cfg.hidden, depth=cfg.depth)
     ensemble = LaplaceEnsembleActor(
-        PlannerActor(model), num_samples=5, action_low=-1.0, action_high=1.0
+        PlannerActor(model),
+        num_samples=5,
+        action_low=-1.0,
+        action_high=1.0,
+        sample_action=False,
     )
     ensemble.fit_laplace([TensorDict({"observation": torch.randn(512, cfg.obs_dim)}, [512])])
     transition = TransitionModel(copy.deepcopy(model))

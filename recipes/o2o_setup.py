@@ -268,6 +268,7 @@ def make_policies(
         prior_precision=cfg.laplace.prior_precision,
         action_low=low.to(cfg.device),
         action_high=high.to(cfg.device),
+        sample_action=False,  # ShiftAwareNoise draws the executed action (Eq. 10)
     )
     noise = ShiftAwareNoise(
         transition.predict,

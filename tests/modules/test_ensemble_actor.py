@@ -410,3 +410,13 @@ def test_fit_laplace_names_a_missing_observation_key(make_model):
     policy = LaplaceEnsembleActor(_actor("linear_head", make_model))
     with pytest.raises(KeyError, match="observation"):
         policy.fit_laplace([TensorDict({"obs": torch.zeros(3, OBS)}, [3])])
+
+
+def test_without_sample_action_the_ensemble_leaves_the_draw_to_the_next_module(make_model):
+    policy = _fitted_policy("linear_head", make_model)
+    policy.sample_action = False
+    with set_exploration_type(ExplorationType.RANDOM):
+        out = policy(_obs_td(5))
+    torch.testing.assert_close(out["action"], out["loc"])
+    assert "action_log_prob" not in out.keys()
+    assert (out["epistemic_variance"] > 0).all()

@@ -50,6 +50,10 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
             sub-policies are drawn at each :meth:`fit_laplace` and kept ("maintained",
             Section 3.3) until the next refit or :meth:`resample`, which also spares the
             action path the draw.
+        sample_action (bool): draw ``action ∼ N(μ, σ²)`` under random exploration.
+            Set ``False`` when a :class:`~torchrl_dual.modules.ShiftAwareNoise` follows: it
+            draws the executed action itself (Eq. 10), so this module then writes
+            ``action = μ`` and no ``action_log_prob``.
         observation_key, loc_key, scale_key, epistemic_key, action_key, log_prob_key
             (NestedKey): input and output keys.
 
@@ -76,6 +80,7 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         action_low: float | torch.Tensor | None = None,
         action_high: float | torch.Tensor | None = None,
         resample_each_call: bool = False,
+        sample_action: bool = True,
         observation_key: NestedKey = "observation",
         loc_key: NestedKey = "loc",
         scale_key: NestedKey = "scale",
@@ -93,6 +98,7 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         )
         self.num_samples = num_samples
         self.resample_each_call = resample_each_call
+        self.sample_action = sample_action
         self.register_buffer(
             "weight_deviation", torch.zeros(num_samples, actor.action_dim, in_features)
         )
@@ -185,6 +191,13 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
             loc = members.mean(0)
             epistemic = members.var(0, unbiased=False)
             variance = epistemic + aleatoric
+            if not self.sample_action:  # the next module (ShiftAwareNoise) samples
+                loc_key, scale_key, epistemic_key, action_key, _ = self.out_keys
+                tensordict.set(loc_key, loc)
+                tensordict.set(scale_key, variance.sqrt())
+                tensordict.set(epistemic_key, epistemic)
+                tensordict.set(action_key, self._clamp(loc))
+                return tensordict
             action = self._clamp(loc + variance.sqrt() * torch.randn_like(loc))
         scale = variance.sqrt()
         # Gaussian log-density written out: no Distribution object on the action path.
