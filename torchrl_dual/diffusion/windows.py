@@ -16,6 +16,11 @@ class WindowReplayBuffer:
     ``episode`` key, so every window lies inside one episode (episodes shorter
     than ``H + 1`` are never drawn).
 
+    .. note::
+        ``SliceSampler`` sets ``("next", "done")`` and ``("next", "truncated")`` on the last
+        row of every window, even mid-episode, and writes its own ``index`` entry. The
+        windows are meant for the planner losses; do not feed them to value learning.
+
     Args:
         transitions (TensorDictBase): flat ``[N]`` transitions in episode order,
             holding ``observation``, ``action`` and ``traj_key``.
