@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Iterable
 
 import torch
@@ -11,10 +10,10 @@ from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import NestedKey
 from torchrl.envs.utils import ExplorationType, exploration_type
 
+from torchrl_dual.modules._gaussian import gaussian_log_prob
 from torchrl_dual.modules.laplace import LastLayerLaplace
 from torchrl_dual.modules.last_layer import LastLayerActor
 
-_HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
 _DETERMINISTIC = (ExplorationType.DETERMINISTIC, ExplorationType.MODE, ExplorationType.MEAN)
 
 
@@ -200,8 +199,7 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
                 return tensordict
             action = self._clamp(loc + variance.sqrt() * torch.randn_like(loc))
         scale = variance.sqrt()
-        # Gaussian log-density written out: no Distribution object on the action path.
-        log_prob = (-0.5 * ((action - loc) / scale) ** 2 - scale.log() - _HALF_LOG_2PI).sum(-1)
+        log_prob = gaussian_log_prob(action, loc, scale)
         loc_key, scale_key, epistemic_key, action_key, log_prob_key = self.out_keys
         tensordict.set(loc_key, loc)
         tensordict.set(scale_key, scale)

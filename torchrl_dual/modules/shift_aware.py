@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 
 import torch
@@ -12,9 +11,9 @@ from torch import Tensor
 from torchrl.data.tensor_specs import Composite, TensorSpec
 from torchrl.envs.utils import ExplorationType, exploration_type
 
-__all__ = ["ShiftAwareNoise"]
+from torchrl_dual.modules._gaussian import gaussian_log_prob
 
-_HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
+__all__ = ["ShiftAwareNoise"]
 
 
 class ShiftAwareNoise(TensorDictModuleBase):
@@ -249,9 +248,9 @@ class ShiftAwareNoise(TensorDictModuleBase):
                 variance = scale.pow(2) + weight * shift.to(loc.dtype)  # Eq. (10)
             std = variance.clamp_min(self._MIN_VARIANCE).sqrt()
             action = self._project(loc + std * torch.randn_like(loc))
-            log_prob = -((action - loc) / std).pow(2) / 2 - std.log() - _HALF_LOG_2PI
+            log_prob = gaussian_log_prob(action, loc, std)
             tensordict.set(self.exploration_scale_key, std)
-            tensordict.set(self.log_prob_key, log_prob.sum(-1))
+            tensordict.set(self.log_prob_key, log_prob)
         else:
             action = self._project(loc)
         tensordict.set(self.action_key, action)
