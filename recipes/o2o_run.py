@@ -293,7 +293,7 @@ class DualRun:
         self.frames += batch.numel()
         return {
             "reward_per_step": float(batch["next", "reward"].mean()),
-            "shift_distance": float(batch["next", "shift_distance"].mean()),
+            "shift_distance": float(batch["shift_distance"].mean()),
             "epistemic_std": float(batch["epistemic_variance"].mean().sqrt()),
         }
 

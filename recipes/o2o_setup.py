@@ -38,7 +38,7 @@ from torchrl_dual.envs.frozenlake import frozenlake_num_states
 from torchrl_dual.envs.frozenlake_mdp import frozenlake_success_probability
 from torchrl_dual.envs.pointmaze import flatten_pointmaze_obs, make_pointmaze_gym_env
 from torchrl_dual.evaluation import evaluate_episodes, frozenlake_policy_actions
-from torchrl_dual.transforms import ShiftDistance
+from torchrl_dual.transforms import PreviousTransition
 
 ENV_KINDS = ("pointmaze", "frozenlake")
 CRITICS = ("iql",)
@@ -74,7 +74,8 @@ def make_offline_dataset(cfg: DictConfig) -> OfflineDataset:
 
 
 def make_train_env(cfg: DictConfig):
-    """The online env, with :class:`ShiftDistance` recording d_t of Eq. (10)."""
+    """The online env, with :class:`PreviousTransition` carrying ``(s_{t-1}, a_{t-1})``
+    to the policy, which turns them into ``d_t`` of Eq. (10)."""
     env = cfg.env
     if env.kind == "pointmaze":
         base = make_pointmaze_env(
@@ -87,7 +88,7 @@ def make_train_env(cfg: DictConfig):
             seed=cfg.seed,
             max_episode_steps=env.max_episode_steps,
         )
-    return base.append_transform(ShiftDistance())
+    return base.append_transform(PreviousTransition())
 
 
 def check_dims(env, data: OfflineDataset) -> None:
@@ -257,11 +258,24 @@ def make_actor_loss(cfg: DictConfig, actor: PlannerActor, critic: Critic) -> Wei
     )
 
 
+TRANSITION_MODELS = ("shared", "frozen")
+
+
 def make_policies(
     cfg: DictConfig, actor: PlannerActor, transition: TransitionModel, env
 ) -> tuple[LaplaceEnsembleActor, TensorDictSequential]:
-    """The Laplace ensemble (Eq. 9) and the exploration policy with Eq. (10)'s noise."""
+    """The Laplace ensemble (Eq. 9) and the exploration policy with Eq. (10)'s noise.
+
+    ``exploration.transition_model``: ``shared`` predicts ``ŝ_t`` with the actor's own
+    (fine-tuned) planner weights in the same trunk pass as the action (Alg. 1 l. 12,
+    ``p(s'|s, a; θ)``); ``frozen`` with the distilled offline copy, a second pass.
+    """
     low, high = env.action_spec.space.low, env.action_spec.space.high
+    source = cfg.exploration.transition_model
+    if source not in TRANSITION_MODELS:
+        raise ValueError(
+            f"Unknown exploration.transition_model {source!r}; choose one of {TRANSITION_MODELS}."
+        )
     ensemble = LaplaceEnsembleActor(
         actor,
         num_samples=cfg.laplace.num_samples,
@@ -269,9 +283,10 @@ def make_policies(
         action_low=low.to(cfg.device),
         action_high=high.to(cfg.device),
         sample_action=False,  # ShiftAwareNoise draws the executed action (Eq. 10)
+        predict_transition=source == "shared",
     )
     noise = ShiftAwareNoise(
-        transition.predict,
+        transition.predict if source == "frozen" else None,
         spec=env.action_spec,
         shift_weight=cfg.exploration.shift_weight,
         action_projection=one_hot_argmax if cfg.env.kind == "frozenlake" else None,

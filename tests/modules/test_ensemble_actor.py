@@ -18,10 +18,11 @@ from torchrl_dual.modules import (
     LinearHeadActor,
     PlannerActor,
     PlannerSampler,
+    TransitionModel,
     ShiftAwareNoise,
 )
 from torchrl_dual.objectives.weighted_map_actor import WeightedMAPActorLoss
-from torchrl_dual.transforms import ShiftDistance
+from torchrl_dual.transforms import PreviousTransition
 
 OBS, ACT = 2, 2
 ACTOR_KINDS = ("linear_head", "planner")
@@ -86,8 +87,9 @@ def test_trunk_and_head_run_once_per_forward_for_any_ensemble_size(
     counted(policy.actor, "head_output")
     counted(policy.laplace, "weight_samples_split")
     out = policy(_obs_td(7))
-    # The M sub-policies are drawn at fit time, not on the action path.
-    assert calls == {"features": 1, "head_output": 1, "weight_samples_split": 0}
+    # One trunk pass; the MAP head and the M deviations form one batched contraction
+    # (no separate head pass); the M sub-policies are drawn at fit time, not here.
+    assert calls == {"features": 1, "head_output": 0, "weight_samples_split": 0}
     assert policy.member_actions(_obs_td(7)["observation"]).shape == (num_samples, 7, ACT)
     assert out["action"].shape == out["loc"].shape == out["epistemic_variance"].shape == (7, ACT)
     assert out["action_log_prob"].shape == (7,)
@@ -314,22 +316,24 @@ def test_wraps_a_torchrl_mlp_actor_as_iql_plus_la_and_a_planner_actor(make_model
 
 
 # ----------------------------------------------------------------------------- (h) collector
-def test_collects_pendulum_with_shift_aware_noise_and_stores_all_keys(make_model):
+@pytest.mark.parametrize("shared", [True, False], ids=["shared-pass", "separate-model"])
+def test_collects_pendulum_with_shift_aware_noise_and_stores_all_keys(make_model, shared):
     from torchrl.collectors import Collector
     from torchrl.envs import GymEnv, TransformedEnv
 
     env = TransformedEnv(GymEnv("Pendulum-v1"))
-    env.append_transform(ShiftDistance())
+    env.append_transform(PreviousTransition())
     env.set_seed(0)
     torch.manual_seed(0)
     model = make_model(TrajectoryLayout(3, 1, 4), num_steps=1, fit=False)
     observation = env.observation_spec["observation"].rand((256,))
     model.normalizer.fit(observation, env.action_spec.rand((256,)))
-    ensemble = LaplaceEnsembleActor(PlannerActor(model), num_samples=5)
-    ensemble.fit_laplace([TensorDict({"observation": observation}, [256])])
-    noise = ShiftAwareNoise(
-        transition_model=PlannerSampler(model).predict_next_observation, spec=env.action_spec
+    ensemble = LaplaceEnsembleActor(
+        PlannerActor(model), num_samples=5, sample_action=False, predict_transition=shared
     )
+    ensemble.fit_laplace([TensorDict({"observation": observation}, [256])])
+    transition = TransitionModel(model)
+    noise = ShiftAwareNoise(None if shared else transition.predict, spec=env.action_spec)
     policy = TensorDictSequential(ensemble, noise)
     collector = Collector(
         env, policy, frames_per_batch=50, total_frames=100, auto_register_policy_transforms=False
@@ -341,20 +345,22 @@ def test_collects_pendulum_with_shift_aware_noise_and_stores_all_keys(make_model
     assert len(batches) == 2
     for data in batches:
         assert data.batch_size == (50,)
-        for key in ("action", "loc", "scale", "epistemic_variance", ("next", "shift_distance")):
+        for key in ("action", "loc", "scale", "epistemic_variance", "shift_distance"):
             assert key in data.keys(True, True), key
         assert (data["epistemic_variance"] > 0).all()
         assert data["action"].abs().max() <= 2.0  # projected on the Pendulum action spec
         std = policy[0].actor.std.detach()
         torch.testing.assert_close(data["scale"] ** 2, data["epistemic_variance"] + std**2)
-        distance = (data["predicted_observation"] - data["next", "observation"]).norm(
-            dim=-1, keepdim=True
-        )
-        torch.testing.assert_close(data["next", "shift_distance"], distance)
-        # d_t read at step t is the distance recorded at step t - 1 (Eq. 10)
-        torch.testing.assert_close(data["shift_distance"][1:], data["next", "shift_distance"][:-1])
-        expected = (data["scale"] ** 2 + 0.5 * data["shift_distance"]).sqrt()
-        torch.testing.assert_close(data["exploration_scale"], expected)
+        # d_t = ‖p(s' | s_(t-1), a_(t-1)) − s_t‖ with the executed a_(t-1); 0 after reset
+        valid = data["previous_valid"]
+        with torch.no_grad():
+            predicted = transition.predict(data["previous_observation"], data["previous_action"])
+        expected = torch.where(valid, (predicted - data["observation"]).norm(dim=-1, keepdim=True), 0)
+        torch.testing.assert_close(data["shift_distance"], expected, rtol=1e-4, atol=1e-5)
+        torch.testing.assert_close(data["previous_action"][1:][valid[1:, 0]], data["action"][:-1][valid[1:, 0]])
+        assert (data["shift_distance"][valid] > 0).all()
+        scale = (data["scale"] ** 2 + 0.5 * data["shift_distance"]).sqrt()
+        torch.testing.assert_close(data["exploration_scale"], scale)
 
 
 # ----------------------------------------------------------------------------- (i) errors

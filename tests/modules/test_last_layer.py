@@ -37,6 +37,42 @@ def test_planner_actor_equals_the_deterministic_one_step_planner_policy(make_mod
     torch.testing.assert_close(mu, policy_td["action"], rtol=1e-5, atol=1e-5)
 
 
+@pytest.mark.parametrize("batch", [(), (5,), (2, 3)], ids=["unbatched", "B", "B0xB1"])
+@pytest.mark.parametrize("latent", ["zero", "sample"])
+def test_shared_pass_answers_the_policy_and_the_transition_query(make_model, batch, latent):
+    from torchrl_dual.modules import TransitionModel
+
+    model = make_model(num_steps=1)
+    actor = PlannerActor(model, latent=latent)
+    gen = torch.Generator().manual_seed(0)
+    observation = torch.randn(*batch, 3, generator=gen) * 2.0
+    previous_observation = torch.randn(*batch, 3, generator=gen)
+    previous_action = torch.randn(*batch, 2, generator=gen)
+    calls = []
+    original = model.denoiser.features
+    model.denoiser.features = lambda *args: calls.append(args[0].shape) or original(*args)
+    with torch.no_grad():
+        torch.manual_seed(1)
+        features, context, predicted = actor.encode_with_transition(
+            observation, previous_observation, previous_action
+        )
+        assert len(calls) == 1  # one trunk pass for both queries
+        torch.manual_seed(1)
+        alone = actor.features(observation)
+        reference = TransitionModel(model).predict(previous_observation, previous_action)
+    assert features.shape == (*batch, model.denoiser.feature_dim)
+    assert predicted.shape == observation.shape
+    torch.testing.assert_close(features, alone, rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(predicted, reference, rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(context, observation)
+
+
+def test_shared_pass_rejects_mismatched_previous_observation(make_model):
+    actor = PlannerActor(make_model(num_steps=1))
+    with pytest.raises(ValueError, match=r"previous_observation \(4, 3\).*\(5, 3\)"):
+        actor.encode_with_transition(torch.zeros(5, 3), torch.zeros(4, 3), torch.zeros(4, 2))
+
+
 def test_planner_actor_mean_is_affine_in_the_head_weights(make_model):
     actor = PlannerActor(make_model(num_steps=1))
     observation = torch.randn(5, 3)

@@ -21,23 +21,35 @@ def linear_model(observation, action):
 
 
 def make_td(*batch, shift=None, loc=0.3, scale=0.1):
-    td = TensorDict(
-        observation=torch.randn(*batch, OBS_DIM),
+    """Inputs whose previous step predicts ŝ_t at distance ``shift`` from s_t (along e_0)."""
+    previous_observation = torch.randn(*batch, OBS_DIM)
+    previous_action = torch.randn(*batch, ACT_DIM)
+    observation = linear_model(previous_observation, previous_action)
+    valid = torch.ones(*batch, 1, dtype=torch.bool)
+    if shift is None:
+        valid = ~valid
+    else:
+        offset = torch.as_tensor(shift, dtype=torch.float32).expand(*batch, 1)
+        observation = observation + torch.cat(
+            [offset, torch.zeros(*batch, OBS_DIM - 1)], dim=-1
+        )
+    return TensorDict(
+        observation=observation,
+        previous_observation=previous_observation,
+        previous_action=previous_action,
+        previous_valid=valid,
         loc=torch.full((*batch, ACT_DIM), loc),
         scale=torch.full((*batch, ACT_DIM), scale),
         batch_size=batch,
     )
-    if shift is not None:
-        td["shift_distance"] = torch.as_tensor(shift, dtype=torch.float32).expand(*batch, 1)
-    return td
 
 
 def test_noise_std_is_sqrt_of_variance_plus_weighted_shift_per_env():
     torch.manual_seed(0)
     noise = ShiftAwareNoise(linear_model, shift_weight=0.5)
-    td = make_td(2, 20000)
-    td["shift_distance"] = torch.tensor([0.0, 2.0]).view(2, 1, 1).expand(2, 20000, 1)
+    td = make_td(2, 20000, shift=torch.tensor([0.0, 2.0]).view(2, 1, 1))
     out = noise(td)
+    torch.testing.assert_close(out["shift_distance"][:, 0], torch.tensor([[0.0], [2.0]]))
     expected = torch.tensor([0.1, (0.1**2 + 0.5 * 2.0) ** 0.5])  # Eq. 10
     measured = (out["action"] - 0.3).std(dim=(1, 2))
     torch.testing.assert_close(measured, expected, rtol=0.02, atol=0)
@@ -53,49 +65,65 @@ def test_log_prob_is_normal_density_of_executed_action_summed_over_action_dim():
     assert out["action_log_prob"].shape == (5,)
 
 
-def test_zero_weight_reduces_to_plain_ensemble_gaussian():
+def test_zero_weight_reduces_to_plain_ensemble_gaussian_but_still_reports_d():
     torch.manual_seed(1)
     noise = ShiftAwareNoise(linear_model, shift_weight=0.0)
     out = noise(make_td(40000, shift=5.0))
+    torch.testing.assert_close(out["shift_distance"], torch.full((40000, 1), 5.0))
     torch.testing.assert_close(out["exploration_scale"], out["scale"])
     assert (out["action"] - 0.3).std().item() == pytest.approx(0.1, rel=0.02)
     dist = torch.distributions.Normal(out["loc"], out["scale"])
     torch.testing.assert_close(out["action_log_prob"], dist.log_prob(out["action"]).sum(-1))
+    # λ = 0 needs no transition model at all (the "w/o shift-aware" ablation)
+    bare = make_td(3).exclude("previous_observation", "previous_action", "previous_valid")
+    out = ShiftAwareNoise(shift_weight=0.0)(bare)
+    assert "shift_distance" not in out.keys()
+    torch.testing.assert_close(out["exploration_scale"], out["scale"])
 
 
-def test_missing_shift_distance_counts_as_zero():
+def test_no_previous_step_gives_zero_distance():
     torch.manual_seed(2)
-    out = ShiftAwareNoise(linear_model, shift_weight=10.0)(make_td(20000))
+    td = make_td(20000)  # previous_valid = False everywhere (just reset)
+    td["previous_observation"] += 100.0  # whatever is carried is ignored
+    out = ShiftAwareNoise(linear_model, shift_weight=10.0)(td)
+    assert (out["shift_distance"] == 0).all()
     torch.testing.assert_close(out["exploration_scale"], out["scale"])
     assert (out["action"] - 0.3).std().item() == pytest.approx(0.1, rel=0.03)
+
+
+def test_expected_observation_from_the_actor_takes_precedence_over_the_model():
+    calls = []
+
+    def model(observation, action):
+        calls.append(1)
+        return observation
+
+    td = make_td(4, shift=1.0)
+    td["expected_observation"] = td["observation"] + torch.tensor([0.0, 3.0, 4.0])
+    out = ShiftAwareNoise(model)(td)
+    torch.testing.assert_close(out["shift_distance"], torch.full((4, 1), 5.0))
+    assert not calls
+    # and no model is needed when the actor provides ŝ_t
+    out = ShiftAwareNoise()(td.exclude("previous_observation", "previous_action"))
+    torch.testing.assert_close(out["shift_distance"], torch.full((4, 1), 5.0))
 
 
 @pytest.mark.parametrize(
     "mode", [ExplorationType.DETERMINISTIC, ExplorationType.MODE, ExplorationType.MEAN]
 )
-def test_deterministic_modes_return_loc_without_noise(mode):
-    noise = ShiftAwareNoise(linear_model)
-    td = make_td(4, shift=3.0)
+def test_deterministic_modes_return_loc_without_noise_or_model_call(mode):
+    def model(observation, action):
+        raise AssertionError("the transition model must not run in evaluation")
+
+    noise = ShiftAwareNoise(model)
     with set_exploration_type(mode):
-        out = noise(td)
+        out = noise(make_td(4, shift=3.0))
     torch.testing.assert_close(out["action"], out["loc"])
-    assert "exploration_scale" not in out.keys() and "action_log_prob" not in out.keys()
-    torch.testing.assert_close(
-        out["predicted_observation"], linear_model(out["observation"], out["loc"])
-    )
+    for key in ("exploration_scale", "action_log_prob", "shift_distance"):
+        assert key not in out.keys()
 
 
-def test_random_mode_is_noisy_and_prediction_uses_executed_action():
-    noise = ShiftAwareNoise(linear_model)
-    with set_exploration_type(ExplorationType.RANDOM):
-        out = noise(make_td(4, shift=1.0))
-    assert (out["action"] != out["loc"]).all()
-    torch.testing.assert_close(
-        out["predicted_observation"], linear_model(out["observation"], out["action"])
-    )
-
-
-def test_action_is_projected_on_spec_given_late_and_prediction_uses_projected_action():
+def test_action_is_projected_on_spec_given_late():
     torch.manual_seed(3)
     noise = ShiftAwareNoise(linear_model, shift_weight=1.0)
     out = noise(make_td(1000, shift=4.0))
@@ -104,9 +132,6 @@ def test_action_is_projected_on_spec_given_late_and_prediction_uses_projected_ac
     out = noise(make_td(1000, shift=4.0))
     assert out["action"].abs().max() <= 0.5
     assert (out["action"].abs() == 0.5).any()
-    torch.testing.assert_close(
-        out["predicted_observation"], linear_model(out["observation"], out["action"])
-    )
     assert isinstance(noise.spec, Composite) and "action" in noise.spec.keys()
 
 
@@ -116,22 +141,28 @@ def test_custom_keys_are_read_and_written():
         observation_key="obs",
         loc_key=("policy", "mu"),
         scale_key=("policy", "sigma"),
+        previous_observation_key="obs_before",
+        previous_action_key="act_before",
+        previous_valid_key="has_before",
         shift_key="d",
         action_key="act",
-        prediction_key="s_hat",
         exploration_scale_key="total_std",
         log_prob_key="logp",
     )
     td = TensorDict(
-        obs=torch.zeros(3, OBS_DIM),
+        obs=torch.full((3, OBS_DIM), 6.0),
+        obs_before=torch.zeros(3, OBS_DIM),
+        act_before=torch.zeros(3, ACT_DIM),
+        has_before=torch.ones(3, 1, dtype=torch.bool),
         policy=TensorDict(mu=torch.zeros(3, ACT_DIM), sigma=torch.ones(3, ACT_DIM), batch_size=[3]),
-        d=torch.full((3, 1), 6.0),
         batch_size=[3],
     )
     out = noise(td)
-    assert {"act", "s_hat", "total_std", "logp"} <= set(out.keys())
-    torch.testing.assert_close(out["total_std"], torch.full((3, ACT_DIM), 2.0))  # sqrt(1 + .5*6)
-    assert noise.in_keys == ["obs", ("policy", "mu"), ("policy", "sigma"), "d"]
+    assert {"act", "d", "total_std", "logp"} <= set(out.keys())
+    torch.testing.assert_close(out["d"], torch.full((3, 1), 6.0 * 3**0.5))
+    torch.testing.assert_close(out["total_std"], (1 + 0.5 * out["d"]).sqrt().expand(3, ACT_DIM))
+    assert noise.in_keys[:3] == ["obs", ("policy", "mu"), ("policy", "sigma")]
+    assert noise.in_keys[4:] == ["obs_before", "act_before", "has_before"]
 
 
 def test_sequential_with_actor_overwrites_the_actor_sample():
@@ -141,8 +172,7 @@ def test_sequential_with_actor_overwrites_the_actor_sample():
         ["loc", "scale", "action"],
     )
     policy = TensorDictSequential(actor, ShiftAwareNoise(linear_model))
-    td = TensorDict(observation=torch.randn(4, OBS_DIM), batch_size=[4])
-    out = policy(td)
+    out = policy(make_td(4, shift=1.0).exclude("loc", "scale"))
     assert (out["action"] != out["loc"]).all()
     assert out["exploration_scale"].shape == (4, ACT_DIM)
 
@@ -162,7 +192,7 @@ def test_shift_weight_and_model_weights_are_in_state_dict():
 
     noise = ShiftAwareNoise(Model())
     assert "transition_model.net.weight" in noise.state_dict()
-    assert noise(make_td(2))["predicted_observation"].shape == (2, OBS_DIM)
+    assert noise(make_td(2, shift=1.0))["shift_distance"].shape == (2, 1)
 
 
 @pytest.mark.parametrize(
@@ -172,14 +202,19 @@ def test_shift_weight_and_model_weights_are_in_state_dict():
         (lambda td: td.exclude("observation"), KeyError, r"'observation'.*observation_key="),
         (lambda td: td.exclude("scale"), KeyError, r"'scale'.*scale_key="),
         (
+            lambda td: td.exclude("previous_action"),
+            KeyError,
+            r"'previous_action'.*PreviousTransition\(\)",
+        ),
+        (
             lambda td: td.set("scale", torch.ones(4, 1)),
             ValueError,
             r"'scale' has shape \(4, 1\), expected \(4, 2\).*expand",
         ),
         (
-            lambda td: td.set("shift_distance", torch.ones(4)),
+            lambda td: td.set("expected_observation", torch.ones(4, 1)),
             ValueError,
-            r"'shift_distance' has shape \(4,\), expected \(4, 1\).*ShiftDistance",
+            r"'expected_observation' has shape \(4, 1\), expected \(4, 3\)",
         ),
         (
             lambda td: td.set("observation", torch.ones(4, 1, OBS_DIM)),
@@ -187,7 +222,7 @@ def test_shift_weight_and_model_weights_are_in_state_dict():
             r"'observation' has batch dims \(4, 1\), expected \(4,\)",
         ),
     ],
-    ids=["missing-loc", "missing-obs", "missing-scale", "scale", "shift", "obs-batch"],
+    ids=["missing-loc", "missing-obs", "missing-scale", "missing-prev", "scale", "ŝ", "obs-batch"],
 )
 def test_errors_name_key_shapes_and_fix(edit, error, match):
     td = edit(make_td(4, shift=1.0))
@@ -195,12 +230,12 @@ def test_errors_name_key_shapes_and_fix(edit, error, match):
         ShiftAwareNoise(linear_model)(td)
 
 
-def test_errors_for_bad_model_output_weight_and_spec():
+def test_errors_for_bad_model_output_missing_source_weight_and_spec():
     bad = ShiftAwareNoise(lambda s, a: a)
-    with pytest.raises(
-        ValueError, match=r"'predicted_observation' has shape \(4, 2\), expected \(4, 3\)"
-    ):
-        bad(make_td(4))
+    with pytest.raises(ValueError, match=r"'transition_model output' has shape \(4, 2\)"):
+        bad(make_td(4, shift=1.0))
+    with pytest.raises(KeyError, match=r"predict_transition=True.*transition_model=.*"):
+        ShiftAwareNoise()(make_td(4, shift=1.0))
     with pytest.raises(ValueError, match="shift_weight"):
         ShiftAwareNoise(linear_model, shift_weight=-1.0)
     with pytest.raises(TypeError, match="callable"):
@@ -209,17 +244,11 @@ def test_errors_for_bad_model_output_weight_and_spec():
         ShiftAwareNoise(linear_model, Composite(other=Bounded(-1, 1, shape=(ACT_DIM,))))
 
 
-def test_action_projection_stores_and_predicts_with_the_executed_one_hot_action():
-    seen = {}
-
-    def transition(observation, action):
-        seen["action"] = action
-        return observation
-
+def test_action_projection_stores_the_executed_one_hot_action():
     def one_hot(action):
         return torch.nn.functional.one_hot(action.argmax(-1), action.shape[-1]).to(action.dtype)
 
-    noise = ShiftAwareNoise(transition, action_projection=one_hot)
+    noise = ShiftAwareNoise(shift_weight=0.0, action_projection=one_hot)
     td = TensorDict(
         {
             "observation": torch.zeros(64, 3),
@@ -228,8 +257,6 @@ def test_action_projection_stores_and_predicts_with_the_executed_one_hot_action(
         },
         [64],
     )
-    out = noise(td)
-    action = out["action"]
+    action = noise(td)["action"]
     assert torch.equal(action.sum(-1), torch.ones(64))
     assert set(action.unique().tolist()) <= {0.0, 1.0}
-    assert torch.equal(seen["action"], action)

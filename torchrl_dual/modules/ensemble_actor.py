@@ -53,8 +53,17 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
             Set ``False`` when a :class:`~torchrl_dual.modules.ShiftAwareNoise` follows: it
             draws the executed action itself (Eq. 10), so this module then writes
             ``action = μ`` and no ``action_log_prob``.
-        observation_key, loc_key, scale_key, epistemic_key, action_key, log_prob_key
-            (NestedKey): input and output keys.
+        predict_transition (bool): also run DUAL's transition model ``p(s'|s, a; θ)``
+            on the previous step in the *same* trunk pass (Algorithm 1 l. 12): under
+            random exploration, read ``previous_observation``, ``previous_action`` and
+            ``previous_valid`` (written by the
+            :class:`~torchrl_dual.transforms.PreviousTransition` env transform) and write
+            ``expected_observation`` ``ŝ_t`` (``s_t`` itself where no previous step
+            exists), which :class:`~torchrl_dual.modules.ShiftAwareNoise` turns into
+            ``d_t``. Needs an actor with ``encode_with_transition`` (:class:`PlannerActor`).
+        observation_key, loc_key, scale_key, epistemic_key, action_key, log_prob_key,
+            previous_observation_key, previous_action_key, previous_valid_key,
+            expected_observation_key (NestedKey): input and output keys.
 
     Examples:
         >>> import torch
@@ -80,16 +89,27 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         action_high: float | torch.Tensor | None = None,
         resample_each_call: bool = False,
         sample_action: bool = True,
+        predict_transition: bool = False,
         observation_key: NestedKey = "observation",
         loc_key: NestedKey = "loc",
         scale_key: NestedKey = "scale",
         epistemic_key: NestedKey = "epistemic_variance",
         action_key: NestedKey = "action",
         log_prob_key: NestedKey = "action_log_prob",
+        previous_observation_key: NestedKey = "previous_observation",
+        previous_action_key: NestedKey = "previous_action",
+        previous_valid_key: NestedKey = "previous_valid",
+        expected_observation_key: NestedKey = "expected_observation",
     ) -> None:
         super().__init__()
         if num_samples < 1:
             raise ValueError(f"num_samples (M) must be >= 1, got {num_samples}.")
+        if predict_transition and not hasattr(actor, "encode_with_transition"):
+            raise TypeError(
+                f"predict_transition=True needs an actor that also predicts s_(t+1) "
+                f"(encode_with_transition), such as PlannerActor; got {type(actor).__name__}. "
+                "Use ShiftAwareNoise(transition_model=...) for a separate transition model."
+            )
         self.actor = actor
         in_features = actor.head.in_features
         self.laplace = LastLayerLaplace(
@@ -103,8 +123,14 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         )
         self.register_buffer("bias_deviation", torch.zeros(num_samples, actor.action_dim))
         self.action_low, self.action_high = action_low, action_high
+        self.predict_transition = predict_transition
         self.in_keys = [observation_key]
         self.out_keys = [loc_key, scale_key, epistemic_key, action_key, log_prob_key]
+        self.previous_keys = (previous_observation_key, previous_action_key, previous_valid_key)
+        self.expected_observation_key = expected_observation_key
+        if predict_transition:
+            self.in_keys = self.in_keys + list(self.previous_keys)
+            self.out_keys = self.out_keys + [expected_observation_key]
 
     # ------------------------------------------------------------------ Eq. (8)
     @torch.no_grad()
@@ -153,14 +179,44 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
     # ------------------------------------------------------------------ Eq. (9)
     def member_actions(self, observation: torch.Tensor) -> torch.Tensor:
         """Actions of the ``M`` sub-policies, ``[M, *B, A]``, in one batched pass."""
-        features = self.actor.features(observation)
-        head = self.actor.head_output(features)
+        features, context = self.actor.encode(observation)
+        return self._members(features, context)
+
+    def _members(self, features: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
         if self.resample_each_call:
             self.resample()
-        deviation = torch.einsum("...d,mad->m...a", features, self.weight_deviation)
-        bias = self.bias_deviation.reshape(self.num_samples, *[1] * (head.ndim - 1), -1)
-        deviation = deviation + bias
-        return self.actor.readout(head + deviation, observation)
+        # all M heads θ* + (θ_m − θ*) in one contraction: [*B, d] x [M, A, d] -> [M, *B, A]
+        rows = self.actor.head_rows
+        weight = self.actor.head.weight[rows] + self.weight_deviation
+        bias = (self.actor.head.bias[rows] + self.bias_deviation).unsqueeze(-2)
+        flat = features.reshape(1, -1, features.shape[-1])
+        heads = torch.baddbmm(bias, flat.expand(self.num_samples, -1, -1), weight.mT)
+        heads = heads.reshape(self.num_samples, *features.shape[:-1], -1)
+        return self.actor.readout(heads, context)
+
+    def _read(self, tensordict: TensorDictBase, key: NestedKey, fix: str) -> torch.Tensor:
+        value = tensordict.get(key, default=None)
+        if value is None:
+            raise KeyError(
+                f"LaplaceEnsembleActor reads {key!r}, which the input lacks; it holds "
+                f"{sorted(map(str, tensordict.keys(True, True)))}. {fix}"
+            )
+        return value
+
+    def _encode(self, tensordict: TensorDictBase, observation: torch.Tensor):
+        """Trunk pass; with ``predict_transition`` it also writes ``ŝ_t`` (same pass)."""
+        if not self.predict_transition:
+            return self.actor.encode(observation)
+        fix = "Append torchrl_dual.transforms.PreviousTransition() to the env."
+        previous_observation, previous_action, valid = (
+            self._read(tensordict, key, fix) for key in self.previous_keys
+        )
+        features, context, predicted = self.actor.encode_with_transition(
+            observation, previous_observation, previous_action
+        )
+        # no previous step (reset): ŝ_t = s_t, so d_t = 0
+        tensordict.set(self.expected_observation_key, torch.where(valid, predicted, observation))
+        return features, context
 
     def _clamp(self, action: torch.Tensor) -> torch.Tensor:
         if self.action_low is None and self.action_high is None:
@@ -168,12 +224,7 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         return action.clamp(self.action_low, self.action_high)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        observation = tensordict.get(self.in_keys[0], default=None)
-        if observation is None:
-            raise KeyError(
-                f"LaplaceEnsembleActor reads {self.in_keys[0]!r}, which the input lacks; it "
-                f"holds {sorted(map(str, tensordict.keys(True, True)))}."
-            )
+        observation = self._read(tensordict, self.in_keys[0], "")
         aleatoric = self.actor.std**2
         if exploration_type() in _DETERMINISTIC:
             loc = self.actor(observation)
@@ -186,12 +237,12 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
                     "LaplaceEnsembleActor samples from the last-layer posterior: call "
                     "fit_laplace(...) on the offline data first."
                 )
-            members = self.member_actions(observation)
+            members = self._members(*self._encode(tensordict, observation))
             loc = members.mean(0)
             epistemic = members.var(0, unbiased=False)
             variance = epistemic + aleatoric
             if not self.sample_action:  # the next module (ShiftAwareNoise) samples
-                loc_key, scale_key, epistemic_key, action_key, _ = self.out_keys
+                loc_key, scale_key, epistemic_key, action_key = self.out_keys[:4]
                 tensordict.set(loc_key, loc)
                 tensordict.set(scale_key, variance.sqrt())
                 tensordict.set(epistemic_key, epistemic)
@@ -200,7 +251,7 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
             action = self._clamp(loc + variance.sqrt() * torch.randn_like(loc))
         scale = variance.sqrt()
         log_prob = gaussian_log_prob(action, loc, scale)
-        loc_key, scale_key, epistemic_key, action_key, log_prob_key = self.out_keys
+        loc_key, scale_key, epistemic_key, action_key, log_prob_key = self.out_keys[:5]
         tensordict.set(loc_key, loc)
         tensordict.set(scale_key, scale)
         tensordict.set(epistemic_key, epistemic)

@@ -3,12 +3,14 @@
 The weighted MAP actor loss (Eq. 7), its last-layer Laplace approximation (Eq. 8)
 and the ensemble policy (Eq. 9) all work on the split
 ``μ(s) = scale ⊙ (W φ(s) + b)[rows] + shift(s)``: a trunk ``φ``, a linear head
-``(W, b)`` and a read-out that is affine in the head output. Two actors provide it:
+``(W, b)`` and a read-out that is affine in the head output. Three actors provide it:
 
 * :class:`PlannerActor`, DUAL's actor: the distilled one-step planner, whose
   ``τ_{a_0} = α_1·z − σ_1·v̂`` is affine in the head output ``v̂``;
 * :class:`LinearHeadActor`, any network ending in ``nn.Linear`` (for instance a
-  TorchRL ``MLP`` actor), which turns IQL into "IQL + LA".
+  TorchRL ``MLP`` actor), which turns IQL into "IQL + LA";
+* :class:`~torchrl_dual.modules.DDPMLastStepActor` (its own module), TorchRL's
+  multi-step ``DiffusionActor``, which turns Diff-QL into "Diff-QL w LA".
 """
 
 from __future__ import annotations
@@ -26,9 +28,9 @@ LATENTS = ("zero", "sample")
 class LastLayerActor(nn.Module):
     """Base class: a Gaussian actor ``N(μ(s), σ²)`` with a linear last layer.
 
-    Subclasses define :meth:`features`, the attribute :attr:`head` (an ``nn.Linear``),
-    the buffer ``head_rows`` (indices of the head outputs that form the action) and
-    :meth:`readout`. The learnable per-dimension ``log_std`` (σ̄ of Eq. 7 and Eq. 9)
+    Subclasses define :meth:`features` (or :meth:`encode`), the attribute :attr:`head`
+    (an ``nn.Linear``), the buffer ``head_rows`` (indices of the head outputs that form
+    the action) and :meth:`readout`. The learnable per-dimension ``log_std`` (σ̄ of Eq. 7 and Eq. 9)
     lives here so that it is saved with the actor.
     """
 
@@ -53,10 +55,22 @@ class LastLayerActor(nn.Module):
         return self.log_std.clamp(self.min_log_std, self.max_log_std).exp()
 
     def features(self, observation: torch.Tensor) -> torch.Tensor:
-        raise NotImplementedError
+        """The trunk output ``φ(s)``, ``[..., d]``."""
+        return self.encode(observation)[0]
 
-    def readout(self, head_rows: torch.Tensor, observation: torch.Tensor) -> torch.Tensor:
-        """Maps the selected head outputs ``[..., A]`` to actions (affine)."""
+    def encode(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(φ(s), context)``: the trunk output and what :meth:`readout` needs besides
+        the head output (the observation by default; the chain's ``x_1`` for a
+        multi-step diffusion actor)."""
+        if type(self).features is LastLayerActor.features:
+            raise NotImplementedError(
+                f"{type(self).__name__} must override features() or encode()."
+            )
+        return self.features(observation), observation
+
+    def readout(self, head_rows: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
+        """Maps the selected head outputs ``[..., A]`` to actions (affine), given the
+        ``context`` returned by :meth:`encode`."""
         raise NotImplementedError
 
     def readout_scale(self) -> torch.Tensor:
@@ -71,7 +85,8 @@ class LastLayerActor(nn.Module):
 
     def forward(self, observation: torch.Tensor) -> torch.Tensor:
         """The mean action ``μ(s)``."""
-        return self.readout(self.head_output(self.features(observation)), observation)
+        features, context = self.encode(observation)
+        return self.readout(self.head_output(features), context)
 
 
 class PlannerActor(LastLayerActor):
@@ -117,6 +132,9 @@ class PlannerActor(LastLayerActor):
         self.head = model.denoiser.head
         rows = torch.arange(layout.obs_dim, layout.transition_dim)  # row 0 = (s_0, a_0)
         self.register_buffer("head_rows", rows)
+        # head outputs of τ_{s_1}: row 1 of the flattened window, its state entries
+        next_rows = torch.arange(layout.obs_dim) + layout.transition_dim
+        self.register_buffer("next_state_rows", next_rows, persistent=False)
         alpha, sigma = model.schedule(torch.ones(()))
         if latent == "sample" and float(alpha) > 1e-6:
             raise ValueError(
@@ -144,7 +162,55 @@ class PlannerActor(LastLayerActor):
         t = torch.ones(z.shape[:-2], device=z.device)
         return self.model.denoiser.features(z, t, mask)
 
-    def readout(self, head_rows: torch.Tensor, observation: torch.Tensor) -> torch.Tensor:
+    def encode_with_transition(
+        self,
+        observation: torch.Tensor,
+        previous_observation: torch.Tensor,
+        previous_action: torch.Tensor,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The policy query at ``s_t`` and the transition query at ``(s_{t-1}, a_{t-1})``
+        in one denoiser pass (Algorithm 1 l. 12 uses the same ``θ`` for ``π_θ`` and
+        ``p(s'|s, a; θ)``).
+
+        Both windows are stacked along the batch dim; the transition window has the zero
+        latent, so ``ŝ_t = −σ_1 · v̂(row 1, states)`` is the deterministic prediction of
+        :class:`~torchrl_dual.modules.TransitionModel` for the same weights.
+
+        Returns:
+            ``(φ(s_t), context, ŝ_t)`` with ``ŝ_t`` of shape ``[*B, obs_dim]`` in raw units.
+        """
+        layout, norm = self.model.layout, self.model.normalizer
+        if observation.shape != previous_observation.shape:
+            raise ValueError(
+                f"previous_observation {tuple(previous_observation.shape)} must have the "
+                f"shape of the observation {tuple(observation.shape)}."
+            )
+        policy_window, policy_mask = self._latent_window(observation)
+        transition_window, transition_mask = layout.conditioned_window(
+            norm.normalize_observation(previous_observation),
+            norm.normalize_action(previous_action.to(observation.dtype)),
+        )
+        batch = observation.shape[0] if observation.ndim > 1 else None
+        if batch is None:  # unbatched: stack as a batch of two
+            windows = torch.stack([policy_window, transition_window])
+            masks = torch.stack([policy_mask, transition_mask])
+        else:
+            windows = torch.cat([policy_window, transition_window])
+            masks = torch.cat([policy_mask, transition_mask])
+        t = torch.ones(windows.shape[:-2], device=windows.device)
+        features = self.model.denoiser.features(windows, t, masks)
+        policy_features, transition_features = (
+            features.unbind(0) if batch is None else features.split(batch)
+        )
+        head = self.head
+        rows = self.next_state_rows
+        v_next = torch.nn.functional.linear(
+            transition_features, head.weight[rows], head.bias[rows]
+        )
+        predicted = norm.denormalize_observation(-self.sigma_1 * v_next)
+        return policy_features, observation, predicted
+
+    def readout(self, head_rows: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
         return self.model.normalizer.denormalize_action(-self.sigma_1 * head_rows)
 
     def readout_scale(self) -> torch.Tensor:
@@ -191,7 +257,7 @@ class LinearHeadActor(LastLayerActor):
     def features(self, observation: torch.Tensor) -> torch.Tensor:
         return self.trunk(observation)
 
-    def readout(self, head_rows: torch.Tensor, observation: torch.Tensor) -> torch.Tensor:
+    def readout(self, head_rows: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
         return head_rows
 
     def readout_scale(self) -> torch.Tensor:

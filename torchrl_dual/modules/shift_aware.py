@@ -27,62 +27,74 @@ class ShiftAwareNoise(TensorDictModuleBase):
         a_t \sim \mathcal{N}\big(\mu_\theta(s_t),\ \sigma_\theta^2(s_t) + \lambda\, d_t\big),
         \qquad d_t = \lVert \hat s_t - s_t \rVert_2 ,
 
-    where ``ŝ_t`` was predicted at ``t-1`` from ``(s_{t-1}, a_{t-1})`` by the transition
-    model (DESIGN "Exploration noise"). ``d_t`` is written into the env data by the
-    env-side :class:`~torchrl_dual.transforms.ShiftDistance` transform. Alg. 1 writes the
-    same sample as ``a_t ~ π̂(·|s_t) + λ N(0, d_t)``; this module follows Eq. 10 and adds
-    ``λ d_t`` to the variance.
+    where ``ŝ_t = p(s' | s_{t-1}, a_{t-1}; θ)`` is the transition model's prediction for the
+    current state from the previous state and the action actually executed there
+    (Algorithm 1 l. 12; DESIGN "Exploration noise"). Alg. 1 writes the same sample as
+    ``a_t ~ π̂(·|s_t) + λ N(0, d_t)``; this module follows Eq. 10 and adds ``λ d_t`` to
+    the variance.
+
+    ``ŝ_t`` comes from one of two places:
+
+    * ``expected_observation`` in the input, written by
+      :class:`~torchrl_dual.modules.LaplaceEnsembleActor` with ``predict_transition=True``,
+      which answers the policy query for ``s_t`` and the transition query for
+      ``(s_{t-1}, a_{t-1})`` in one trunk pass (the fast path, the paper's shared ``θ``);
+    * otherwise ``transition_model(previous_observation, previous_action)``, a separate
+      callable (e.g. a frozen copy of the offline transition model), where
+      ``previous_valid``; ``ŝ_t = s_t`` (``d_t = 0``) right after a reset.
+
+    The ``previous_*`` entries are carried by the
+    :class:`~torchrl_dual.transforms.PreviousTransition` env transform.
 
     Steps of :meth:`forward`:
 
-    1. Under ``ExplorationType.RANDOM`` (or unset): read ``loc`` (μ), ``scale`` (σ) and
-       ``shift_distance`` (d, 0 if absent, e.g. at the first step); sample
-       ``a = loc + sqrt(scale² + λ d) · ε`` (Eq. 10); project it onto the action spec (if
-       any); write ``action``, the total std ``exploration_scale`` and ``action_log_prob``
-       (Normal log-density of the executed, projected action summed over the action dim).
-       ``scale`` is left as the Eq. 9 ensemble std.
-    2. Under DETERMINISTIC / MODE / MEAN: ``action = loc`` (projected), no noise, no
-       ``exploration_scale`` or ``action_log_prob``.
-    3. In all modes: ``predicted_observation = transition_model(observation, action)``
-       with the *executed* action; :class:`ShiftDistance` compares it with ``s_{t+1}``.
+    1. Under ``ExplorationType.RANDOM`` (or unset): compute and write ``shift_distance``
+       ``d_t`` (``[*B, 1]``); sample ``a = loc + sqrt(scale² + λ d) · ε`` (Eq. 10); project it
+       onto the action spec (if any); write ``action``, the total std
+       ``exploration_scale`` and ``action_log_prob`` (Normal log-density of the executed,
+       projected action summed over the action dim). ``scale`` is left as the Eq. 9
+       ensemble std.
+    2. Under DETERMINISTIC / MODE / MEAN: ``action = loc`` (projected); nothing else.
 
     Because the noise is added on the policy side (like
     :class:`~torchrl.modules.AdditiveGaussianModule`), collectors and replay buffers
-    store the executed action; an inverse transform would store the noiseless one.
+    store the executed action and the ``d_t`` it was drawn with; an inverse transform
+    would store the noiseless action.
 
     ===========================  ============  ==============================================
     key (default)                shape         meaning
     ===========================  ============  ==============================================
-    ``observation``              ``[*B, S]``   s_t, input of the transition model
+    ``observation``              ``[*B, S]``   s_t
     ``loc``                      ``[*B, A]``   μ_θ(s_t), ensemble mean (Eq. 9)
     ``scale``                    ``[*B, A]``   σ_θ(s_t), ensemble std (Eq. 9), not modified
-    ``shift_distance``           ``[*B, 1]``   d_t (optional; 0 when absent)
+    ``expected_observation``     ``[*B, S]``   ŝ_t (optional input, see above)
+    ``previous_observation``     ``[*B, S]``   s_{t-1} (used with ``transition_model``)
+    ``previous_action``          ``[*B, A]``   a_{t-1} (used with ``transition_model``)
+    ``previous_valid``           ``[*B, 1]``   False right after a reset
+    ``shift_distance``           ``[*B, 1]``   d_t (output, RANDOM only)
     ``action``                   ``[*B, A]``   executed a_t (output)
     ``exploration_scale``        ``[*B, A]``   sqrt(σ² + λ d) (output, RANDOM only)
     ``action_log_prob``          ``[*B]``      log N(a_t; μ, σ² + λ d) (output, RANDOM only)
-    ``predicted_observation``    ``[*B, S]``   ŝ_{t+1} (output, all modes)
     ===========================  ============  ==============================================
 
     Args:
-        transition_model: callable ``(observation [*B, S], action [*B, A]) -> [*B, S]``,
-            e.g. the distilled planner's one-step prediction ŝ1. An ``nn.Module`` is
-            registered as a submodule (its weights follow the policy's).
+        transition_model: optional callable ``(observation [*B, S], action [*B, A]) ->
+            [*B, S]``, e.g. :meth:`TransitionModel.predict
+            <torchrl_dual.modules.TransitionModel.predict>`; used when the input has no
+            ``expected_observation``. An ``nn.Module`` is registered as a submodule.
         spec: action spec (or a Composite holding ``action_key``) used to project the
             action; ``None`` to skip projection or to set it later via :attr:`spec`.
         shift_weight: λ of Eq. 10 (a buffer, so it is checkpointed). Defaults to ``0.5``.
+            With ``λ = 0`` and no source of ``ŝ_t`` the shift term is skipped.
 
     Keyword Args:
-        observation_key (NestedKey): s_t. Defaults to ``"observation"``.
-        loc_key (NestedKey): μ_θ(s_t). Defaults to ``"loc"``.
-        scale_key (NestedKey): σ_θ(s_t). Defaults to ``"scale"``.
-        shift_key (NestedKey): d_t. Defaults to ``"shift_distance"``.
-        action_key (NestedKey): executed action. Defaults to ``"action"``.
-        prediction_key (NestedKey): ŝ_{t+1}. Defaults to ``"predicted_observation"``.
-        exploration_scale_key (NestedKey): total std. Defaults to ``"exploration_scale"``.
-        log_prob_key (NestedKey): log-density. Defaults to ``"action_log_prob"``.
+        observation_key, loc_key, scale_key, expected_observation_key,
+        previous_observation_key, previous_action_key, previous_valid_key, shift_key,
+        action_key, exploration_scale_key, log_prob_key (NestedKey): the keys of the
+            table above.
         action_projection (callable, optional): applied to the action after the spec
-            projection, before it is stored and fed to the transition model; e.g. the
-            argmax one-hot map of a discrete env, so the stored action is the executed one.
+            projection, before it is stored; e.g. the argmax one-hot map of a discrete
+            env, so the stored action is the executed one.
         device (torch.device, optional): device of the ``shift_weight`` buffer.
 
     Examples:
@@ -92,46 +104,52 @@ class ShiftAwareNoise(TensorDictModuleBase):
         >>> from torchrl_dual.modules.shift_aware import ShiftAwareNoise
         >>> noise = ShiftAwareNoise(lambda s, a: s + a, Bounded(-1.0, 1.0, shape=(2,)))
         >>> td = TensorDict(
-        ...     observation=torch.zeros(4, 2), loc=torch.zeros(4, 2),
-        ...     scale=torch.full((4, 2), 0.1), shift_distance=torch.ones(4, 1),
-        ...     batch_size=[4],
+        ...     observation=torch.ones(4, 2), loc=torch.zeros(4, 2),
+        ...     scale=torch.full((4, 2), 0.1), previous_observation=torch.zeros(4, 2),
+        ...     previous_action=torch.zeros(4, 2),
+        ...     previous_valid=torch.ones(4, 1, dtype=torch.bool), batch_size=[4],
         ... )
-        >>> td = noise(td)
-        >>> td["exploration_scale"][0]  # sqrt(0.1**2 + 0.5 * 1)
-        tensor([0.7141, 0.7141])
-        >>> td["action_log_prob"].shape, td["predicted_observation"].shape
-        (torch.Size([4]), torch.Size([4, 2]))
+        >>> td = noise(td)  # ŝ_t = 0 + 0, s_t = (1, 1): d_t = sqrt(2)
+        >>> td["shift_distance"][0]
+        tensor([1.4142])
+        >>> td["exploration_scale"][0]  # sqrt(0.1**2 + 0.5 * sqrt(2))
+        tensor([0.8468, 0.8468])
+        >>> td["action_log_prob"].shape
+        torch.Size([4])
     """
 
     _MISSING_KEY_ERR = (
         "ShiftAwareNoise expected the key {key!r} in the input tensordict ({what}), but it "
-        "is missing. Place ShiftAwareNoise after an actor that writes it, or pass "
-        "{kwarg}=<your key>."
+        "is missing. {fix}"
     )
     _SHAPE_ERR = (
         "ShiftAwareNoise: {key!r} has {what} {got}, expected {expected} ({why}). Fix: {fix}"
     )
+    _PREVIOUS_FIX = "Append torchrl_dual.transforms.PreviousTransition() to the env."
     # Lower bound on the Eq. 10 variance so that σ = 0 and d = 0 stay finite.
     _MIN_VARIANCE = 1e-12
 
     def __init__(
         self,
-        transition_model: Callable[[Tensor, Tensor], Tensor],
+        transition_model: Callable[[Tensor, Tensor], Tensor] | None = None,
         spec: TensorSpec | None = None,
         shift_weight: float = 0.5,
         *,
         observation_key: NestedKey = "observation",
         loc_key: NestedKey = "loc",
         scale_key: NestedKey = "scale",
+        expected_observation_key: NestedKey = "expected_observation",
+        previous_observation_key: NestedKey = "previous_observation",
+        previous_action_key: NestedKey = "previous_action",
+        previous_valid_key: NestedKey = "previous_valid",
         shift_key: NestedKey = "shift_distance",
         action_key: NestedKey = "action",
-        prediction_key: NestedKey = "predicted_observation",
         exploration_scale_key: NestedKey = "exploration_scale",
         log_prob_key: NestedKey = "action_log_prob",
         action_projection: Callable[[Tensor], Tensor] | None = None,
         device: torch.device | None = None,
     ):
-        if not callable(transition_model):
+        if transition_model is not None and not callable(transition_model):
             raise TypeError(
                 "ShiftAwareNoise: transition_model must be a callable "
                 "(observation, action) -> predicted next observation, got "
@@ -144,13 +162,16 @@ class ShiftAwareNoise(TensorDictModuleBase):
         self.observation_key = observation_key
         self.loc_key = loc_key
         self.scale_key = scale_key
+        self.expected_observation_key = expected_observation_key
+        self.previous_keys = (previous_observation_key, previous_action_key, previous_valid_key)
         self.shift_key = shift_key
         self.action_key = action_key
-        self.prediction_key = prediction_key
         self.exploration_scale_key = exploration_scale_key
         self.log_prob_key = log_prob_key
-        self.in_keys = [observation_key, loc_key, scale_key, shift_key]
-        self.out_keys = [action_key, exploration_scale_key, log_prob_key, prediction_key]
+        self.in_keys = [observation_key, loc_key, scale_key, expected_observation_key]
+        if transition_model is not None:
+            self.in_keys += list(self.previous_keys)
+        self.out_keys = [action_key, shift_key, exploration_scale_key, log_prob_key]
         super().__init__()
         self.transition_model = transition_model
         self.action_projection = action_projection
@@ -176,10 +197,14 @@ class ShiftAwareNoise(TensorDictModuleBase):
             )
         self._spec = value
 
-    def _get(self, tensordict: TensorDictBase, key: NestedKey, what: str, kwarg: str) -> Tensor:
+    @staticmethod
+    def _fix(kwarg: str) -> str:
+        return f"Place ShiftAwareNoise after an actor that writes it, or pass {kwarg}=<your key>."
+
+    def _get(self, tensordict: TensorDictBase, key: NestedKey, what: str, fix: str) -> Tensor:
         value = tensordict.get(key, None)
         if value is None:
-            raise KeyError(self._MISSING_KEY_ERR.format(key=key, what=what, kwarg=kwarg))
+            raise KeyError(self._MISSING_KEY_ERR.format(key=key, what=what, fix=fix))
         return value
 
     def _check(self, key, got, expected, why, fix, what="shape") -> None:
@@ -198,71 +223,89 @@ class ShiftAwareNoise(TensorDictModuleBase):
             action = self.action_projection(action)
         return action
 
+    def _expected_observation(
+        self, tensordict: TensorDictBase, observation: Tensor
+    ) -> Tensor | None:
+        """``ŝ_t``: from the ensemble's shared pass, else from ``transition_model``."""
+        expected = tensordict.get(self.expected_observation_key, None)
+        if expected is None and self.transition_model is not None:
+            previous_observation, previous_action, valid = (
+                self._get(tensordict, key, "the previous step", self._PREVIOUS_FIX)
+                for key in self.previous_keys
+            )
+            predicted = self.transition_model(previous_observation, previous_action)
+            self._check(
+                "transition_model output",
+                predicted.shape,
+                observation.shape,
+                f"ŝ_t must have the shape of {self.observation_key!r}",
+                "make transition_model(observation, action) return [*B, obs_dim]",
+            )
+            expected = torch.where(valid, predicted, observation)
+        if expected is None and float(self.shift_weight) > 0:
+            raise KeyError(
+                self._MISSING_KEY_ERR.format(
+                    key=self.expected_observation_key,
+                    what="ŝ_t, the transition model's prediction of s_t",
+                    fix="Use LaplaceEnsembleActor(..., predict_transition=True) before "
+                    "ShiftAwareNoise, or pass ShiftAwareNoise(transition_model=...); either "
+                    "way append PreviousTransition() to the env. Or set shift_weight=0.",
+                )
+            )
+        if expected is not None:
+            self._check(
+                self.expected_observation_key,
+                expected.shape,
+                observation.shape,
+                f"ŝ_t has the shape of {self.observation_key!r}",
+                "predict one next observation per env",
+            )
+        return expected
+
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        """Samples a_t by Eq. 10 (RANDOM mode) and writes ŝ_{t+1} (all modes)."""
-        loc = self._get(tensordict, self.loc_key, "μ(s), the ensemble mean of Eq. 9", "loc_key")
-        observation = self._get(
-            tensordict,
-            self.observation_key,
-            "s_t, input of the transition model",
-            "observation_key",
+        """Writes d_t and samples a_t by Eq. 10 (RANDOM mode); a_t = μ otherwise."""
+        loc = self._get(
+            tensordict, self.loc_key, "μ(s), the ensemble mean of Eq. 9", self._fix("loc_key")
         )
         if loc.ndim < 1:
             raise ValueError(
                 f"ShiftAwareNoise: {self.loc_key!r} must have a trailing action dim [*B, A], "
                 "got a scalar. Fix: unsqueeze(-1) the actor output."
             )
-        batch = tuple(loc.shape[:-1])
+        if exploration_type() not in (ExplorationType.RANDOM, None):
+            tensordict.set(self.action_key, self._project(loc))
+            return tensordict
+        scale = self._get(
+            tensordict, self.scale_key, "σ(s), the ensemble std of Eq. 9", self._fix("scale_key")
+        )
+        self._check(
+            self.scale_key,
+            scale.shape,
+            loc.shape,
+            f"per-dimension std matching {self.loc_key!r}",
+            "write one std per action dim (expand a shared std to loc's shape)",
+        )
+        observation = self._get(tensordict, self.observation_key, "s_t", self._fix("observation_key"))
         self._check(
             self.observation_key,
             observation.shape[:-1],
-            batch,
+            loc.shape[:-1],
             f"[*B, S] with the batch dims *B of {self.loc_key!r} {tuple(loc.shape)}",
             "give the observation a trailing feature dim and the same batch dims as loc",
             what="batch dims",
         )
-        random = exploration_type() in (ExplorationType.RANDOM, None)
-        if random:
-            scale = self._get(
-                tensordict, self.scale_key, "σ(s), the ensemble std of Eq. 9", "scale_key"
-            )
-            self._check(
-                self.scale_key,
-                scale.shape,
-                loc.shape,
-                f"per-dimension std matching {self.loc_key!r}",
-                "write one std per action dim (expand a shared std to loc's shape)",
-            )
-            shift = tensordict.get(self.shift_key, None)
-            if shift is None:  # first step / no ShiftDistance transform: d_t = 0
-                variance = scale.pow(2)
-            else:
-                self._check(
-                    self.shift_key,
-                    shift.shape,
-                    (*batch, 1),
-                    "d_t of Eq. 10, one scalar per env",
-                    "append ShiftDistance() to the env, or unsqueeze(-1) the distance",
-                )
-                weight = self.shift_weight.to(loc.dtype)
-                variance = scale.pow(2) + weight * shift.to(loc.dtype)  # Eq. (10)
-            std = variance.clamp_min(self._MIN_VARIANCE).sqrt()
-            action = self._project(loc + std * torch.randn_like(loc))
-            log_prob = gaussian_log_prob(action, loc, std)
-            tensordict.set(self.exploration_scale_key, std)
-            tensordict.set(self.log_prob_key, log_prob)
-        else:
-            action = self._project(loc)
+        variance = scale.pow(2)
+        expected = self._expected_observation(tensordict, observation)
+        if expected is not None:
+            error = (expected - observation).to(loc.dtype)
+            shift = torch.linalg.vector_norm(error, dim=-1, keepdim=True)  # d_t
+            tensordict.set(self.shift_key, shift)
+            variance = variance + self.shift_weight.to(loc.dtype) * shift  # Eq. (10)
+        std = variance.clamp_min(self._MIN_VARIANCE).sqrt()
+        action = self._project(loc + std * torch.randn_like(loc))
         tensordict.set(self.action_key, action)
-        prediction = self.transition_model(observation, action)  # Alg. 1 l.5, ŝ_{t+1}
-        self._check(
-            self.prediction_key,
-            prediction.shape,
-            observation.shape,
-            f"transition_model output ŝ_(t+1) must have the shape of {self.observation_key!r}",
-            "make transition_model(observation, action) return [*B, obs_dim]",
-        )
-        tensordict.set(self.prediction_key, prediction)
+        tensordict.set(self.exploration_scale_key, std)
+        tensordict.set(self.log_prob_key, gaussian_log_prob(action, loc, std))
         return tensordict
 
     def __repr__(self) -> str:

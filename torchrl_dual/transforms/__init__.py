@@ -1,5 +1,5 @@
 """Env-side transforms of torchrl-dual."""
 
-from torchrl_dual.transforms.shift_distance import ShiftDistance
+from torchrl_dual.transforms.previous_transition import PreviousTransition
 
-__all__ = ["ShiftDistance"]
+__all__ = ["PreviousTransition"]

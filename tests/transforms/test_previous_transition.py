@@ -1,4 +1,5 @@
-"""Tests of the env-side shift signal d_t (DUAL Eq. 10) on a tiny env with a dynamics shift."""
+"""Tests of the shift signal d_t of DUAL Eq. 10: PreviousTransition carries (s_{t-1}, a_{t-1}),
+ShiftAwareNoise turns them into d_t, on a tiny env whose dynamics change mid-rollout."""
 
 from __future__ import annotations
 
@@ -8,11 +9,11 @@ from tensordict import TensorDict
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torchrl.collectors import Collector
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
-from torchrl.envs import EnvBase, TransformedEnv
+from torchrl.envs import EnvBase, SerialEnv, TransformedEnv
 from torchrl.envs.utils import check_env_specs
 
 from torchrl_dual.modules.shift_aware import ShiftAwareNoise
-from torchrl_dual.transforms import ShiftDistance
+from torchrl_dual.transforms import PreviousTransition
 
 SHIFT_STEP = 5  # the dynamics change from this env step on
 HORIZON = 10
@@ -80,43 +81,63 @@ def make_policy(action_spec, shift_weight: float = WEIGHT) -> TensorDictSequenti
 
 
 def make_env(batch_size=()) -> TransformedEnv:
-    return TransformedEnv(DriftPointEnv(batch_size), ShiftDistance())
+    return TransformedEnv(DriftPointEnv(batch_size), PreviousTransition())
 
 
-def test_specs_declare_shift_distance_and_random_actions_give_zero():
+def test_specs_declare_previous_entries_and_reset_has_no_previous_step():
     env = make_env((3,))
-    spec = env.observation_spec["shift_distance"]
-    assert spec.shape == (3, 1) and spec.dtype == torch.float32
-    check_env_specs(env)  # random actions, no prediction in the root: d = 0
-    rollout = env.rollout(4)
-    assert (rollout["next", "shift_distance"] == 0).all()
-
-
-def test_reset_writes_zero_distance():
-    env = make_env((4,))
-    policy = make_policy(env.action_spec)
-    rollout = env.rollout(HORIZON, policy)
-    assert (rollout["next", "shift_distance"][:, -1] > 0.5).all()
+    spec = env.observation_spec
+    assert spec["previous_observation"].shape == (3, 2)
+    assert spec["previous_action"].shape == (3, 2)
+    assert spec["previous_valid"].shape == (3, 1)
+    assert spec["previous_valid"].dtype == torch.bool
+    check_env_specs(env)
     td = env.reset()
-    assert td["shift_distance"].shape == (4, 1)
-    assert td["shift_distance"].dtype == torch.float32
-    assert (td["shift_distance"] == 0).all()
+    assert not td["previous_valid"].any()
+    assert (td["previous_observation"] == 0).all() and (td["previous_action"] == 0).all()
+
+
+def test_rollout_carries_the_executed_action_and_state_of_the_previous_step():
+    env = make_env((4,))
+    rollout = env.rollout(HORIZON, make_policy(env.action_spec))
+    assert not rollout["previous_valid"][:, 0].any()
+    assert rollout["previous_valid"][:, 1:].all()
+    torch.testing.assert_close(rollout["previous_observation"][:, 1:], rollout["observation"][:, :-1])
+    # the executed (noisy) action, not the actor's loc
+    torch.testing.assert_close(rollout["previous_action"][:, 1:], rollout["action"][:, :-1])
+    assert (rollout["action"] != LOC).all()
+
+
+def test_partial_resets_clear_only_the_envs_that_reset():
+    env = TransformedEnv(
+        SerialEnv(2, [lambda: DriftPointEnv(horizon=3), lambda: DriftPointEnv(horizon=5)]),
+        PreviousTransition(),
+    )
+    policy = make_policy(env.action_spec)
+    rollout = env.rollout(12, policy, break_when_any_done=False)
+    valid = rollout["previous_valid"].squeeze(-1)
+    first_steps = [[0, 3, 6, 9], [0, 5, 10]]
+    for env_index, starts in enumerate(first_steps):
+        expected = torch.ones(12, dtype=torch.bool)
+        expected[starts] = False
+        assert valid[env_index].tolist() == expected.tolist()
+    carried = valid.unsqueeze(-1).expand(-1, -1, 2)
+    torch.testing.assert_close(
+        rollout["previous_action"][:, 1:][carried[:, 1:]],
+        rollout["action"][:, :-1][carried[:, 1:]],
+    )
 
 
 def test_distance_jumps_at_dynamics_change_and_action_spread_follows():
     torch.manual_seed(0)
     env = make_env((2000,))
     rollout = env.rollout(HORIZON, make_policy(env.action_spec), break_when_any_done=False)
-    d_next = rollout["next", "shift_distance"].squeeze(-1)  # [envs, time]
-    # d = ‖ŝ - s'‖: 0 while the model is right, ‖drift‖ = 1 once the dynamics drift.
-    torch.testing.assert_close(d_next[:, :SHIFT_STEP], torch.zeros(2000, SHIFT_STEP))
+    d = rollout["shift_distance"].squeeze(-1)  # [envs, time], d_t used for a_t
+    # d_t = ‖ŝ_t - s_t‖ with ŝ_t = s_(t-1) + a_(t-1): 0 at reset and while the model is
+    # right, ‖drift‖ = 1 once step t - 1 drifted (t > SHIFT_STEP).
+    torch.testing.assert_close(d[:, : SHIFT_STEP + 1], torch.zeros(2000, SHIFT_STEP + 1))
     torch.testing.assert_close(
-        d_next[:, SHIFT_STEP:], torch.ones(2000, HORIZON - SHIFT_STEP), atol=1e-5, rtol=0
-    )
-    # The policy reads d_{t} at the next step: the action at step t uses d from step t-1.
-    assert (rollout["shift_distance"][:, 0] == 0).all()
-    torch.testing.assert_close(
-        rollout["shift_distance"][:, 1:], rollout["next", "shift_distance"][:, :-1]
+        d[:, SHIFT_STEP + 1 :], torch.ones(2000, HORIZON - SHIFT_STEP - 1), atol=1e-5, rtol=0
     )
     # Spread: sqrt(σ²) up to and including the change step, sqrt(σ² + λ·1) afterwards.
     noise = rollout["action"] - LOC
@@ -145,40 +166,29 @@ def test_collector_stores_executed_noisy_action_and_shift_distance():
     data = next(iter(collector))
     collector.shutdown()
     assert data.shape == (4, 2 * HORIZON)
-    assert data["next", "shift_distance"].shape == (4, 2 * HORIZON, 1)
-    assert (data["action"] != LOC).all()  # noisy, not the actor's loc
+    assert data["shift_distance"].shape == (4, 2 * HORIZON, 1)
     # The env moved by the stored action: s' = s + a (+ drift after the change).
     drift = torch.zeros(HORIZON, 2)
     drift[SHIFT_STEP:] = torch.tensor(DRIFT)
     drift = drift.repeat(2, 1)
     moved = data["observation"] + data["action"]
     torch.testing.assert_close(data["next", "observation"], moved + drift)
-    torch.testing.assert_close(data["predicted_observation"], moved)
-    d = data["next", "shift_distance"].squeeze(-1)
-    torch.testing.assert_close(d, drift.norm(dim=-1).expand(4, -1), atol=1e-5, rtol=0)
-    # The policy saw d from the previous step, and 0 after each reset.
-    d_seen = data["shift_distance"].squeeze(-1)
-    assert (d_seen[:, [0, HORIZON]] == 0).all()
-    torch.testing.assert_close(d_seen[:, 1:HORIZON], d[:, : HORIZON - 1])
-    torch.testing.assert_close(d_seen[:, HORIZON + 1 :], d[:, HORIZON:-1])
+    # d_t is the drift of the previous step, and 0 after each reset.
+    d = data["shift_distance"].squeeze(-1)
+    assert (d[:, [0, HORIZON]] == 0).all()
+    expected = drift.norm(dim=-1).expand(4, -1)
+    torch.testing.assert_close(d[:, 1:HORIZON], expected[:, : HORIZON - 1], atol=1e-5, rtol=0)
+    torch.testing.assert_close(d[:, HORIZON + 1 :], expected[:, HORIZON:-1], atol=1e-5, rtol=0)
 
 
-def test_forward_recomputes_distance_on_stored_transitions():
-    env = make_env((3,))
-    rollout = env.rollout(HORIZON, make_policy(env.action_spec))
-    stored = rollout["next", "shift_distance"].clone()
-    recomputed = ShiftDistance()(rollout.exclude(("next", "shift_distance")))
-    torch.testing.assert_close(recomputed["next", "shift_distance"], stored)
-
-
-def test_custom_keys_and_shape_mismatch_error():
-    transform = ShiftDistance(observation_key="obs", prediction_key="pred", shift_key="d")
-    td = TensorDict(
-        pred=torch.zeros(3, 2),
-        next=TensorDict(obs=torch.ones(3, 2), batch_size=[3]),
-        batch_size=[3],
+def test_custom_keys_and_missing_key_errors():
+    transform = PreviousTransition(
+        observation_key="obs", action_key="act", previous_observation_key="prev_obs"
     )
-    torch.testing.assert_close(transform(td)["next", "d"], torch.full((3, 1), 2**0.5))
-    td["pred"] = torch.zeros(3, 5)
-    with pytest.raises(ValueError, match=r"'pred' has shape \(3, 5\).*'obs' has shape \(3, 2\)"):
-        transform(td)
+    assert transform.in_keys == ["obs", "act"]
+    assert transform.out_keys == ["prev_obs", "previous_action", "previous_valid"]
+    env = TransformedEnv(DriftPointEnv((2,)), PreviousTransition(action_key="thrust"))
+    with pytest.raises(KeyError, match=r"no action 'thrust'.*Pass action_key="):
+        env.observation_spec
+    with pytest.raises(RuntimeError, match="append it to an env"):
+        PreviousTransition().transform_observation_spec(DriftPointEnv().observation_spec)
