@@ -135,6 +135,13 @@ def test_action_is_projected_on_spec_given_late():
     assert isinstance(noise.spec, Composite) and "action" in noise.spec.keys()
 
 
+def test_box_clamp_matches_the_spec_projection_per_dimension():
+    spec = Bounded(torch.tensor([-0.5, -2.0]), torch.tensor([1.0, 0.25]), shape=(ACT_DIM,))
+    noise = ShiftAwareNoise(shift_weight=0.0, spec=spec)
+    action = torch.randn(500, ACT_DIM) * 3
+    torch.testing.assert_close(noise._project(action), spec.project(action.clone()))
+
+
 def test_custom_keys_are_read_and_written():
     noise = ShiftAwareNoise(
         linear_model,

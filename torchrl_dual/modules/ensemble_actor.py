@@ -185,13 +185,12 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
     def _members(self, features: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
         if self.resample_each_call:
             self.resample()
-        # all M heads θ* + (θ_m − θ*) in one contraction: [*B, d] x [M, A, d] -> [M, *B, A]
-        rows = self.actor.head_rows
-        weight = self.actor.head.weight[rows] + self.weight_deviation
-        bias = (self.actor.head.bias[rows] + self.bias_deviation).unsqueeze(-2)
-        flat = features.reshape(1, -1, features.shape[-1])
-        heads = torch.baddbmm(bias, flat.expand(self.num_samples, -1, -1), weight.mT)
-        heads = heads.reshape(self.num_samples, *features.shape[:-1], -1)
+        # all M heads θ* + (θ_m − θ*) as one linear map [*B, d] -> [*B, M·A] -> [M, *B, A]
+        map_weight, map_bias = self.actor.head_parameters()
+        weight = (map_weight + self.weight_deviation).flatten(0, 1)
+        bias = (map_bias + self.bias_deviation).flatten()
+        heads = torch.nn.functional.linear(features, weight, bias)
+        heads = heads.unflatten(-1, (self.num_samples, -1)).movedim(-2, 0)
         return self.actor.readout(heads, context)
 
     def _read(self, tensordict: TensorDictBase, key: NestedKey, fix: str) -> torch.Tensor:
@@ -238,8 +237,7 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
                     "fit_laplace(...) on the offline data first."
                 )
             members = self._members(*self._encode(tensordict, observation))
-            loc = members.mean(0)
-            epistemic = members.var(0, unbiased=False)
+            epistemic, loc = torch.var_mean(members, 0, correction=0)
             variance = epistemic + aleatoric
             if not self.sample_action:  # the next module (ShiftAwareNoise) samples
                 loc_key, scale_key, epistemic_key, action_key = self.out_keys[:4]

@@ -77,11 +77,18 @@ class LastLayerActor(nn.Module):
         """``|∂ action / ∂ head output|`` per action dimension, ``[A]``."""
         raise NotImplementedError
 
+    def _set_head_rows(self, start: int, stop: int) -> None:
+        """Declares head outputs ``start:stop`` as the action rows (a contiguous block)."""
+        self.register_buffer("head_rows", torch.arange(start, stop))
+        self._head_slice = slice(start, stop)
+
+    def head_parameters(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The action rows ``(W[rows], b[rows])`` of the head, as views."""
+        return self.head.weight[self._head_slice], self.head.bias[self._head_slice]
+
     def head_output(self, features: torch.Tensor) -> torch.Tensor:
         """The action rows of the head, ``[..., A]``."""
-        weight = self.head.weight[self.head_rows]
-        bias = self.head.bias[self.head_rows]
-        return features @ weight.T + bias
+        return torch.nn.functional.linear(features, *self.head_parameters())
 
     def forward(self, observation: torch.Tensor) -> torch.Tensor:
         """The mean action ``μ(s)``."""
@@ -130,11 +137,12 @@ class PlannerActor(LastLayerActor):
         self.model = model
         self.latent = latent
         self.head = model.denoiser.head
-        rows = torch.arange(layout.obs_dim, layout.transition_dim)  # row 0 = (s_0, a_0)
-        self.register_buffer("head_rows", rows)
+        self._set_head_rows(layout.obs_dim, layout.transition_dim)  # a_0 of row 0
         # head outputs of τ_{s_1}: row 1 of the flattened window, its state entries
-        next_rows = torch.arange(layout.obs_dim) + layout.transition_dim
-        self.register_buffer("next_state_rows", next_rows, persistent=False)
+        self._next_state_slice = slice(layout.transition_dim, layout.transition_dim + layout.obs_dim)
+        # masks of the shared pass: [policy query (s_0 known), transition query (s_0, a_0)]
+        pair = torch.stack([layout.condition_mask("s0"), layout.condition_mask("s0_a0")])
+        self.register_buffer("pair_mask", pair, persistent=False)
         alpha, sigma = model.schedule(torch.ones(()))
         if latent == "sample" and float(alpha) > 1e-6:
             raise ValueError(
@@ -172,9 +180,9 @@ class PlannerActor(LastLayerActor):
         in one denoiser pass (Algorithm 1 l. 12 uses the same ``θ`` for ``π_θ`` and
         ``p(s'|s, a; θ)``).
 
-        Both windows are stacked along the batch dim; the transition window has the zero
-        latent, so ``ŝ_t = −σ_1 · v̂(row 1, states)`` is the deterministic prediction of
-        :class:`~torchrl_dual.modules.TransitionModel` for the same weights.
+        The two windows are stacked on a new leading dim; the transition window has the
+        zero latent, so ``ŝ_t = −σ_1 · v̂(row 1, states)`` is the deterministic prediction
+        of :class:`~torchrl_dual.modules.TransitionModel` for the same weights.
 
         Returns:
             ``(φ(s_t), context, ŝ_t)`` with ``ŝ_t`` of shape ``[*B, obs_dim]`` in raw units.
@@ -185,30 +193,22 @@ class PlannerActor(LastLayerActor):
                 f"previous_observation {tuple(previous_observation.shape)} must have the "
                 f"shape of the observation {tuple(observation.shape)}."
             )
-        policy_window, policy_mask = self._latent_window(observation)
-        transition_window, transition_mask = layout.conditioned_window(
-            norm.normalize_observation(previous_observation),
-            norm.normalize_action(previous_action.to(observation.dtype)),
-        )
-        batch = observation.shape[0] if observation.ndim > 1 else None
-        if batch is None:  # unbatched: stack as a batch of two
-            windows = torch.stack([policy_window, transition_window])
-            masks = torch.stack([policy_mask, transition_mask])
-        else:
-            windows = torch.cat([policy_window, transition_window])
-            masks = torch.cat([policy_mask, transition_mask])
-        t = torch.ones(windows.shape[:-2], device=windows.device)
-        features = self.model.denoiser.features(windows, t, masks)
-        policy_features, transition_features = (
-            features.unbind(0) if batch is None else features.split(batch)
-        )
-        head = self.head
-        rows = self.next_state_rows
+        obs_dim, batch = layout.obs_dim, observation.shape[:-1]
+        states = norm.normalize_observation(torch.stack([observation, previous_observation]))
+        windows = observation.new_zeros(2, *batch, *layout.window_shape)
+        windows[..., 0, :obs_dim] = states
+        windows[1, ..., 0, obs_dim:] = norm.normalize_action(previous_action.to(windows.dtype))
+        masks = self.pair_mask.view(2, *[1] * len(batch), *layout.window_shape)
+        if self.latent == "sample":
+            noise = torch.randn_like(windows[0])
+            windows[0] = torch.where(masks[0], windows[0], noise)
+        masks = masks.expand_as(windows)
+        features = self.model.denoiser.features(windows, windows.new_ones(windows.shape[:-2]), masks)
+        rows = self._next_state_slice
         v_next = torch.nn.functional.linear(
-            transition_features, head.weight[rows], head.bias[rows]
+            features[1], self.head.weight[rows], self.head.bias[rows]
         )
-        predicted = norm.denormalize_observation(-self.sigma_1 * v_next)
-        return policy_features, observation, predicted
+        return features[0], observation, norm.denormalize_observation(-self.sigma_1 * v_next)
 
     def readout(self, head_rows: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
         return self.model.normalizer.denormalize_action(-self.sigma_1 * head_rows)
@@ -252,7 +252,7 @@ class LinearHeadActor(LastLayerActor):
             )
         self.trunk = nn.Sequential(*layers[:-1])
         self.head = layers[-1]
-        self.register_buffer("head_rows", torch.arange(action_dim))
+        self._set_head_rows(0, action_dim)
 
     def features(self, observation: torch.Tensor) -> torch.Tensor:
         return self.trunk(observation)

@@ -8,7 +8,7 @@ import torch
 from tensordict import NestedKey, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torch import Tensor
-from torchrl.data.tensor_specs import Composite, TensorSpec
+from torchrl.data.tensor_specs import BoundedContinuous, Composite, TensorSpec
 from torchrl.envs.utils import ExplorationType, exploration_type
 
 from torchrl_dual.modules._gaussian import gaussian_log_prob
@@ -196,6 +196,13 @@ class ShiftAwareNoise(TensorDictModuleBase):
                 "set action_key= to the key it holds."
             )
         self._spec = value
+        # A continuous box is projected by a clamp to its bounds (what Bounded.project
+        # does, without its per-call membership test); other specs use project().
+        self._box = None
+        if value is not None:
+            action_spec = value[self.action_key]
+            if isinstance(action_spec, BoundedContinuous):
+                self._box = (action_spec.space.low, action_spec.space.high)
 
     @staticmethod
     def _fix(kwarg: str) -> str:
@@ -217,7 +224,12 @@ class ShiftAwareNoise(TensorDictModuleBase):
             )
 
     def _project(self, action: Tensor) -> Tensor:
-        if self._spec is not None:
+        if self._box is not None:
+            low, high = self._box
+            if low.device != action.device:
+                self._box = low, high = low.to(action.device), high.to(action.device)
+            action = torch.clamp(action, low, high)
+        elif self._spec is not None:
             action = self._spec[self.action_key].project(action)
         if self.action_projection is not None:
             action = self.action_projection(action)
