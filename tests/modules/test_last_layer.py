@@ -49,8 +49,8 @@ def test_shared_pass_answers_the_policy_and_the_transition_query(make_model, bat
     previous_observation = torch.randn(*batch, 3, generator=gen)
     previous_action = torch.randn(*batch, 2, generator=gen)
     calls = []
-    original = model.denoiser.features
-    model.denoiser.features = lambda *args: calls.append(args[0].shape) or original(*args)
+    original = model.denoiser.trunk
+    model.denoiser.trunk = lambda hidden: calls.append(hidden.shape) or original(hidden)
     with torch.no_grad():
         torch.manual_seed(1)
         features, context, predicted = actor.encode_with_transition(
@@ -58,7 +58,8 @@ def test_shared_pass_answers_the_policy_and_the_transition_query(make_model, bat
         )
         assert len(calls) == 1  # one trunk pass for both queries
         torch.manual_seed(1)
-        alone = actor.features(observation)
+        with torch.enable_grad():  # the general (unfolded) path
+            alone = actor.features(observation).detach()
         reference = TransitionModel(model).predict(previous_observation, previous_action)
     assert features.shape == (*batch, model.denoiser.feature_dim)
     assert predicted.shape == observation.shape

@@ -104,6 +104,11 @@ class ResidualMLPDenoiser(nn.Module):
         flat_mask = mask.to(z.dtype).expand_as(z).flatten(-2)
         hidden = self.input_layer(torch.cat([flat_z, flat_mask], dim=-1))
         hidden = hidden + self.time_embedding(t.to(z.dtype))
+        return self.trunk(hidden)
+
+    def trunk(self, hidden: torch.Tensor) -> torch.Tensor:
+        """The residual blocks and output norm applied to the first layer's output
+        (``input_layer(z, mask) + time_embedding(t)``), ``[*B, hidden]``."""
         return self.output_norm(self.blocks(hidden))
 
     def forward(self, z: torch.Tensor, t: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

@@ -21,6 +21,7 @@ import torch
 from torch import nn
 
 from torchrl_dual.diffusion.model import TrajectoryDiffusion
+from torchrl_dual.modules.one_step_fold import OneStepFold
 
 LATENTS = ("zero", "sample")
 
@@ -152,6 +153,11 @@ class PlannerActor(LastLayerActor):
             )
         # With z_1 = 0, or α_1 = 0, τ_{a_0} = -σ_1·v̂: the latent never enters the read-out.
         self.sigma_1 = float(sigma)
+        self._fold = OneStepFold(model, self.sigma_1, self._next_state_slice)
+
+    def _folded(self) -> bool:
+        """Inference with the zero latent: the first layer is folded (see OneStepFold)."""
+        return self.latent == "zero" and not torch.is_grad_enabled()
 
     def _latent_window(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         layout, norm = self.model.layout, self.model.normalizer
@@ -166,6 +172,10 @@ class PlannerActor(LastLayerActor):
                 f"observation must end with dim {self.model.layout.obs_dim}, got "
                 f"{tuple(observation.shape)}."
             )
+        if self._folded():
+            w_state, _, const, _, _ = self._fold.tensors()
+            hidden = torch.nn.functional.linear(observation, w_state, const[0])
+            return self.model.denoiser.trunk(hidden)
         z, mask = self._latent_window(observation)
         t = torch.ones(z.shape[:-2], device=z.device)
         return self.model.denoiser.features(z, t, mask)
@@ -194,10 +204,21 @@ class PlannerActor(LastLayerActor):
                 f"shape of the observation {tuple(observation.shape)}."
             )
         obs_dim, batch = layout.obs_dim, observation.shape[:-1]
+        previous_action = previous_action.to(observation.dtype)
+        if self._folded():
+            w_state, w_action, const, w_next, b_next = self._fold.tensors()
+            hidden = torch.nn.functional.linear(
+                torch.stack([observation, previous_observation]), w_state
+            )
+            hidden[1] += torch.nn.functional.linear(previous_action, w_action)
+            hidden += const.view(2, *[1] * len(batch), -1)
+            features = self.model.denoiser.trunk(hidden)
+            predicted = torch.nn.functional.linear(features[1], w_next, b_next)
+            return features[0], observation, predicted
         states = norm.normalize_observation(torch.stack([observation, previous_observation]))
         windows = observation.new_zeros(2, *batch, *layout.window_shape)
         windows[..., 0, :obs_dim] = states
-        windows[1, ..., 0, obs_dim:] = norm.normalize_action(previous_action.to(windows.dtype))
+        windows[1, ..., 0, obs_dim:] = norm.normalize_action(previous_action)
         masks = self.pair_mask.view(2, *[1] * len(batch), *layout.window_shape)
         if self.latent == "sample":
             noise = torch.randn_like(windows[0])
