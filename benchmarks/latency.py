@@ -260,9 +260,7 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
     step = step_input(torch.randn(1, cfg.obs_dim), cfg.action_dim)
     exploration = {"random": ExplorationType.RANDOM, "deterministic": ExplorationType.DETERMINISTIC}
     with set_exploration_type(exploration[args.exploration]):
-        times = measure(
-            policies, step, reps=args.reps, warmup=args.warmup, rounds=args.rounds
-        )
+        times = measure(policies, step, reps=args.reps, warmup=args.warmup, rounds=args.rounds)
     rows = summarise(times)
 
     print(

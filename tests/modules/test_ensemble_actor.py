@@ -17,9 +17,8 @@ from torchrl_dual.modules import (
     LaplaceEnsembleActor,
     LinearHeadActor,
     PlannerActor,
-    PlannerSampler,
-    TransitionModel,
     ShiftAwareNoise,
+    TransitionModel,
 )
 from torchrl_dual.objectives.weighted_map_actor import WeightedMAPActorLoss
 from torchrl_dual.transforms import PreviousTransition
@@ -355,9 +354,13 @@ def test_collects_pendulum_with_shift_aware_noise_and_stores_all_keys(make_model
         valid = data["previous_valid"]
         with torch.no_grad():
             predicted = transition.predict(data["previous_observation"], data["previous_action"])
-        expected = torch.where(valid, (predicted - data["observation"]).norm(dim=-1, keepdim=True), 0)
+        expected = torch.where(
+            valid, (predicted - data["observation"]).norm(dim=-1, keepdim=True), 0
+        )
         torch.testing.assert_close(data["shift_distance"], expected, rtol=1e-4, atol=1e-5)
-        torch.testing.assert_close(data["previous_action"][1:][valid[1:, 0]], data["action"][:-1][valid[1:, 0]])
+        torch.testing.assert_close(
+            data["previous_action"][1:][valid[1:, 0]], data["action"][:-1][valid[1:, 0]]
+        )
         assert (data["shift_distance"][valid] > 0).all()
         scale = (data["scale"] ** 2 + 0.5 * data["shift_distance"]).sqrt()
         torch.testing.assert_close(data["exploration_scale"], scale)

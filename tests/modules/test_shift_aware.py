@@ -30,9 +30,7 @@ def make_td(*batch, shift=None, loc=0.3, scale=0.1):
         valid = ~valid
     else:
         offset = torch.as_tensor(shift, dtype=torch.float32).expand(*batch, 1)
-        observation = observation + torch.cat(
-            [offset, torch.zeros(*batch, OBS_DIM - 1)], dim=-1
-        )
+        observation = observation + torch.cat([offset, torch.zeros(*batch, OBS_DIM - 1)], dim=-1)
     return TensorDict(
         observation=observation,
         previous_observation=previous_observation,
@@ -58,16 +56,17 @@ def test_noise_std_is_sqrt_of_variance_plus_weighted_shift_per_env():
 
 
 def test_log_prob_is_normal_density_of_executed_action_summed_over_action_dim():
-    noise = ShiftAwareNoise(linear_model, shift_weight=0.7)
+    noise = ShiftAwareNoise(linear_model, shift_weight=0.7, return_log_prob=True)
     out = noise(make_td(5, shift=0.4))
     dist = torch.distributions.Normal(out["loc"], (0.1**2 + 0.7 * 0.4) ** 0.5)
     torch.testing.assert_close(out["action_log_prob"], dist.log_prob(out["action"]).sum(-1))
     assert out["action_log_prob"].shape == (5,)
+    assert "action_log_prob" not in ShiftAwareNoise(linear_model)(make_td(5, shift=0.4)).keys()
 
 
 def test_zero_weight_reduces_to_plain_ensemble_gaussian_but_still_reports_d():
     torch.manual_seed(1)
-    noise = ShiftAwareNoise(linear_model, shift_weight=0.0)
+    noise = ShiftAwareNoise(linear_model, shift_weight=0.0, return_log_prob=True)
     out = noise(make_td(40000, shift=5.0))
     torch.testing.assert_close(out["shift_distance"], torch.full((40000, 1), 5.0))
     torch.testing.assert_close(out["exploration_scale"], out["scale"])
@@ -155,6 +154,7 @@ def test_custom_keys_are_read_and_written():
         action_key="act",
         exploration_scale_key="total_std",
         log_prob_key="logp",
+        return_log_prob=True,
     )
     td = TensorDict(
         obs=torch.full((3, OBS_DIM), 6.0),

@@ -102,7 +102,9 @@ def test_rollout_carries_the_executed_action_and_state_of_the_previous_step():
     rollout = env.rollout(HORIZON, make_policy(env.action_spec))
     assert not rollout["previous_valid"][:, 0].any()
     assert rollout["previous_valid"][:, 1:].all()
-    torch.testing.assert_close(rollout["previous_observation"][:, 1:], rollout["observation"][:, :-1])
+    torch.testing.assert_close(
+        rollout["previous_observation"][:, 1:], rollout["observation"][:, :-1]
+    )
     # the executed (noisy) action, not the actor's loc
     torch.testing.assert_close(rollout["previous_action"][:, 1:], rollout["action"][:, :-1])
     assert (rollout["action"] != LOC).all()
@@ -189,6 +191,6 @@ def test_custom_keys_and_missing_key_errors():
     assert transform.out_keys == ["prev_obs", "previous_action", "previous_valid"]
     env = TransformedEnv(DriftPointEnv((2,)), PreviousTransition(action_key="thrust"))
     with pytest.raises(KeyError, match=r"no action 'thrust'.*Pass action_key="):
-        env.observation_spec
+        _ = env.observation_spec
     with pytest.raises(RuntimeError, match="append it to an env"):
         PreviousTransition().transform_observation_spec(DriftPointEnv().observation_spec)

@@ -140,7 +140,9 @@ class PlannerActor(LastLayerActor):
         self.head = model.denoiser.head
         self._set_head_rows(layout.obs_dim, layout.transition_dim)  # a_0 of row 0
         # head outputs of τ_{s_1}: row 1 of the flattened window, its state entries
-        self._next_state_slice = slice(layout.transition_dim, layout.transition_dim + layout.obs_dim)
+        self._next_state_slice = slice(
+            layout.transition_dim, layout.transition_dim + layout.obs_dim
+        )
         # masks of the shared pass: [policy query (s_0 known), transition query (s_0, a_0)]
         pair = torch.stack([layout.condition_mask("s0"), layout.condition_mask("s0_a0")])
         self.register_buffer("pair_mask", pair, persistent=False)
@@ -224,7 +226,9 @@ class PlannerActor(LastLayerActor):
             noise = torch.randn_like(windows[0])
             windows[0] = torch.where(masks[0], windows[0], noise)
         masks = masks.expand_as(windows)
-        features = self.model.denoiser.features(windows, windows.new_ones(windows.shape[:-2]), masks)
+        features = self.model.denoiser.features(
+            windows, windows.new_ones(windows.shape[:-2]), masks
+        )
         rows = self._next_state_slice
         v_next = torch.nn.functional.linear(
             features[1], self.head.weight[rows], self.head.bias[rows]
@@ -232,7 +236,8 @@ class PlannerActor(LastLayerActor):
         return features[0], observation, norm.denormalize_observation(-self.sigma_1 * v_next)
 
     def readout(self, head_rows: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
-        return self.model.normalizer.denormalize_action(-self.sigma_1 * head_rows)
+        norm = self.model.normalizer  # denormalize_action(-σ_1 · v̂) as one fused op
+        return torch.addcmul(norm.action_mean, head_rows, norm.action_std, value=-self.sigma_1)
 
     def readout_scale(self) -> torch.Tensor:
         return self.sigma_1 * self.model.normalizer.action_std

@@ -42,28 +42,28 @@ class OneStepFold:
         self.model = model
         self.sigma_1 = sigma_1
         self.next_state_rows = next_state_rows
-        self._key: tuple | None = None
+        denoiser = model.denoiser
+        # The modules whose tensors the folded ones derive from. Modules keep their
+        # identity through .to() / load_state_dict; their tensors are read at every call.
+        self._sources = (
+            denoiser.input_layer,
+            *(m for m in denoiser.time_embedding.modules() if isinstance(m, torch.nn.Linear)),
+            denoiser.head,
+        )
+        self._key: list | None = None
         self._folded: tuple[Tensor, ...] = ()
 
-    def _sources(self) -> list[Tensor]:
-        denoiser, norm = self.model.denoiser, self.model.normalizer
-        return [
-            denoiser.input_layer.weight,
-            denoiser.input_layer.bias,
-            *denoiser.time_embedding.parameters(),
-            denoiser.head.weight,
-            denoiser.head.bias,
-            norm.obs_mean,
-            norm.obs_std,
-            norm.action_mean,
-            norm.action_std,
-        ]
+    def _version_key(self) -> list:
+        norm = self.model.normalizer
+        tensors = [norm.obs_mean, norm.obs_std, norm.action_mean, norm.action_std]
+        for module in self._sources:
+            tensors += (module.weight, module.bias)
+        return [(t.data_ptr(), t._version) for t in tensors]
 
     def tensors(self) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
         """``(W_s [H, S], W_a [H, A], c [2, H], W_next [S, H], b_next [S])``, ``c[0]`` for
         the policy query (``s_0`` known), ``c[1]`` for the transition query (``s_0, a_0``)."""
-        sources = self._sources()
-        key = tuple((t.data_ptr(), t._version, t.dtype) for t in sources)
+        key = self._version_key()
         if key != self._key:
             with torch.no_grad():
                 self._folded = self._fold()
@@ -85,4 +85,10 @@ class OneStepFold:
         head_weight = denoiser.head.weight[self.next_state_rows]
         head_bias = denoiser.head.bias[self.next_state_rows]
         scale = -self.sigma_1 * norm.obs_std
-        return w_state, w_action, const, scale[:, None] * head_weight, norm.obs_mean + scale * head_bias
+        return (
+            w_state,
+            w_action,
+            const,
+            scale[:, None] * head_weight,
+            norm.obs_mean + scale * head_bias,
+        )

@@ -51,9 +51,9 @@ class ShiftAwareNoise(TensorDictModuleBase):
     1. Under ``ExplorationType.RANDOM`` (or unset): compute and write ``shift_distance``
        ``d_t`` (``[*B, 1]``); sample ``a = loc + sqrt(scale² + λ d) · ε`` (Eq. 10); project it
        onto the action spec (if any); write ``action``, the total std
-       ``exploration_scale`` and ``action_log_prob`` (Normal log-density of the executed,
-       projected action summed over the action dim). ``scale`` is left as the Eq. 9
-       ensemble std.
+       ``exploration_scale`` and, with ``return_log_prob=True``, ``action_log_prob``
+       (Normal log-density of the executed, projected action summed over the action
+       dim). ``scale`` is left as the Eq. 9 ensemble std.
     2. Under DETERMINISTIC / MODE / MEAN: ``action = loc`` (projected); nothing else.
 
     Because the noise is added on the policy side (like
@@ -74,7 +74,8 @@ class ShiftAwareNoise(TensorDictModuleBase):
     ``shift_distance``           ``[*B, 1]``   d_t (output, RANDOM only)
     ``action``                   ``[*B, A]``   executed a_t (output)
     ``exploration_scale``        ``[*B, A]``   sqrt(σ² + λ d) (output, RANDOM only)
-    ``action_log_prob``          ``[*B]``      log N(a_t; μ, σ² + λ d) (output, RANDOM only)
+    ``action_log_prob``          ``[*B]``      log N(a_t; μ, σ² + λ d) (output, RANDOM and
+                                               ``return_log_prob=True`` only)
     ===========================  ============  ==============================================
 
     Args:
@@ -95,6 +96,9 @@ class ShiftAwareNoise(TensorDictModuleBase):
         action_projection (callable, optional): applied to the action after the spec
             projection, before it is stored; e.g. the argmax one-hot map of a discrete
             env, so the stored action is the executed one.
+        return_log_prob (bool): also write ``action_log_prob`` (as TorchRL's
+            ``ProbabilisticActor(return_log_prob=True)``). Defaults to ``False``: the
+            off-policy losses of the recipe do not read it, and the action path is hot.
         device (torch.device, optional): device of the ``shift_weight`` buffer.
 
     Examples:
@@ -114,8 +118,8 @@ class ShiftAwareNoise(TensorDictModuleBase):
         tensor([1.4142])
         >>> td["exploration_scale"][0]  # sqrt(0.1**2 + 0.5 * sqrt(2))
         tensor([0.8468, 0.8468])
-        >>> td["action_log_prob"].shape
-        torch.Size([4])
+        >>> td["action"].shape
+        torch.Size([4, 2])
     """
 
     _MISSING_KEY_ERR = (
@@ -147,6 +151,7 @@ class ShiftAwareNoise(TensorDictModuleBase):
         exploration_scale_key: NestedKey = "exploration_scale",
         log_prob_key: NestedKey = "action_log_prob",
         action_projection: Callable[[Tensor], Tensor] | None = None,
+        return_log_prob: bool = False,
         device: torch.device | None = None,
     ):
         if transition_model is not None and not callable(transition_model):
@@ -171,8 +176,11 @@ class ShiftAwareNoise(TensorDictModuleBase):
         self.in_keys = [observation_key, loc_key, scale_key, expected_observation_key]
         if transition_model is not None:
             self.in_keys += list(self.previous_keys)
-        self.out_keys = [action_key, shift_key, exploration_scale_key, log_prob_key]
+        self.out_keys = [action_key, shift_key, exploration_scale_key]
+        if return_log_prob:
+            self.out_keys.append(log_prob_key)
         super().__init__()
+        self.return_log_prob = return_log_prob
         self.transition_model = transition_model
         self.action_projection = action_projection
         self.register_buffer(
@@ -297,7 +305,9 @@ class ShiftAwareNoise(TensorDictModuleBase):
             f"per-dimension std matching {self.loc_key!r}",
             "write one std per action dim (expand a shared std to loc's shape)",
         )
-        observation = self._get(tensordict, self.observation_key, "s_t", self._fix("observation_key"))
+        observation = self._get(
+            tensordict, self.observation_key, "s_t", self._fix("observation_key")
+        )
         self._check(
             self.observation_key,
             observation.shape[:-1],
@@ -306,18 +316,20 @@ class ShiftAwareNoise(TensorDictModuleBase):
             "give the observation a trailing feature dim and the same batch dims as loc",
             what="batch dims",
         )
-        variance = scale.pow(2)
+        variance = scale.square()
         expected = self._expected_observation(tensordict, observation)
         if expected is not None:
-            error = (expected - observation).to(loc.dtype)
-            shift = torch.linalg.vector_norm(error, dim=-1, keepdim=True)  # d_t
-            tensordict.set(self.shift_key, shift)
-            variance = variance + self.shift_weight.to(loc.dtype) * shift  # Eq. (10)
+            shift = torch.linalg.vector_norm(expected - observation, dim=-1, keepdim=True)
+            if shift.dtype != loc.dtype:
+                shift = shift.to(loc.dtype)
+            tensordict.set(self.shift_key, shift)  # d_t
+            variance = torch.addcmul(variance, shift, self.shift_weight)  # Eq. (10)
         std = variance.clamp_min(self._MIN_VARIANCE).sqrt()
-        action = self._project(loc + std * torch.randn_like(loc))
+        action = self._project(torch.addcmul(loc, std, torch.randn_like(loc)))
         tensordict.set(self.action_key, action)
         tensordict.set(self.exploration_scale_key, std)
-        tensordict.set(self.log_prob_key, gaussian_log_prob(action, loc, std))
+        if self.return_log_prob:
+            tensordict.set(self.log_prob_key, gaussian_log_prob(action, loc, std))
         return tensordict
 
     def __repr__(self) -> str:
