@@ -10,6 +10,7 @@ The public parts, each usable on its own in a TorchRL pipeline:
 """
 
 from torchrl_dual.modules import (
+    DDPMLastStepActor,
     LaplaceEnsembleActor,
     LastLayerLaplace,
     LinearHeadActor,
@@ -23,6 +24,7 @@ from torchrl_dual.objectives import DiffusionPlannerLoss, DistillationLoss, Weig
 __version__ = "0.1.0"
 
 __all__ = [
+    "DDPMLastStepActor",
     "DiffusionPlannerLoss",
     "DistillationLoss",
     "LaplaceEnsembleActor",
