@@ -119,6 +119,30 @@ def test_member_actions_equal_explicit_per_member_heads(kind, make_model):
 
 
 @pytest.mark.parametrize("kind", ACTOR_KINDS)
+def test_inference_members_follow_resampling_and_optimizer_steps(kind, make_model):
+    """Without autograd the stacked member heads are cached; every change must show."""
+    policy = _fitted_policy(kind, make_model, num_samples=4)
+    observation = _obs_td(5)["observation"]
+
+    def both():
+        with torch.no_grad():
+            cached = policy.member_actions(observation)
+        with torch.enable_grad():
+            fresh = policy.member_actions(observation).detach()
+        torch.testing.assert_close(cached, fresh, rtol=1e-5, atol=1e-6)
+        return cached
+
+    first = both()
+    policy.resample()
+    second = both()
+    assert not torch.allclose(first, second)
+    optimizer = torch.optim.SGD(policy.actor.parameters(), lr=0.5)
+    (policy.actor(observation) ** 2).sum().backward()
+    optimizer.step()
+    assert not torch.allclose(both(), second)
+
+
+@pytest.mark.parametrize("kind", ACTOR_KINDS)
 def test_members_are_centred_on_the_current_head_between_refits(kind, make_model):
     policy = _fitted_policy(kind, make_model, num_samples=6)
     observation = _obs_td(5)["observation"]

@@ -11,6 +11,7 @@ from tensordict.utils import NestedKey
 from torchrl.envs.utils import ExplorationType, exploration_type
 
 from torchrl_dual.modules._gaussian import gaussian_log_prob
+from torchrl_dual.modules._versioned_cache import VersionedCache
 from torchrl_dual.modules.laplace import LastLayerLaplace
 from torchrl_dual.modules.last_layer import LastLayerActor
 
@@ -124,6 +125,7 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         self.register_buffer("bias_deviation", torch.zeros(num_samples, actor.action_dim))
         self.action_low, self.action_high = action_low, action_high
         self.predict_transition = predict_transition
+        self._member_head_cache = VersionedCache(self._member_head_sources, self._member_heads)
         self.in_keys = [observation_key]
         self.out_keys = [loc_key, scale_key, epistemic_key, action_key, log_prob_key]
         self.previous_keys = (previous_observation_key, previous_action_key, previous_valid_key)
@@ -182,13 +184,25 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         features, context = self.actor.encode(observation)
         return self._members(features, context)
 
+    def _member_heads(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The ``M`` heads ``θ* + (θ_m − θ*)`` stacked as one ``[M·A, d]`` linear map."""
+        map_weight, map_bias = self.actor.head_parameters()
+        weight = (map_weight + self.weight_deviation).flatten(0, 1)
+        return weight, (map_bias + self.bias_deviation).flatten()
+
+    def _member_head_sources(self) -> list[torch.Tensor]:
+        head = self.actor.head
+        return [head.weight, head.bias, self.weight_deviation, self.bias_deviation]
+
     def _members(self, features: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
         if self.resample_each_call:
             self.resample()
-        # all M heads θ* + (θ_m − θ*) as one linear map [*B, d] -> [*B, M·A] -> [M, *B, A]
-        map_weight, map_bias = self.actor.head_parameters()
-        weight = (map_weight + self.weight_deviation).flatten(0, 1)
-        bias = (map_bias + self.bias_deviation).flatten()
+        # all M heads as one linear map [*B, d] -> [*B, M·A] -> [M, *B, A]; without
+        # autograd the stacked heads are reused until the head or the draws change
+        if torch.is_grad_enabled():
+            weight, bias = self._member_heads()
+        else:
+            weight, bias = self._member_head_cache.get()
         heads = torch.nn.functional.linear(features, weight, bias)
         heads = heads.unflatten(-1, (self.num_samples, -1)).movedim(-2, 0)
         return self.actor.readout(heads, context)

@@ -6,6 +6,7 @@ import torch
 from torch import Tensor
 
 from torchrl_dual.diffusion.model import TrajectoryDiffusion
+from torchrl_dual.modules._versioned_cache import VersionedCache
 
 
 class OneStepFold:
@@ -25,7 +26,7 @@ class OneStepFold:
     in. The state read-out of the transition query, ``μ_s + σ_s ⊙ (−σ_1 (W v + b))``,
     folds into one affine map too. The folded tensors are recomputed whenever one of the
     tensors they come from changes (an optimizer step, ``load_state_dict``, ``.to()``):
-    the cache is keyed on their storage and version counters.
+    see :class:`~torchrl_dual.modules._versioned_cache.VersionedCache`.
 
     The result equals the general path to float rounding (see
     ``tests/modules/test_one_step_fold.py``); it is only used without autograd, on the
@@ -50,25 +51,19 @@ class OneStepFold:
             *(m for m in denoiser.time_embedding.modules() if isinstance(m, torch.nn.Linear)),
             denoiser.head,
         )
-        self._key: list | None = None
-        self._folded: tuple[Tensor, ...] = ()
+        self._cache = VersionedCache(self._source_tensors, self._fold)
 
-    def _version_key(self) -> list:
+    def _source_tensors(self) -> list[Tensor]:
         norm = self.model.normalizer
         tensors = [norm.obs_mean, norm.obs_std, norm.action_mean, norm.action_std]
         for module in self._sources:
             tensors += (module.weight, module.bias)
-        return [(t.data_ptr(), t._version) for t in tensors]
+        return tensors
 
     def tensors(self) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
         """``(W_s [H, S], W_a [H, A], c [2, H], W_next [S, H], b_next [S])``, ``c[0]`` for
         the policy query (``s_0`` known), ``c[1]`` for the transition query (``s_0, a_0``)."""
-        key = self._version_key()
-        if key != self._key:
-            with torch.no_grad():
-                self._folded = self._fold()
-            self._key = key
-        return self._folded
+        return self._cache.get()
 
     def _fold(self) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
         layout, denoiser, norm = self.model.layout, self.model.denoiser, self.model.normalizer
