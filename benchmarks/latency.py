@@ -7,10 +7,13 @@ Measures, in one process, the time one policy call takes on a ``[1, obs_dim]`` o
 Weights are untrained: the cost of a forward pass does not depend on the weight values,
 only on the architecture and the number of sampling steps.
 
-Candidates live in :data:`BUILDERS` (name -> builder). To add one, e.g. ``dual_m5``, write
-``def build_dual_m5(cfg) -> TensorDictModuleBase`` and register it; the table and the JSON
-pick it up. Timings are interleaved (round-robin over candidates) so that load from other
-processes affects every candidate alike.
+Candidates live in :data:`BUILDERS` (name -> builder). To add one, write
+``def build_x(cfg) -> TensorDictModuleBase`` and register it; the table and the JSON
+pick it up. ``dual_m5`` is DUAL's online policy (Laplace ensemble M = 5 + shift-aware
+noise, one shared trunk pass); ``dual_m5_frozen`` takes ``ŝ_t`` from a separate frozen
+transition model (a second pass). Every candidate gets the step input a collector would
+give it mid-episode (:func:`step_input`). Timings are interleaved (round-robin over
+candidates) so that load from other processes affects every candidate alike.
 
 Usage::
 
