@@ -152,3 +152,40 @@ def test_std_is_the_clamped_exp_of_log_std():
     with torch.no_grad():
         actor.log_std.copy_(torch.tensor([-10.0, 10.0]))
     torch.testing.assert_close(actor.std, torch.tensor([0.1, 1.0]))
+
+
+# ----------------------------------------------------------------------------- from_actor
+def _iql_actor():
+    from tensordict.nn import TensorDictModule
+    from torchrl.modules import ProbabilisticActor, TanhNormal
+
+    torch.manual_seed(0)
+    net = nn.Sequential(
+        MLP(in_features=3, out_features=4, num_cells=[16, 16]), NormalParamExtractor()
+    )
+    module = TensorDictModule(net, in_keys=["observation"], out_keys=["loc", "scale"])
+    return ProbabilisticActor(module, in_keys=["loc", "scale"], distribution_class=TanhNormal)
+
+
+def test_from_actor_shares_the_weights_of_a_torchrl_probabilistic_actor():
+    iql_actor = _iql_actor()
+    actor = LinearHeadActor.from_actor(iql_actor)
+    observation = torch.randn(6, 3)
+    td = iql_actor(TensorDict({"observation": observation}, [6]))
+    assert actor.action_dim == 2
+    torch.testing.assert_close(actor(observation), td["loc"])
+    with torch.no_grad():  # training the TorchRL actor moves the wrapped one too
+        iql_actor.module[0].module[0][-1].bias.add_(1.0)
+    td = iql_actor(TensorDict({"observation": observation}, [6]))
+    torch.testing.assert_close(actor(observation), td["loc"])
+
+
+def test_from_actor_unwraps_modules_and_plain_networks_and_rejects_others():
+    from tensordict.nn import TensorDictModule
+
+    mlp = MLP(in_features=3, out_features=2, num_cells=[8])
+    for wrapped in (mlp, TensorDictModule(mlp, in_keys=["observation"], out_keys=["action"])):
+        actor = LinearHeadActor.from_actor(wrapped)
+        assert actor.action_dim == 2 and actor.head is mlp[-1]
+    with pytest.raises(TypeError, match=r"no final nn.Linear.*Tanh"):
+        LinearHeadActor.from_actor(nn.Sequential(nn.Linear(3, 2), nn.Tanh()))

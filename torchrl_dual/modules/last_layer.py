@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 
 import torch
+from tensordict.nn import NormalParamExtractor, TensorDictModule, TensorDictSequential
 from torch import nn
 
 from torchrl_dual.diffusion.model import TrajectoryDiffusion
@@ -280,6 +281,45 @@ class LinearHeadActor(LastLayerActor):
         self.head = layers[-1]
         self._set_head_rows(0, action_dim)
 
+    @classmethod
+    def from_actor(cls, actor: nn.Module, **kwargs) -> LinearHeadActor:
+        """Wraps a TorchRL actor, sharing its weights ("IQL + LA" from an IQL actor).
+
+        Unwraps ``ProbabilisticActor`` / ``TensorDictSequential`` (first module),
+        ``Actor`` / ``TensorDictModule`` (``.module``) and nested ``nn.Sequential`` down to
+        the layers; a trailing ``NormalParamExtractor`` is dropped and the ``loc`` half of
+        the last ``nn.Linear`` becomes ``μ(s)`` (pre-squash for a ``TanhNormal`` actor).
+
+        Examples:
+            >>> import torch
+            >>> from tensordict.nn import TensorDictModule
+            >>> from torchrl.modules import MLP, NormalParamExtractor, ProbabilisticActor, TanhNormal
+            >>> net = torch.nn.Sequential(MLP(in_features=3, out_features=4, num_cells=[16]),
+            ...                           NormalParamExtractor())
+            >>> iql_actor = ProbabilisticActor(
+            ...     TensorDictModule(net, in_keys=["observation"], out_keys=["loc", "scale"]),
+            ...     in_keys=["loc", "scale"], distribution_class=TanhNormal)
+            >>> actor = LinearHeadActor.from_actor(iql_actor)
+            >>> actor.action_dim, actor.head is net[0][-1]
+            (2, True)
+        """
+        network = actor
+        while isinstance(network, (TensorDictSequential, TensorDictModule)):
+            network = (
+                network.module[0] if isinstance(network, TensorDictSequential) else (network.module)
+            )
+        layers = _flatten_sequential(network)
+        halves = bool(layers) and isinstance(layers[-1], NormalParamExtractor)
+        if halves:
+            layers = layers[:-1]
+        if not layers or not isinstance(layers[-1], nn.Linear):
+            raise TypeError(
+                f"LinearHeadActor.from_actor found no final nn.Linear in {type(actor).__name__} "
+                f"(its network ends with {type(layers[-1]).__name__ if layers else 'nothing'})."
+            )
+        out = layers[-1].out_features
+        return cls(nn.Sequential(*layers), out // 2 if halves else out, **kwargs)
+
     def features(self, observation: torch.Tensor) -> torch.Tensor:
         return self.trunk(observation)
 
@@ -288,3 +328,9 @@ class LinearHeadActor(LastLayerActor):
 
     def readout_scale(self) -> torch.Tensor:
         return torch.ones(self.action_dim, device=self.head.weight.device)
+
+
+def _flatten_sequential(module: nn.Module) -> list[nn.Module]:
+    if not isinstance(module, nn.Sequential):
+        return [module]
+    return [layer for child in module.children() for layer in _flatten_sequential(child)]
