@@ -10,8 +10,9 @@ only on the architecture and the number of sampling steps.
 Candidates live in :data:`BUILDERS` (name -> builder). To add one, write
 ``def build_x(cfg) -> TensorDictModuleBase`` and register it; the table and the JSON
 pick it up. ``dual_m5`` is DUAL's online policy (Laplace ensemble M = 5 + shift-aware
-noise, one shared trunk pass); ``dual_m5_frozen`` takes ``ŝ_t`` from a separate frozen
-transition model (a second pass). Every candidate gets the step input a collector would
+noise; the policy query and the frozen transition model's query in one batched pass);
+``dual_m5_shared`` uses the actor's own weights for ``ŝ_t``; ``dual_m5_two_pass`` runs
+the frozen transition model as a separate second pass. Every candidate gets the step input a collector would
 give it mid-episode (:func:`step_input`). Timings are interleaved (round-robin over
 candidates) so that load from other processes affects every candidate alike.
 
@@ -98,35 +99,42 @@ def build_planner_n1(cfg: Config) -> TensorDictModuleBase:
     return _planner(cfg, 1)
 
 
-def _dual(cfg: Config, shared: bool) -> TensorDictModuleBase:
+def _dual(cfg: Config, transition: str) -> TensorDictModuleBase:
     layout = TrajectoryLayout(cfg.obs_dim, cfg.action_dim, cfg.horizon)
     model = TrajectoryDiffusion(layout, num_steps=1, hidden=cfg.hidden, depth=cfg.depth)
+    frozen = copy.deepcopy(model)
     ensemble = LaplaceEnsembleActor(
-        PlannerActor(model),
+        PlannerActor(model, transition_model=frozen if transition == "paired" else None),
         num_samples=5,
         action_low=-1.0,
         action_high=1.0,
         sample_action=False,
-        predict_transition=shared,
+        predict_transition=transition != "two_pass",
     )
     ensemble.fit_laplace([TensorDict({"observation": torch.randn(512, cfg.obs_dim)}, [512])])
-    transition = None if shared else TransitionModel(copy.deepcopy(model)).predict
     noise = ShiftAwareNoise(
-        transition, spec=Bounded(-1.0, 1.0, shape=(cfg.action_dim,)), shift_weight=0.5
+        TransitionModel(frozen).predict if transition == "two_pass" else None,
+        spec=Bounded(-1.0, 1.0, shape=(cfg.action_dim,)),
+        shift_weight=0.5,
     )
     return TensorDictSequential(ensemble, noise)
 
 
 def build_dual_m5(cfg: Config) -> TensorDictModuleBase:
-    """DUAL's online policy: one-step planner actor + Laplace ensemble (M = 5, Eq. 9) +
-    shift-aware noise (Eq. 10), with the policy query for s_t and the transition query
-    for (s_(t-1), a_(t-1)) in one trunk pass (the recipe's default)."""
-    return _dual(cfg, shared=True)
+    """DUAL's online policy as the recipe builds it: one-step planner actor + Laplace
+    ensemble (M = 5, Eq. 9) + shift-aware noise (Eq. 10), with the policy query for s_t
+    and the frozen transition model's query for (s_(t-1), a_(t-1)) in one batched pass."""
+    return _dual(cfg, "paired")
 
 
-def build_dual_m5_frozen(cfg: Config) -> TensorDictModuleBase:
-    """As ``dual_m5`` but ŝ_t from a separate frozen transition copy: a second pass."""
-    return _dual(cfg, shared=False)
+def build_dual_m5_shared(cfg: Config) -> TensorDictModuleBase:
+    """As ``dual_m5`` with the actor's own weights as the transition model (Alg. 1's p_θ)."""
+    return _dual(cfg, "shared")
+
+
+def build_dual_m5_two_pass(cfg: Config) -> TensorDictModuleBase:
+    """As ``dual_m5`` with the frozen transition model run as a second, separate pass."""
+    return _dual(cfg, "two_pass")
 
 
 BUILDERS: dict[str, Callable[[Config], TensorDictModuleBase]] = {
@@ -134,7 +142,8 @@ BUILDERS: dict[str, Callable[[Config], TensorDictModuleBase]] = {
     "planner_n32": build_planner_n32,
     "planner_n1": build_planner_n1,
     "dual_m5": build_dual_m5,
-    "dual_m5_frozen": build_dual_m5_frozen,
+    "dual_m5_shared": build_dual_m5_shared,
+    "dual_m5_two_pass": build_dual_m5_two_pass,
 }
 REFERENCES = ("mlp_actor", "planner_n32")
 

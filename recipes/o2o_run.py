@@ -25,7 +25,6 @@ from torchrl_dual import TransitionModel
 from torchrl_dual.checkpoint import RunCheckpoint, rng_state, set_rng_state
 from torchrl_dual.data import TRANSITION_KEYS
 from torchrl_dual.diffusion import WindowReplayBuffer
-from torchrl_dual.modules import PlannerActor
 from torchrl_dual.training import progressive_distillation, train_planner
 
 STAGES = ("planner", "distillation", "actor_critic", "laplace", "offline_eval")
@@ -66,15 +65,11 @@ class DualRun:
         # ---- networks: teacher g_θ', one-step transition model and actor π_θ
         self.teacher = setup.make_planner(cfg, self.data)
         self.transition = TransitionModel(setup.one_step_like(self.teacher))
-        self.actor = PlannerActor(
-            setup.one_step_like(self.teacher),
-            latent=cfg.actor.latent,
-            init_std=cfg.actor.init_std,
-        )
+        self.actor = setup.make_actor(cfg, self.teacher, self.transition)
         self.critic = setup.make_critic(cfg, self.actor, self.data)
         self.actor_loss = setup.make_actor_loss(cfg, self.actor, self.critic)
         self.actor_optimizer = torch.optim.Adam(self.actor_loss.parameters(), lr=cfg.actor.lr)
-        self.ensemble, self.policy = setup.make_policies(cfg, self.actor, self.transition, self.env)
+        self.ensemble, self.policy = setup.make_policies(cfg, self.actor, self.env)
         self.replay = OfflineToOnlineReplayBuffer(
             self.offline_buffer,
             online_capacity=max(cfg.budget.online_frames, 1),

@@ -258,24 +258,36 @@ def make_actor_loss(cfg: DictConfig, actor: PlannerActor, critic: Critic) -> Wei
     )
 
 
-TRANSITION_MODELS = ("shared", "frozen")
+TRANSITION_MODELS = ("frozen", "shared")
 
 
-def make_policies(
-    cfg: DictConfig, actor: PlannerActor, transition: TransitionModel, env
-) -> tuple[LaplaceEnsembleActor, TensorDictSequential]:
-    """The Laplace ensemble (Eq. 9) and the exploration policy with Eq. (10)'s noise.
+def make_actor(cfg: DictConfig, teacher: TrajectoryDiffusion, transition: TransitionModel):
+    """The actor ``π_θ``: a one-step planner shaped like the teacher (weights loaded later).
 
-    ``exploration.transition_model``: ``shared`` predicts ``ŝ_t`` with the actor's own
-    (fine-tuned) planner weights in the same trunk pass as the action (Alg. 1 l. 12,
-    ``p(s'|s, a; θ)``); ``frozen`` with the distilled offline copy, a second pass.
+    ``exploration.transition_model`` picks the ``ŝ_t`` of Eq. (10): ``frozen`` (default)
+    keeps the distilled transition model's own weights (``transition``), ``shared`` uses
+    the actor's fine-tuned ones (Alg. 1's ``p_θ``). Either way the policy answers both
+    queries in one batched trunk pass.
     """
-    low, high = env.action_spec.space.low, env.action_spec.space.high
     source = cfg.exploration.transition_model
     if source not in TRANSITION_MODELS:
         raise ValueError(
             f"Unknown exploration.transition_model {source!r}; choose one of {TRANSITION_MODELS}."
         )
+    return PlannerActor(
+        one_step_like(teacher),
+        latent=cfg.actor.latent,
+        init_std=cfg.actor.init_std,
+        transition_model=transition.sampler.model if source == "frozen" else None,
+    )
+
+
+def make_policies(
+    cfg: DictConfig, actor: PlannerActor, env
+) -> tuple[LaplaceEnsembleActor, TensorDictSequential]:
+    """The Laplace ensemble (Eq. 9), which also predicts ``ŝ_t`` in its trunk pass, and the
+    exploration policy with Eq. (10)'s noise."""
+    low, high = env.action_spec.space.low, env.action_spec.space.high
     ensemble = LaplaceEnsembleActor(
         actor,
         num_samples=cfg.laplace.num_samples,
@@ -283,10 +295,9 @@ def make_policies(
         action_low=low.to(cfg.device),
         action_high=high.to(cfg.device),
         sample_action=False,  # ShiftAwareNoise draws the executed action (Eq. 10)
-        predict_transition=source == "shared",
+        predict_transition=True,
     )
     noise = ShiftAwareNoise(
-        transition.predict if source == "frozen" else None,
         spec=env.action_spec,
         shift_weight=cfg.exploration.shift_weight,
         action_projection=one_hot_argmax if cfg.env.kind == "frozenlake" else None,

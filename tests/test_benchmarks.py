@@ -22,6 +22,13 @@ def test_latency_benchmark_times_every_candidate_and_writes_json(tmp_path):
     proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     medians = json.loads(out.read_text())
-    assert set(medians) == {"mlp_actor", "planner_n32", "planner_n1", "dual_m5", "dual_m5_frozen"}
+    assert set(medians) == {
+        "mlp_actor",
+        "planner_n32",
+        "planner_n1",
+        "dual_m5",
+        "dual_m5_shared",
+        "dual_m5_two_pass",
+    }
     assert all(value > 0 for value in medians.values())
     assert "goal (uncertainty-aware actor issue)" in proc.stdout

@@ -3,7 +3,8 @@
 from torchrl_dual.modules.ddpm_actor import DDPMLastStepActor
 from torchrl_dual.modules.ensemble_actor import LaplaceEnsembleActor
 from torchrl_dual.modules.laplace import LastLayerLaplace
-from torchrl_dual.modules.last_layer import LastLayerActor, LinearHeadActor, PlannerActor
+from torchrl_dual.modules.last_layer import LastLayerActor, LinearHeadActor
+from torchrl_dual.modules.planner_actor import PlannerActor
 from torchrl_dual.modules.planner_policy import PlannerPolicy, PlannerSampler, TransitionModel
 from torchrl_dual.modules.shift_aware import ShiftAwareNoise
 

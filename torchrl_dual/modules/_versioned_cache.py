@@ -12,13 +12,15 @@ T = TypeVar("T")
 
 
 class VersionedCache(Generic[T]):
-    """Caches ``compute()`` until one of ``sources()`` is modified or replaced.
+    """Caches ``compute()`` until one of the tensors of ``sources()`` is modified or replaced.
 
-    A tensor counts as changed when its storage (``data_ptr``) or its version counter
-    (bumped by every in-place operation: optimizer steps, ``copy_`` in
-    ``load_state_dict``, ...) differs from the last call. ``sources`` is called each
-    time, so tensors replaced by ``.to()`` or ``.double()`` are seen too. ``compute`` runs
-    without autograd: use the cache on inference paths only.
+    A tensor is modified when its version counter moves (every in-place operation bumps
+    it: optimizer steps, ``copy_`` in ``load_state_dict``, ...). Replacement (``.to()``
+    to another device or dtype, ``load_state_dict(..., assign=True)``) is detected by
+    identity on the tensors ``probe()`` returns, all of ``sources()`` by default; pass a
+    few representative tensors (e.g. the first and last weights of a network) when
+    ``sources()`` is long, since the check runs at every call. ``compute`` runs without
+    autograd: use the cache on inference paths only.
 
     Examples:
         >>> import torch
@@ -33,16 +35,35 @@ class VersionedCache(Generic[T]):
         (tensor([4., 4., 4.]), 2)
     """
 
-    def __init__(self, sources: Callable[[], list[Tensor]], compute: Callable[[], T]) -> None:
+    def __init__(
+        self,
+        sources: Callable[[], list[Tensor]],
+        compute: Callable[[], T],
+        probe: Callable[[], list[Tensor]] | None = None,
+    ) -> None:
         self.sources = sources
         self.compute = compute
-        self._key: list | None = None
+        self.probe = probe or sources
+        self._tensors: list[Tensor] = []
+        self._probed: list[Tensor] = []
+        self._versions: list[int] | None = None
         self._value: T | None = None
 
+    def _valid(self) -> bool:
+        if self._versions is None:
+            return False
+        probed = self.probe()
+        if len(probed) != len(self._probed) or any(
+            a is not b for a, b in zip(probed, self._probed, strict=True)
+        ):
+            return False
+        return [t._version for t in self._tensors] == self._versions
+
     def get(self) -> T:
-        key = [(t.data_ptr(), t._version) for t in self.sources()]
-        if key != self._key:
+        if not self._valid():
+            self._tensors = list(self.sources())
+            self._probed = list(self.probe())
             with torch.no_grad():
                 self._value = self.compute()
-            self._key = key
+            self._versions = [t._version for t in self._tensors]
         return self._value
