@@ -141,12 +141,14 @@ class PlannerActor(LastLayerActor):
         previous_action: torch.Tensor,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The policy query at ``s_t`` and the transition query at ``(s_{t-1}, a_{t-1})``
-        in one denoiser pass (Algorithm 1 l. 12 uses the same ``θ`` for ``π_θ`` and
-        ``p(s'|s, a; θ)``).
+        in one batched denoiser pass (Eq. 10's ``ŝ_t``).
 
-        The two windows are stacked on a new leading dim; the transition window has the
-        zero latent, so ``ŝ_t = −σ_1 · v̂(row 1, states)`` is the deterministic prediction
-        of :class:`~torchrl_dual.modules.TransitionModel` for the same weights.
+        The transition query uses :attr:`transition_model`'s weights when it is set (the
+        two trunks run stacked, :class:`~torchrl_dual.modules.paired_trunk.PairedTrunk`),
+        else the actor's own (Algorithm 1 writes the same ``θ`` for ``π_θ`` and
+        ``p(s'|s, a; θ)``). The transition window has the zero latent, so
+        ``ŝ_t = −σ_1 · v̂(row 1, states)`` is the deterministic prediction of
+        :class:`~torchrl_dual.modules.TransitionModel` for those weights.
 
         Returns:
             ``(φ(s_t), context, ŝ_t)`` with ``ŝ_t`` of shape ``[*B, obs_dim]`` in raw units.
