@@ -244,7 +244,7 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
     parser.add_argument("--threads", type=int, default=1, help="torch.set_num_threads")
     parser.add_argument("--reps", type=int, default=1000, help="timed calls per candidate")
     parser.add_argument("--warmup", type=int, default=50, help="untimed calls per candidate")
-    parser.add_argument("--rounds", type=int, default=10, help="round-robin rounds")
+    parser.add_argument("--rounds", type=int, default=30, help="round-robin rounds")
     parser.add_argument(
         "--exploration",
         choices=("random", "deterministic"),
