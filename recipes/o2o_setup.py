@@ -261,7 +261,9 @@ def make_actor_loss(cfg: DictConfig, actor: PlannerActor, critic: Critic) -> Wei
 TRANSITION_MODELS = ("frozen", "shared")
 
 
-def make_actor(cfg: DictConfig, teacher: TrajectoryDiffusion, transition: TransitionModel):
+def make_actor(
+    cfg: DictConfig, teacher: TrajectoryDiffusion, transition: TransitionModel
+) -> PlannerActor:
     """The actor ``π_θ``: a one-step planner shaped like the teacher (weights loaded later).
 
     ``exploration.transition_model`` picks the ``ŝ_t`` of Eq. (10): ``frozen`` (default)
