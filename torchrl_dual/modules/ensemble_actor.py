@@ -11,6 +11,7 @@ from tensordict.utils import NestedKey
 from torchrl.envs.utils import ExplorationType, exploration_type
 
 from torchrl_dual.modules._gaussian import gaussian_log_prob
+from torchrl_dual.modules._keys import read_key
 from torchrl_dual.modules._versioned_cache import VersionedCache
 from torchrl_dual.modules.laplace import LastLayerLaplace
 from torchrl_dual.modules.last_layer import LastLayerActor
@@ -207,22 +208,13 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         heads = heads.unflatten(-1, (self.num_samples, -1)).movedim(-2, 0)
         return self.actor.readout(heads, context)
 
-    def _read(self, tensordict: TensorDictBase, key: NestedKey, fix: str) -> torch.Tensor:
-        value = tensordict.get(key, default=None)
-        if value is None:
-            raise KeyError(
-                f"LaplaceEnsembleActor reads {key!r}, which the input lacks; it holds "
-                f"{sorted(map(str, tensordict.keys(True, True)))}. {fix}"
-            )
-        return value
-
     def _encode(self, tensordict: TensorDictBase, observation: torch.Tensor):
         """Trunk pass; with ``predict_transition`` it also writes ``ŝ_t`` (same pass)."""
         if not self.predict_transition:
             return self.actor.encode(observation)
         fix = "Append torchrl_dual.transforms.PreviousTransition() to the env."
         previous_observation, previous_action, valid = (
-            self._read(tensordict, key, fix) for key in self.previous_keys
+            read_key(tensordict, key, "LaplaceEnsembleActor", fix) for key in self.previous_keys
         )
         features, context, predicted = self.actor.encode_with_transition(
             observation, previous_observation, previous_action
@@ -237,7 +229,7 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         return action.clamp(self.action_low, self.action_high)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        observation = self._read(tensordict, self.in_keys[0], "")
+        observation = read_key(tensordict, self.in_keys[0], "LaplaceEnsembleActor")
         aleatoric = self.actor.std**2
         if exploration_type() in _DETERMINISTIC:
             loc = self.actor(observation)

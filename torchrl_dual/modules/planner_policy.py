@@ -10,6 +10,7 @@ from torch import nn
 from torchrl.envs.utils import ExplorationType, exploration_type
 
 from torchrl_dual.diffusion.model import TrajectoryDiffusion
+from torchrl_dual.modules._keys import read_key
 
 
 class PlannerSampler(nn.Module):
@@ -184,7 +185,7 @@ class PlannerPolicy(TensorDictModuleBase):
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         # Plain get/set: the outputs are written without TensorDictModule's generic
         # output handling, which costs as much as a one-step sample at batch 1.
-        action, next_observation = self.module(_read(tensordict, self.in_keys[0]))
+        action, next_observation = self.module(read_key(tensordict, self.in_keys[0], "The planner"))
         tensordict.set(self.out_keys[0], action)
         tensordict.set(self.out_keys[1], next_observation)
         return tensordict
@@ -236,17 +237,7 @@ class TransitionModel(TensorDictModuleBase):
         )
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        observation = _read(tensordict, self.in_keys[0])
-        action = _read(tensordict, self.in_keys[1])
+        observation = read_key(tensordict, self.in_keys[0], "The planner")
+        action = read_key(tensordict, self.in_keys[1], "The planner")
         tensordict.set(self.out_keys[0], self.predict(observation, action))
         return tensordict
-
-
-def _read(tensordict: TensorDictBase, key: NestedKey) -> torch.Tensor:
-    value = tensordict.get(key, default=None)
-    if value is None:
-        raise KeyError(
-            f"The planner reads {key!r}, which the input lacks; it holds "
-            f"{sorted(map(str, tensordict.keys(True, True)))}."
-        )
-    return value
