@@ -25,7 +25,7 @@ from torchrl_dual import TransitionModel
 from torchrl_dual.checkpoint import RunCheckpoint, rng_state, set_rng_state
 from torchrl_dual.data import TRANSITION_KEYS
 from torchrl_dual.diffusion import WindowReplayBuffer
-from torchrl_dual.training import progressive_distillation, train_planner
+from torchrl_dual.objectives import progressive_distillation, train_planner
 
 STAGES = ("planner", "distillation", "actor_critic", "laplace", "offline_eval")
 # Settings that may change when a run is resumed; everything else must match.

@@ -18,8 +18,15 @@ from torchrl_dual.modules import (
     PlannerPolicy,
     ShiftAwareNoise,
     TransitionModel,
+    make_dual_policy,
 )
-from torchrl_dual.objectives import DiffusionPlannerLoss, DistillationLoss, WeightedMAPActorLoss
+from torchrl_dual.objectives import (
+    DiffusionPlannerLoss,
+    DistillationLoss,
+    WeightedMAPActorLoss,
+    progressive_distillation,
+    train_planner,
+)
 
 __version__ = "0.1.0"
 
@@ -35,4 +42,7 @@ __all__ = [
     "ShiftAwareNoise",
     "TransitionModel",
     "WeightedMAPActorLoss",
+    "make_dual_policy",
+    "progressive_distillation",
+    "train_planner",
 ]

@@ -14,7 +14,7 @@ import torch
 from toy import LEFT_FRACTION, bimodal_transitions, mode_statistics
 
 from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout, WindowReplayBuffer
-from torchrl_dual.training import progressive_distillation, train_planner
+from torchrl_dual.objectives import progressive_distillation, train_planner
 
 HORIZON = 8
 

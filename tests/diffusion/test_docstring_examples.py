@@ -39,7 +39,7 @@ MODULES = _discover()
 def test_module_discovery_finds_the_package():
     assert "torchrl_dual.diffusion.model" in MODULES
     assert "torchrl_dual.objectives.distillation" in MODULES
-    assert "torchrl_dual.modules.planner_policy" in MODULES
+    assert "torchrl_dual.modules.planner.planner_policy" in MODULES
 
 
 @pytest.mark.parametrize("module_name", MODULES)

@@ -8,7 +8,7 @@ import math
 import pytest
 import torch
 
-from torchrl_dual.modules.laplace import LastLayerLaplace
+from torchrl_dual.modules.laplace.last_layer_laplace import LastLayerLaplace
 
 F64 = torch.float64
 

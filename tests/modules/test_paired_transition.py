@@ -11,7 +11,7 @@ from torch import nn
 
 from torchrl_dual.diffusion.denoiser import ResidualMLPDenoiser
 from torchrl_dual.modules import PlannerActor, TransitionModel
-from torchrl_dual.modules.paired_trunk import PairedTrunk
+from torchrl_dual.diffusion._fast_path.paired_trunk import PairedTrunk
 from torchrl_dual.objectives import WeightedMAPActorLoss
 
 

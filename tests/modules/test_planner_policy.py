@@ -8,7 +8,7 @@ import torch
 from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from torchrl_dual.modules.planner_policy import PlannerPolicy, PlannerSampler, TransitionModel
+from torchrl_dual.modules.planner.planner_policy import PlannerPolicy, PlannerSampler, TransitionModel
 
 pytestmark = pytest.mark.usefixtures("seeded")
 

@@ -10,7 +10,7 @@ from torch import nn
 from torchrl.data import Bounded, Composite
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from torchrl_dual.modules.shift_aware import ShiftAwareNoise
+from torchrl_dual.modules.exploration.shift_aware_noise import ShiftAwareNoise
 
 OBS_DIM, ACT_DIM = 3, 2
 

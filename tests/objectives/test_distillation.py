@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from torchrl_dual.objectives import DistillationLoss
-from torchrl_dual.training import progressive_distillation
+from torchrl_dual.objectives import progressive_distillation
 
 pytestmark = pytest.mark.usefixtures("seeded")
 

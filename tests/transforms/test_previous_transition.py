@@ -12,7 +12,7 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase, SerialEnv, TransformedEnv
 from torchrl.envs.utils import check_env_specs
 
-from torchrl_dual.modules.shift_aware import ShiftAwareNoise
+from torchrl_dual.modules.exploration.shift_aware_noise import ShiftAwareNoise
 from torchrl_dual.transforms import PreviousTransition
 
 SHIFT_STEP = 5  # the dynamics change from this env step on

@@ -111,6 +111,13 @@ class ResidualMLPDenoiser(nn.Module):
         (``input_layer(z, mask) + time_embedding(t)``), ``[*B, hidden]``."""
         return self.output_norm(self.blocks(hidden))
 
+    def trunk_layers(self) -> tuple[list[tuple[nn.LayerNorm, nn.Linear, nn.Linear]], nn.LayerNorm]:
+        """The parametrised layers of :meth:`trunk`, in order: ``(norm, linear_1, linear_2)``
+        of each residual block ``x + linear_2(SiLU(linear_1(norm(x))))``, then the output
+        norm (followed by SiLU). A fused re-implementation of the trunk reads these."""
+        blocks = [(block.net[0], block.net[1], block.net[3]) for block in self.blocks]
+        return blocks, self.output_norm[0]
+
     def forward(self, z: torch.Tensor, t: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         out = self.head(self.features(z, t, mask))
         return out.unflatten(-1, self.window_shape)

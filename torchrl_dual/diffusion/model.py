@@ -8,9 +8,11 @@ from torch import nn
 from torchrl_dual.diffusion.denoiser import ResidualMLPDenoiser
 from torchrl_dual.diffusion.normalizer import Normalizer
 from torchrl_dual.diffusion.schedule import NoiseSchedule
-from torchrl_dual.diffusion.window import TrajectoryLayout
+from torchrl_dual.diffusion.trajectory_layout import TrajectoryLayout
 
 SAMPLERS = ("ddim", "ddpm")
+# The one-step sampler's latent z_1: the mean (zero) latent, or drawn at every call.
+LATENTS = ("zero", "sample")
 
 
 class TrajectoryDiffusion(nn.Module):

@@ -1,12 +1,22 @@
-"""TorchRL modules of DUAL: planner policy, Laplace head, ensemble actor, exploration."""
+"""TorchRL modules of DUAL, one subpackage per concept.
 
-from torchrl_dual.modules.ddpm_actor import DDPMLastStepActor
-from torchrl_dual.modules.ensemble_actor import LaplaceEnsembleActor
-from torchrl_dual.modules.laplace import LastLayerLaplace
-from torchrl_dual.modules.last_layer import LastLayerActor, LinearHeadActor
-from torchrl_dual.modules.planner_actor import PlannerActor
-from torchrl_dual.modules.planner_policy import PlannerPolicy, PlannerSampler, TransitionModel
-from torchrl_dual.modules.shift_aware import ShiftAwareNoise
+* :mod:`~torchrl_dual.modules.actors` — last-layer actors (``PlannerActor``, ...);
+* :mod:`~torchrl_dual.modules.planner` — the planner as a policy and as transition model;
+* :mod:`~torchrl_dual.modules.laplace` — the Laplace posterior and the ensemble policy;
+* :mod:`~torchrl_dual.modules.exploration` — the shift-aware noise;
+* :func:`make_dual_policy` — DUAL's acting policy assembled from the above.
+"""
+
+from torchrl_dual.modules.actors import (
+    DDPMLastStepActor,
+    LastLayerActor,
+    LinearHeadActor,
+    PlannerActor,
+)
+from torchrl_dual.modules.dual_policy import make_dual_policy
+from torchrl_dual.modules.exploration import ShiftAwareNoise
+from torchrl_dual.modules.laplace import LaplaceEnsembleActor, LastLayerLaplace
+from torchrl_dual.modules.planner import PlannerPolicy, PlannerSampler, TransitionModel
 
 __all__ = [
     "DDPMLastStepActor",
@@ -19,4 +29,5 @@ __all__ = [
     "PlannerSampler",
     "ShiftAwareNoise",
     "TransitionModel",
+    "make_dual_policy",
 ]

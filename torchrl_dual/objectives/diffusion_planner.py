@@ -1,12 +1,15 @@
-"""The diffusion planner's denoising loss (Eq. 3)."""
+"""The diffusion planner's denoising loss (Eq. 3) and its pre-training driver."""
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import torch
 from tensordict import TensorDict, TensorDictBase, TensorDictParams
 
 from torchrl_dual.diffusion.model import TrajectoryDiffusion
-from torchrl_dual.objectives._windows import TrajectoryWindowLoss, masked_mean
+from torchrl_dual.objectives._trajectory_window_loss import TrajectoryWindowLoss, masked_mean
+from torchrl_dual.objectives.update_loop import run_updates
 
 
 class DiffusionPlannerLoss(TrajectoryWindowLoss):
@@ -97,3 +100,19 @@ class DiffusionPlannerLoss(TrajectoryWindowLoss):
         loss, metadata = self.denoising_loss(tensordict)
         loss = self._reduce_loss(loss)
         return TensorDict({"loss_diffusion": loss, **metadata}, batch_size=[])
+
+
+def train_planner(
+    model: TrajectoryDiffusion,
+    sample: Callable[[], TensorDictBase],
+    num_updates: int,
+    *,
+    lr: float = 3e-4,
+    action_condition_prob: float = 0.5,
+    **kwargs,
+) -> dict[str, float]:
+    """Pre-trains the planner with :class:`DiffusionPlannerLoss` (Algorithm 1, lines 3-4)."""
+    loss = DiffusionPlannerLoss(model, action_condition_prob=action_condition_prob)
+    optimizer = torch.optim.Adam(loss.parameters(), lr=lr)
+    kwargs.setdefault("desc", "planner")
+    return run_updates(loss, sample, num_updates, optimizer, **kwargs)

@@ -1,14 +1,16 @@
-"""Progressive distillation of a trajectory sampler (Salimans & Ho, 2022)."""
+"""Progressive distillation of a trajectory sampler (Salimans & Ho, 2022): loss and driver."""
 
 from __future__ import annotations
 
 import copy
+from collections.abc import Callable, Sequence
 
 import torch
 from tensordict import TensorDict, TensorDictBase, TensorDictParams
 
 from torchrl_dual.diffusion.model import TrajectoryDiffusion
-from torchrl_dual.objectives._windows import TrajectoryWindowLoss, masked_mean
+from torchrl_dual.objectives._trajectory_window_loss import TrajectoryWindowLoss, masked_mean
+from torchrl_dual.objectives.update_loop import ExponentialMovingAverage, run_updates
 
 
 class DistillationLoss(TrajectoryWindowLoss):
@@ -127,3 +129,70 @@ class DistillationLoss(TrajectoryWindowLoss):
         loss, metadata = self.distillation_loss(tensordict)
         loss = self._reduce_loss(loss)
         return TensorDict({"loss_distillation": loss, **metadata}, batch_size=[])
+
+
+def progressive_distillation(
+    teacher: TrajectoryDiffusion,
+    sample: Callable[[], TensorDictBase],
+    updates_per_round: int | Sequence[int],
+    *,
+    final_steps: int = 1,
+    lr: float = 1e-4,
+    action_condition_prob: float = 0.5,
+    ema_decay: float | None = 0.995,
+    logger=None,
+    progress: bool = True,
+    **kwargs,
+) -> TrajectoryDiffusion:
+    """Halves the sampler's steps until ``final_steps`` (Algorithm 1, line 5).
+
+    Each round deep-copies its teacher into the student, halves ``num_steps`` and
+    minimises :class:`DistillationLoss`; the student becomes the next teacher.
+    ``N = 32`` to ``1`` takes five rounds: 32 → 16 → 8 → 4 → 2 → 1. The last rounds are
+    the hardest (a one-step map must split modes sharply), so ``updates_per_round`` may
+    be a sequence, one entry per round, that spends more updates there. Within a round
+    the learning rate decays along a cosine and the student kept at the end is the
+    exponential moving average of its weights (``ema_decay``; ``None`` keeps the last).
+
+    Returns:
+        the final student (the input ``teacher`` is left unchanged).
+    """
+    steps = teacher.num_steps
+    if (
+        final_steps < 1
+        or steps % final_steps
+        or (steps // final_steps) & (steps // final_steps - 1)
+    ):
+        raise ValueError(f"final_steps={final_steps} must be N / 2^k for the teacher's N={steps}.")
+    num_rounds = (steps // final_steps).bit_length() - 1
+    if isinstance(updates_per_round, int):
+        updates_per_round = [updates_per_round] * num_rounds
+    if len(updates_per_round) != num_rounds:
+        raise ValueError(
+            f"updates_per_round has {len(updates_per_round)} entries but distilling "
+            f"{steps} -> {final_steps} steps takes {num_rounds} rounds."
+        )
+    current = teacher
+    for round_updates in updates_per_round:
+        student = copy.deepcopy(current)
+        student.num_steps = current.num_steps // 2
+        loss = DistillationLoss(student, current, action_condition_prob=action_condition_prob)
+        optimizer = torch.optim.Adam(loss.parameters(), lr=lr)
+        ema = None if ema_decay is None else ExponentialMovingAverage(student, ema_decay)
+        run_updates(
+            loss,
+            sample,
+            round_updates,
+            optimizer,
+            desc=f"distil {current.num_steps}->{student.num_steps}",
+            logger=logger,
+            log_prefix=f"distill_{student.num_steps}/",
+            progress=progress,
+            cosine_lr=True,
+            ema=ema,
+            **kwargs,
+        )
+        if ema is not None:
+            ema.copy_to(student)
+        current = student
+    return current

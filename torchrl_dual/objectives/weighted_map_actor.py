@@ -11,8 +11,8 @@ from tensordict.utils import NestedKey
 from torch.distributions import Normal
 from torchrl.objectives.common import LossModule
 
-from torchrl_dual.modules.last_layer import LastLayerActor
-from torchrl_dual.objectives._windows import fetch
+from torchrl_dual.modules.actors.last_layer_actor import LastLayerActor
+from torchrl_dual.objectives._trajectory_window_loss import fetch
 
 WEIGHTINGS = ("advantage", "sac", "uniform")
 

@@ -6,19 +6,8 @@ import torch
 from torch import Tensor, nn
 from torch.nn import functional as F  # noqa: N812
 
+from torchrl_dual.diffusion._fast_path.versioned_cache import VersionedCache
 from torchrl_dual.diffusion.denoiser import ResidualMLPDenoiser
-from torchrl_dual.modules._versioned_cache import VersionedCache
-
-
-def _check_block(block: nn.Module) -> list[nn.Module]:
-    layers = list(getattr(block, "net", ()))
-    kinds = [type(layer) for layer in layers]
-    if kinds != [nn.LayerNorm, nn.Linear, nn.SiLU, nn.Linear]:
-        raise TypeError(
-            "PairedTrunk expects residual blocks x + Linear(SiLU(Linear(LayerNorm(x)))), "
-            f"got {[kind.__name__ for kind in kinds]}."
-        )
-    return layers
 
 
 class PairedTrunk:
@@ -33,7 +22,7 @@ class PairedTrunk:
     (``torch.baddbmm``), so the shift signal costs no second pass.
 
     The stacked weights are rebuilt only when a weight of either trunk changes
-    (:class:`~torchrl_dual.modules._versioned_cache.VersionedCache`); use this on
+    (:class:`~torchrl_dual.diffusion._fast_path.versioned_cache.VersionedCache`); use this on
     inference paths (no autograd).
 
     Args:
@@ -50,9 +39,6 @@ class PairedTrunk:
     """
 
     def __init__(self, first: ResidualMLPDenoiser, second: ResidualMLPDenoiser) -> None:
-        for denoiser in (first, second):
-            for block in denoiser.blocks:
-                _check_block(block)
         if len(first.blocks) != len(second.blocks) or first.feature_dim != second.feature_dim:
             raise ValueError(
                 "PairedTrunk needs two denoisers of the same width and depth, got "
@@ -60,22 +46,20 @@ class PairedTrunk:
                 f"{second.feature_dim}x{len(second.blocks)}."
             )
         self.denoisers = (first, second)
+        self._eps = first.trunk_layers()[1].eps
         self._cache = VersionedCache(self._sources, self._stack, self._probe)
 
     def _probe(self) -> list[Tensor]:
         """Tensors whose replacement (``.to()``, ``assign=True`` loads) forces a rebuild."""
-        return [
-            layer.weight
-            for denoiser in self.denoisers
-            for layer in (denoiser.blocks[0].net[1], denoiser.output_norm[0])
-        ]
+        probes = []
+        for denoiser in self.denoisers:
+            blocks, output_norm = denoiser.trunk_layers()
+            probes += (blocks[0][1].weight, output_norm.weight)
+        return probes
 
     def _layers(self, denoiser: ResidualMLPDenoiser) -> list[nn.Module]:
-        layers: list[nn.Module] = []
-        for block in denoiser.blocks:
-            norm, linear_1, _, linear_2 = block.net
-            layers += (norm, linear_1, linear_2)
-        return layers + [denoiser.output_norm[0]]
+        blocks, output_norm = denoiser.trunk_layers()
+        return [layer for block in blocks for layer in block] + [output_norm]
 
     def _sources(self) -> list[Tensor]:
         return [
@@ -104,7 +88,7 @@ class PairedTrunk:
         shape = hidden.shape
         h = hidden.reshape(2, -1, shape[-1])
         tensors = self._cache.get()
-        eps = self.denoisers[0].output_norm[0].eps
+        eps = self._eps
         width = (shape[-1],)
         for i in range(len(self.denoisers[0].blocks)):
             ln_w, ln_b, w_1, b_1, w_2, b_2 = tensors[6 * i : 6 * i + 6]

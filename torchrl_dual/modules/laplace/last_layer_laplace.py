@@ -8,7 +8,7 @@ from collections.abc import Callable
 import torch
 from torch import Tensor, nn
 
-from torchrl_dual.modules.laplace_numerics import evidence_maximiser, psd_eigh
+from torchrl_dual.modules.laplace._numerics import evidence_maximiser, psd_eigh
 
 __all__ = ["LastLayerLaplace"]
 
@@ -77,7 +77,7 @@ class LastLayerLaplace(nn.Module):
 
     Examples:
         >>> import torch
-        >>> from torchrl_dual.modules.laplace import LastLayerLaplace
+        >>> from torchrl_dual.modules.laplace.last_layer_laplace import LastLayerLaplace
         >>> head = torch.nn.Linear(8, 2)
         >>> la = LastLayerLaplace(8, 2)
         >>> phi = torch.randn(256, 8)

@@ -9,18 +9,18 @@ from tensordict import TensorDictBase
 from tensordict.utils import NestedKey
 from torchrl.objectives.common import LossModule
 
+from torchrl_dual._utils import read_key
 from torchrl_dual.diffusion.model import TrajectoryDiffusion
 
 
 def fetch(tensordict: TensorDictBase, key: NestedKey, role: str) -> torch.Tensor:
-    value = tensordict.get(key, default=None)
-    if value is None:
-        raise KeyError(
-            f"The input has no {role} entry {key!r}; it holds "
-            f"{sorted(map(str, tensordict.keys(True, True)))}. Rename the entry or call "
-            f"loss.set_keys({role}=...)."
-        )
-    return value
+    """A loss input: :func:`~torchrl_dual._utils.read_key` with the ``set_keys`` fix."""
+    return read_key(
+        tensordict,
+        key,
+        f"The loss's {role} entry",
+        f"Rename the entry or call loss.set_keys({role}=...).",
+    )
 
 
 def normalized_windows(

@@ -5,7 +5,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from torchrl_dual.modules.last_layer import LATENTS, LastLayerActor
+from torchrl_dual.diffusion.model import LATENTS
+from torchrl_dual.modules.actors.last_layer_actor import LastLayerActor
 
 
 class DDPMLastStepActor(LastLayerActor):

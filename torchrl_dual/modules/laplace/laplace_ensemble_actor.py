@@ -8,15 +8,13 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import NestedKey
-from torchrl.envs.utils import ExplorationType, exploration_type
 
+from torchrl_dual._utils import is_deterministic, read_key
+from torchrl_dual.diffusion._fast_path.versioned_cache import VersionedCache
 from torchrl_dual.modules._gaussian import gaussian_log_prob
-from torchrl_dual.modules._keys import read_key
-from torchrl_dual.modules._versioned_cache import VersionedCache
-from torchrl_dual.modules.laplace import LastLayerLaplace
-from torchrl_dual.modules.last_layer import LastLayerActor
-
-_DETERMINISTIC = (ExplorationType.DETERMINISTIC, ExplorationType.MODE, ExplorationType.MEAN)
+from torchrl_dual.modules.actors.last_layer_actor import LastLayerActor
+from torchrl_dual.modules.laplace.last_layer_laplace import LastLayerLaplace
+from torchrl_dual.modules.planner.transition_model import TransitionModel
 
 
 class LaplaceEnsembleActor(TensorDictModuleBase):
@@ -55,17 +53,18 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
             Set ``False`` when a :class:`~torchrl_dual.modules.ShiftAwareNoise` follows: it
             draws the executed action itself (Eq. 10), so this module then writes
             ``action = μ`` and no ``action_log_prob``.
-        predict_transition (bool): also run DUAL's transition model ``p(s'|s, a; θ)``
-            on the previous step in the *same* trunk pass (Algorithm 1 l. 12): under
-            random exploration, read ``previous_observation``, ``previous_action`` and
-            ``previous_valid`` (written by the
-            :class:`~torchrl_dual.transforms.PreviousTransition` env transform) and write
+        transition_model (TransitionModel, optional): DUAL's transition model
+            ``p(s'|s, a; θ)`` (Algorithm 1 l. 12). Under random exploration the ensemble
+            then also reads the previous step (``previous_observation``,
+            ``previous_action``, ``previous_valid``, written by the
+            :class:`~torchrl_dual.transforms.PreviousTransition` env transform) and writes
             ``expected_observation`` ``ŝ_t`` (``s_t`` itself where no previous step
             exists), which :class:`~torchrl_dual.modules.ShiftAwareNoise` turns into
-            ``d_t``. Needs an actor with ``encode_with_transition`` (:class:`PlannerActor`).
-        observation_key, loc_key, scale_key, epistemic_key, action_key, log_prob_key,
-            previous_observation_key, previous_action_key, previous_valid_key,
-            expected_observation_key (NestedKey): input and output keys.
+            ``d_t``. With a :class:`~torchrl_dual.modules.PlannerActor` both queries run as
+            one batched trunk pass. Registered as a submodule (a frozen transition model's
+            weights are saved with the ensemble; shared ones are saved by the actor).
+        observation_key, loc_key, scale_key, epistemic_key, action_key, log_prob_key
+            (NestedKey): input and output keys (the transition model's keys are its own).
 
     Examples:
         >>> import torch
@@ -91,26 +90,26 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         action_high: float | torch.Tensor | None = None,
         resample_each_call: bool = False,
         sample_action: bool = True,
-        predict_transition: bool = False,
+        transition_model: TransitionModel | None = None,
         observation_key: NestedKey = "observation",
         loc_key: NestedKey = "loc",
         scale_key: NestedKey = "scale",
         epistemic_key: NestedKey = "epistemic_variance",
         action_key: NestedKey = "action",
         log_prob_key: NestedKey = "action_log_prob",
-        previous_observation_key: NestedKey = "previous_observation",
-        previous_action_key: NestedKey = "previous_action",
-        previous_valid_key: NestedKey = "previous_valid",
-        expected_observation_key: NestedKey = "expected_observation",
     ) -> None:
         super().__init__()
         if num_samples < 1:
             raise ValueError(f"num_samples (M) must be >= 1, got {num_samples}.")
-        if predict_transition and not hasattr(actor, "encode_with_transition"):
+        if not isinstance(actor, LastLayerActor):
             raise TypeError(
-                f"predict_transition=True needs an actor that also predicts s_(t+1) "
-                f"(encode_with_transition), such as PlannerActor; got {type(actor).__name__}. "
-                "Use ShiftAwareNoise(transition_model=...) for a separate transition model."
+                "LaplaceEnsembleActor needs a LastLayerActor (PlannerActor, LinearHeadActor, "
+                f"DDPMLastStepActor), got {type(actor).__name__}; wrap a TorchRL actor with "
+                "LinearHeadActor.from_actor(...)."
+            )
+        if transition_model is not None and not isinstance(transition_model, TransitionModel):
+            raise TypeError(
+                f"transition_model must be a TransitionModel, got {type(transition_model).__name__}."
             )
         self.actor = actor
         in_features = actor.head.in_features
@@ -125,15 +124,13 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         )
         self.register_buffer("bias_deviation", torch.zeros(num_samples, actor.action_dim))
         self.action_low, self.action_high = action_low, action_high
-        self.predict_transition = predict_transition
+        self.transition_model = transition_model
         self._member_head_cache = VersionedCache(self._member_head_sources, self._member_heads)
         self.in_keys = [observation_key]
         self.out_keys = [loc_key, scale_key, epistemic_key, action_key, log_prob_key]
-        self.previous_keys = (previous_observation_key, previous_action_key, previous_valid_key)
-        self.expected_observation_key = expected_observation_key
-        if predict_transition:
-            self.in_keys = self.in_keys + list(self.previous_keys)
-            self.out_keys = self.out_keys + [expected_observation_key]
+        if transition_model is not None:
+            self.in_keys = self.in_keys + transition_model.in_keys[1:]
+            self.out_keys = self.out_keys + transition_model.out_keys
 
     # ------------------------------------------------------------------ Eq. (8)
     @torch.no_grad()
@@ -152,14 +149,8 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         posterior of Eq. (8) is over the summed loss.
         """
         self.laplace.reset()
-        observation_key = self.in_keys[0]
         for batch in batches:
-            observation = batch.get(observation_key, default=None)
-            if observation is None:
-                raise KeyError(
-                    f"fit_laplace reads {observation_key!r}, which a batch lacks; it holds "
-                    f"{sorted(map(str, batch.keys(True, True)))}."
-                )
+            observation = read_key(batch, self.in_keys[0], "LaplaceEnsembleActor.fit_laplace")
             features = self.actor.features(observation)
             weights = None if weight_fn is None else weight_fn(batch)
             self.laplace.accumulate(features, weights)
@@ -209,18 +200,17 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         return self.actor.readout(heads, context)
 
     def _encode(self, tensordict: TensorDictBase, observation: torch.Tensor):
-        """Trunk pass; with ``predict_transition`` it also writes ``ŝ_t`` (same pass)."""
-        if not self.predict_transition:
+        """Trunk pass; with a transition model it also writes ``ŝ_t`` (same pass)."""
+        transition = self.transition_model
+        if transition is None:
             return self.actor.encode(observation)
-        fix = "Append torchrl_dual.transforms.PreviousTransition() to the env."
-        previous_observation, previous_action, valid = (
-            read_key(tensordict, key, "LaplaceEnsembleActor", fix) for key in self.previous_keys
+        previous_observation, previous_action, valid = transition.read_previous(
+            tensordict, "LaplaceEnsembleActor"
         )
         features, context, predicted = self.actor.encode_with_transition(
-            observation, previous_observation, previous_action
+            observation, transition, previous_observation, previous_action
         )
-        # no previous step (reset): ŝ_t = s_t, so d_t = 0
-        tensordict.set(self.expected_observation_key, torch.where(valid, predicted, observation))
+        transition.write_expected(tensordict, observation, predicted, valid)
         return features, context
 
     def _clamp(self, action: torch.Tensor) -> torch.Tensor:
@@ -231,7 +221,7 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         observation = read_key(tensordict, self.in_keys[0], "LaplaceEnsembleActor")
         aleatoric = self.actor.std**2
-        if exploration_type() in _DETERMINISTIC:
+        if is_deterministic():
             loc = self.actor(observation)
             epistemic = torch.zeros_like(loc)
             variance = aleatoric.expand_as(loc)

@@ -9,8 +9,8 @@ from tensordict import NestedKey, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torch import Tensor
 from torchrl.data.tensor_specs import BoundedContinuous, Composite, TensorSpec
-from torchrl.envs.utils import ExplorationType, exploration_type
 
+from torchrl_dual._utils import is_deterministic, read_key
 from torchrl_dual.modules._gaussian import gaussian_log_prob
 
 __all__ = ["ShiftAwareNoise"]
@@ -33,18 +33,14 @@ class ShiftAwareNoise(TensorDictModuleBase):
     ``a_t ~ π̂(·|s_t) + λ N(0, d_t)``; this module follows Eq. 10 and adds ``λ d_t`` to
     the variance.
 
-    ``ŝ_t`` comes from one of two places:
-
-    * ``expected_observation`` in the input, written by
-      :class:`~torchrl_dual.modules.LaplaceEnsembleActor` with ``predict_transition=True``,
-      which answers the policy query for ``s_t`` and the transition query for
-      ``(s_{t-1}, a_{t-1})`` in one trunk pass (the fast path, the paper's shared ``θ``);
-    * otherwise ``transition_model(previous_observation, previous_action)``, a separate
-      callable (e.g. a frozen copy of the offline transition model), where
-      ``previous_valid``; ``ŝ_t = s_t`` (``d_t = 0``) right after a reset.
-
-    The ``previous_*`` entries are carried by the
-    :class:`~torchrl_dual.transforms.PreviousTransition` env transform.
+    ``ŝ_t`` is read from ``expected_observation``, written by the
+    :class:`~torchrl_dual.modules.TransitionModel` (on its own in a
+    :class:`~tensordict.nn.TensorDictSequential` before this module, or inside
+    :class:`~torchrl_dual.modules.LaplaceEnsembleActor` ``(transition_model=...)``, which
+    answers the policy and transition queries in one trunk pass). That module reads the
+    previous step carried by the :class:`~torchrl_dual.transforms.PreviousTransition` env
+    transform and writes ``ŝ_t = s_t`` (``d_t = 0``) right after a reset.
+    :func:`~torchrl_dual.modules.make_dual_policy` assembles the three.
 
     Steps of :meth:`forward`:
 
@@ -67,10 +63,7 @@ class ShiftAwareNoise(TensorDictModuleBase):
     ``observation``              ``[*B, S]``   s_t
     ``loc``                      ``[*B, A]``   μ_θ(s_t), ensemble mean (Eq. 9)
     ``scale``                    ``[*B, A]``   σ_θ(s_t), ensemble std (Eq. 9), not modified
-    ``expected_observation``     ``[*B, S]``   ŝ_t (optional input, see above)
-    ``previous_observation``     ``[*B, S]``   s_{t-1} (used with ``transition_model``)
-    ``previous_action``          ``[*B, A]``   a_{t-1} (used with ``transition_model``)
-    ``previous_valid``           ``[*B, 1]``   False right after a reset
+    ``expected_observation``     ``[*B, S]``   ŝ_t (input; optional when λ = 0)
     ``shift_distance``           ``[*B, 1]``   d_t (output, RANDOM only)
     ``action``                   ``[*B, A]``   executed a_t (output)
     ``exploration_scale``        ``[*B, A]``   sqrt(σ² + λ d) (output, RANDOM only)
@@ -79,19 +72,14 @@ class ShiftAwareNoise(TensorDictModuleBase):
     ===========================  ============  ==============================================
 
     Args:
-        transition_model: optional callable ``(observation [*B, S], action [*B, A]) ->
-            [*B, S]``, e.g. :meth:`TransitionModel.predict
-            <torchrl_dual.modules.TransitionModel.predict>`; used when the input has no
-            ``expected_observation``. An ``nn.Module`` is registered as a submodule.
         spec: action spec (or a Composite holding ``action_key``) used to project the
             action; ``None`` to skip projection or to set it later via :attr:`spec`.
         shift_weight: λ of Eq. 10 (a buffer, so it is checkpointed). Defaults to ``0.5``.
-            With ``λ = 0`` and no source of ``ŝ_t`` the shift term is skipped.
+            With ``λ = 0`` and no ``expected_observation`` the shift term is skipped.
 
     Keyword Args:
-        observation_key, loc_key, scale_key, expected_observation_key,
-        previous_observation_key, previous_action_key, previous_valid_key, shift_key,
-        action_key, exploration_scale_key, log_prob_key (NestedKey): the keys of the
+        observation_key, loc_key, scale_key, expected_observation_key, shift_key,
+            action_key, exploration_scale_key, log_prob_key (NestedKey): the keys of the
             table above.
         action_projection (callable, optional): applied to the action after the spec
             projection, before it is stored; e.g. the argmax one-hot map of a discrete
@@ -105,15 +93,13 @@ class ShiftAwareNoise(TensorDictModuleBase):
         >>> import torch
         >>> from tensordict import TensorDict
         >>> from torchrl.data import Bounded
-        >>> from torchrl_dual.modules.shift_aware import ShiftAwareNoise
-        >>> noise = ShiftAwareNoise(lambda s, a: s + a, Bounded(-1.0, 1.0, shape=(2,)))
+        >>> noise = ShiftAwareNoise(Bounded(-1.0, 1.0, shape=(2,)), shift_weight=0.5)
         >>> td = TensorDict(
         ...     observation=torch.ones(4, 2), loc=torch.zeros(4, 2),
-        ...     scale=torch.full((4, 2), 0.1), previous_observation=torch.zeros(4, 2),
-        ...     previous_action=torch.zeros(4, 2),
-        ...     previous_valid=torch.ones(4, 1, dtype=torch.bool), batch_size=[4],
+        ...     scale=torch.full((4, 2), 0.1), expected_observation=torch.zeros(4, 2),
+        ...     batch_size=[4],
         ... )
-        >>> td = noise(td)  # ŝ_t = 0 + 0, s_t = (1, 1): d_t = sqrt(2)
+        >>> td = noise(td)  # ŝ_t = (0, 0), s_t = (1, 1): d_t = sqrt(2)
         >>> td["shift_distance"][0]
         tensor([1.4142])
         >>> td["exploration_scale"][0]  # sqrt(0.1**2 + 0.5 * sqrt(2))
@@ -122,20 +108,14 @@ class ShiftAwareNoise(TensorDictModuleBase):
         torch.Size([4, 2])
     """
 
-    _MISSING_KEY_ERR = (
-        "ShiftAwareNoise expected the key {key!r} in the input tensordict ({what}), but it "
-        "is missing. {fix}"
-    )
     _SHAPE_ERR = (
         "ShiftAwareNoise: {key!r} has {what} {got}, expected {expected} ({why}). Fix: {fix}"
     )
-    _PREVIOUS_FIX = "Append torchrl_dual.transforms.PreviousTransition() to the env."
     # Lower bound on the Eq. 10 variance so that σ = 0 and d = 0 stay finite.
     _MIN_VARIANCE = 1e-12
 
     def __init__(
         self,
-        transition_model: Callable[[Tensor, Tensor], Tensor] | None = None,
         spec: TensorSpec | None = None,
         shift_weight: float = 0.5,
         *,
@@ -143,9 +123,6 @@ class ShiftAwareNoise(TensorDictModuleBase):
         loc_key: NestedKey = "loc",
         scale_key: NestedKey = "scale",
         expected_observation_key: NestedKey = "expected_observation",
-        previous_observation_key: NestedKey = "previous_observation",
-        previous_action_key: NestedKey = "previous_action",
-        previous_valid_key: NestedKey = "previous_valid",
         shift_key: NestedKey = "shift_distance",
         action_key: NestedKey = "action",
         exploration_scale_key: NestedKey = "exploration_scale",
@@ -154,11 +131,10 @@ class ShiftAwareNoise(TensorDictModuleBase):
         return_log_prob: bool = False,
         device: torch.device | None = None,
     ):
-        if transition_model is not None and not callable(transition_model):
+        if spec is not None and not isinstance(spec, TensorSpec):
             raise TypeError(
-                "ShiftAwareNoise: transition_model must be a callable "
-                "(observation, action) -> predicted next observation, got "
-                f"{type(transition_model).__name__}."
+                f"ShiftAwareNoise: spec must be a TorchRL TensorSpec (the action spec), got "
+                f"{type(spec).__name__}. ŝ_t now comes from a TransitionModel before this module."
             )
         if not float(shift_weight) >= 0:
             raise ValueError(
@@ -168,20 +144,16 @@ class ShiftAwareNoise(TensorDictModuleBase):
         self.loc_key = loc_key
         self.scale_key = scale_key
         self.expected_observation_key = expected_observation_key
-        self.previous_keys = (previous_observation_key, previous_action_key, previous_valid_key)
         self.shift_key = shift_key
         self.action_key = action_key
         self.exploration_scale_key = exploration_scale_key
         self.log_prob_key = log_prob_key
         self.in_keys = [observation_key, loc_key, scale_key, expected_observation_key]
-        if transition_model is not None:
-            self.in_keys += list(self.previous_keys)
         self.out_keys = [action_key, shift_key, exploration_scale_key]
         if return_log_prob:
             self.out_keys.append(log_prob_key)
         super().__init__()
         self.return_log_prob = return_log_prob
-        self.transition_model = transition_model
         self.action_projection = action_projection
         self.register_buffer(
             "shift_weight", torch.tensor(float(shift_weight), dtype=torch.float32, device=device)
@@ -216,12 +188,6 @@ class ShiftAwareNoise(TensorDictModuleBase):
     def _fix(kwarg: str) -> str:
         return f"Place ShiftAwareNoise after an actor that writes it, or pass {kwarg}=<your key>."
 
-    def _get(self, tensordict: TensorDictBase, key: NestedKey, what: str, fix: str) -> Tensor:
-        value = tensordict.get(key, None)
-        if value is None:
-            raise KeyError(self._MISSING_KEY_ERR.format(key=key, what=what, fix=fix))
-        return value
-
     def _check(self, key, got, expected, why, fix, what="shape") -> None:
         if tuple(got) != tuple(expected):
             got, expected = tuple(got), tuple(expected)
@@ -246,32 +212,18 @@ class ShiftAwareNoise(TensorDictModuleBase):
     def _expected_observation(
         self, tensordict: TensorDictBase, observation: Tensor
     ) -> Tensor | None:
-        """``ŝ_t``: from the ensemble's shared pass, else from ``transition_model``."""
-        expected = tensordict.get(self.expected_observation_key, None)
-        if expected is None and self.transition_model is not None:
-            previous_observation, previous_action, valid = (
-                self._get(tensordict, key, "the previous step", self._PREVIOUS_FIX)
-                for key in self.previous_keys
+        """``ŝ_t``, written by a :class:`~torchrl_dual.modules.TransitionModel` upstream."""
+        if float(self.shift_weight) > 0:
+            expected = read_key(
+                tensordict,
+                self.expected_observation_key,
+                "ShiftAwareNoise (ŝ_t, the transition model's prediction of s_t)",
+                "Place a TransitionModel before ShiftAwareNoise, or pass "
+                "LaplaceEnsembleActor(..., transition_model=...) (make_dual_policy does this), "
+                "and append PreviousTransition() to the env. Or set shift_weight=0.",
             )
-            predicted = self.transition_model(previous_observation, previous_action)
-            self._check(
-                "transition_model output",
-                predicted.shape,
-                observation.shape,
-                f"ŝ_t must have the shape of {self.observation_key!r}",
-                "make transition_model(observation, action) return [*B, obs_dim]",
-            )
-            expected = torch.where(valid, predicted, observation)
-        if expected is None and float(self.shift_weight) > 0:
-            raise KeyError(
-                self._MISSING_KEY_ERR.format(
-                    key=self.expected_observation_key,
-                    what="ŝ_t, the transition model's prediction of s_t",
-                    fix="Use LaplaceEnsembleActor(..., predict_transition=True) before "
-                    "ShiftAwareNoise, or pass ShiftAwareNoise(transition_model=...); either "
-                    "way append PreviousTransition() to the env. Or set shift_weight=0.",
-                )
-            )
+        else:
+            expected = tensordict.get(self.expected_observation_key, None)
         if expected is not None:
             self._check(
                 self.expected_observation_key,
@@ -284,19 +236,25 @@ class ShiftAwareNoise(TensorDictModuleBase):
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         """Writes d_t and samples a_t by Eq. 10 (RANDOM mode); a_t = μ otherwise."""
-        loc = self._get(
-            tensordict, self.loc_key, "μ(s), the ensemble mean of Eq. 9", self._fix("loc_key")
+        loc = read_key(
+            tensordict,
+            self.loc_key,
+            "ShiftAwareNoise (μ(s), the ensemble mean of Eq. 9)",
+            self._fix("loc_key"),
         )
         if loc.ndim < 1:
             raise ValueError(
                 f"ShiftAwareNoise: {self.loc_key!r} must have a trailing action dim [*B, A], "
                 "got a scalar. Fix: unsqueeze(-1) the actor output."
             )
-        if exploration_type() not in (ExplorationType.RANDOM, None):
+        if is_deterministic():
             tensordict.set(self.action_key, self._project(loc))
             return tensordict
-        scale = self._get(
-            tensordict, self.scale_key, "σ(s), the ensemble std of Eq. 9", self._fix("scale_key")
+        scale = read_key(
+            tensordict,
+            self.scale_key,
+            "ShiftAwareNoise (σ(s), the ensemble std of Eq. 9)",
+            self._fix("scale_key"),
         )
         self._check(
             self.scale_key,
@@ -305,8 +263,8 @@ class ShiftAwareNoise(TensorDictModuleBase):
             f"per-dimension std matching {self.loc_key!r}",
             "write one std per action dim (expand a shared std to loc's shape)",
         )
-        observation = self._get(
-            tensordict, self.observation_key, "s_t", self._fix("observation_key")
+        observation = read_key(
+            tensordict, self.observation_key, "ShiftAwareNoise (s_t)", self._fix("observation_key")
         )
         self._check(
             self.observation_key,

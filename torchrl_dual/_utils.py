@@ -1,0 +1,49 @@
+"""Two helpers every module of the package shares: reading a required tensordict entry
+and asking whether the current exploration mode is deterministic."""
+
+from __future__ import annotations
+
+from tensordict import TensorDictBase
+from tensordict.utils import NestedKey
+from torch import Tensor
+from torchrl.envs.utils import ExplorationType, exploration_type
+
+DETERMINISTIC_MODES = (ExplorationType.DETERMINISTIC, ExplorationType.MODE, ExplorationType.MEAN)
+
+
+def read_key(tensordict: TensorDictBase, key: NestedKey, reader: str, fix: str = "") -> Tensor:
+    """``tensordict[key]``, or a ``KeyError`` naming ``reader``, the keys present and ``fix``.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> read_key(TensorDict(a=torch.zeros(2), batch_size=[2]), "a", "me").shape
+        torch.Size([2])
+        >>> read_key(TensorDict(a=torch.zeros(2), batch_size=[2]), "b", "me", "Add it.")
+        Traceback (most recent call last):
+        ...
+        KeyError: "me reads 'b', which the input lacks; it holds ['a']. Add it."
+    """
+    value = tensordict.get(key, None)
+    if value is None:
+        message = (
+            f"{reader} reads {key!r}, which the input lacks; it holds "
+            f"{sorted(map(str, tensordict.keys(True, True)))}."
+        )
+        raise KeyError(f"{message} {fix}" if fix else message)
+    return value
+
+
+def is_deterministic() -> bool:
+    """Whether the current TorchRL exploration type asks for the mean action
+    (``DETERMINISTIC``, ``MODE`` or ``MEAN``); ``RANDOM`` and unset mean sampling.
+
+    Examples:
+        >>> from torchrl.envs.utils import ExplorationType, set_exploration_type
+        >>> with set_exploration_type(ExplorationType.DETERMINISTIC):
+        ...     is_deterministic()
+        True
+        >>> is_deterministic()
+        False
+    """
+    return exploration_type() in DETERMINISTIC_MODES

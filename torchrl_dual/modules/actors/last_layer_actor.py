@@ -1,0 +1,115 @@
+"""Actors whose mean action is an affine read-out of a final ``nn.Linear``.
+
+The weighted MAP actor loss (Eq. 7), its last-layer Laplace approximation (Eq. 8)
+and the ensemble policy (Eq. 9) all work on the split
+``μ(s) = scale ⊙ (W φ(s) + b)[rows] + shift(s)``: a trunk ``φ``, a linear head
+``(W, b)`` and a read-out that is affine in the head output. Three actors provide it:
+
+* :class:`~torchrl_dual.modules.PlannerActor`, DUAL's actor: the distilled one-step planner, whose
+  ``τ_{a_0} = α_1·z − σ_1·v̂`` is affine in the head output ``v̂``;
+* :class:`~torchrl_dual.modules.LinearHeadActor`, any network ending in ``nn.Linear`` (for instance a
+  TorchRL ``MLP`` actor), which turns IQL into "IQL + LA";
+* :class:`~torchrl_dual.modules.DDPMLastStepActor`, TorchRL's
+  multi-step ``DiffusionActor``, which turns Diff-QL into "Diff-QL w LA".
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import torch
+from torch import nn
+
+if TYPE_CHECKING:
+    from torchrl_dual.modules.planner.transition_model import TransitionModel
+
+
+class LastLayerActor(nn.Module):
+    """Base class: a Gaussian actor ``N(μ(s), σ²)`` with a linear last layer.
+
+    Subclasses define :meth:`features` (or :meth:`encode`), the attribute :attr:`head`
+    (an ``nn.Linear``), the buffer ``head_rows`` (indices of the head outputs that form
+    the action) and :meth:`readout`. The learnable per-dimension ``log_std`` (σ̄ of Eq. 7 and Eq. 9)
+    lives here so that it is saved with the actor.
+    """
+
+    head: nn.Linear
+    head_rows: torch.Tensor
+
+    def __init__(
+        self, action_dim: int, *, init_std: float = 0.3, min_std: float = 1e-3, max_std: float = 2.0
+    ) -> None:
+        super().__init__()
+        if not min_std <= init_std <= max_std:
+            raise ValueError(
+                f"init_std={init_std} must lie in [min_std={min_std}, max_std={max_std}]."
+            )
+        self.action_dim = action_dim
+        self.log_std = nn.Parameter(torch.full((action_dim,), math.log(init_std)))
+        self.min_log_std, self.max_log_std = math.log(min_std), math.log(max_std)
+
+    @property
+    def std(self) -> torch.Tensor:
+        """The clamped aleatoric standard deviation ``σ̄`` per action dimension."""
+        return self.log_std.clamp(self.min_log_std, self.max_log_std).exp()
+
+    def features(self, observation: torch.Tensor) -> torch.Tensor:
+        """The trunk output ``φ(s)``, ``[..., d]``."""
+        return self.encode(observation)[0]
+
+    def encode(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(φ(s), context)``: the trunk output and what :meth:`readout` needs besides
+        the head output (the observation by default; the chain's ``x_1`` for a
+        multi-step diffusion actor)."""
+        if type(self).features is LastLayerActor.features:
+            raise NotImplementedError(
+                f"{type(self).__name__} must override features() or encode()."
+            )
+        return self.features(observation), observation
+
+    def encode_with_transition(
+        self,
+        observation: torch.Tensor,
+        transition_model: TransitionModel,
+        previous_observation: torch.Tensor,
+        previous_action: torch.Tensor,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """:meth:`encode` of ``s_t`` and ``transition_model``'s ``ŝ_t`` for
+        ``(s_{t-1}, a_{t-1})``, the two queries of DUAL's acting step (Eq. 9-10).
+
+        Two separate calls here; :class:`~torchrl_dual.modules.PlannerActor` answers both
+        in one batched pass when the transition model is a planner of its own shape.
+
+        Returns:
+            ``(φ(s_t), context, ŝ_t)``.
+        """
+        features, context = self.encode(observation)
+        return features, context, transition_model.predict(previous_observation, previous_action)
+
+    def readout(self, head_rows: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
+        """Maps the selected head outputs ``[..., A]`` to actions (affine), given the
+        ``context`` returned by :meth:`encode`."""
+        raise NotImplementedError
+
+    def readout_scale(self) -> torch.Tensor:
+        """``|∂ action / ∂ head output|`` per action dimension, ``[A]``."""
+        raise NotImplementedError
+
+    def _set_head_rows(self, start: int, stop: int) -> None:
+        """Declares head outputs ``start:stop`` as the action rows (a contiguous block)."""
+        self.register_buffer("head_rows", torch.arange(start, stop))
+        self._head_slice = slice(start, stop)
+
+    def head_parameters(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The action rows ``(W[rows], b[rows])`` of the head, as views."""
+        return self.head.weight[self._head_slice], self.head.bias[self._head_slice]
+
+    def head_output(self, features: torch.Tensor) -> torch.Tensor:
+        """The action rows of the head, ``[..., A]``."""
+        return torch.nn.functional.linear(features, *self.head_parameters())
+
+    def forward(self, observation: torch.Tensor) -> torch.Tensor:
+        """The mean action ``μ(s)``."""
+        features, context = self.encode(observation)
+        return self.readout(self.head_output(features), context)
