@@ -26,7 +26,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import copy
 import json
 import platform
 import statistics
@@ -48,6 +47,7 @@ from torchrl_dual.modules import (
     PlannerPolicy,
     ShiftAwareNoise,
     TransitionModel,
+    make_dual_policy,
 )
 
 
@@ -100,24 +100,26 @@ def build_planner_n1(cfg: Config) -> TensorDictModuleBase:
 
 
 def _dual(cfg: Config, transition: str) -> TensorDictModuleBase:
+    """DUAL's acting policy from the library builder (:func:`make_dual_policy`), as the
+    recipe assembles it; ``transition`` picks the source of ``ŝ_t``."""
     layout = TrajectoryLayout(cfg.obs_dim, cfg.action_dim, cfg.horizon)
     model = TrajectoryDiffusion(layout, num_steps=1, hidden=cfg.hidden, depth=cfg.depth)
-    frozen = copy.deepcopy(model)
-    ensemble = LaplaceEnsembleActor(
-        PlannerActor(model, transition_model=frozen if transition == "paired" else None),
-        num_samples=5,
-        action_low=-1.0,
-        action_high=1.0,
-        sample_action=False,
-        predict_transition=transition != "two_pass",
-    )
-    ensemble.fit_laplace([TensorDict({"observation": torch.randn(512, cfg.obs_dim)}, [512])])
-    noise = ShiftAwareNoise(
-        TransitionModel(frozen).predict if transition == "two_pass" else None,
-        spec=Bounded(-1.0, 1.0, shape=(cfg.action_dim,)),
-        shift_weight=0.5,
-    )
-    return TensorDictSequential(ensemble, noise)
+    actor = PlannerActor(model)
+    if transition == "shared":
+        transition_model = TransitionModel(model, frozen=False)
+    else:
+        transition_model = TransitionModel.frozen_copy(model)
+    spec = Bounded(-1.0, 1.0, shape=(cfg.action_dim,))
+    fit_data = [TensorDict({"observation": torch.randn(512, cfg.obs_dim)}, [512])]
+    if transition == "two_pass":  # the generic composition: ŝ_t from its own module
+        ensemble = LaplaceEnsembleActor(
+            actor, num_samples=5, action_low=-1.0, action_high=1.0, sample_action=False
+        )
+        ensemble.fit_laplace(fit_data)
+        return TensorDictSequential(ensemble, transition_model, ShiftAwareNoise(spec, 0.5))
+    policy = make_dual_policy(actor, spec, transition_model=transition_model, shift_weight=0.5)
+    policy[0].fit_laplace(fit_data)
+    return policy
 
 
 def build_dual_m5(cfg: Config) -> TensorDictModuleBase:

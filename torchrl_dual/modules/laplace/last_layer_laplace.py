@@ -8,6 +8,7 @@ from collections.abc import Callable
 import torch
 from torch import Tensor, nn
 
+from torchrl_dual.modules.laplace._checks import checked_features_and_weights, checked_head
 from torchrl_dual.modules.laplace._numerics import evidence_maximiser, psd_eigh
 
 __all__ = ["LastLayerLaplace"]
@@ -205,49 +206,16 @@ class LastLayerLaplace(nn.Module):
                 ``[B]`` (the leading shape of ``features``); ``None`` means all ones. They
                 are normalised to mean 1 over everything accumulated at :meth:`fit` time.
         """
-        if not isinstance(features, Tensor):
-            raise TypeError(f"features must be a torch.Tensor, got {type(features).__name__}.")
-        if features.ndim < 1 or features.shape[-1] != self.in_features:
-            raise ValueError(
-                f"features must have shape [B, {self.in_features}] (last dim = in_features), "
-                f"got {tuple(features.shape)}; pass the input of the linear head."
-            )
-        if features.ndim == 1:
-            features = features.unsqueeze(0)
-        if not features.is_floating_point():
-            raise TypeError(f"features must be floating point, got {features.dtype}.")
-        if weights is not None:
-            if not isinstance(weights, Tensor):
-                weights = torch.as_tensor(weights)
-            if weights.shape != features.shape[:-1]:
-                raise ValueError(
-                    f"weights must have shape {tuple(features.shape[:-1])} (one per feature "
-                    f"row), got {tuple(weights.shape)}; squeeze a trailing singleton dim."
-                )
-        phi = features.detach().reshape(-1, self.in_features).to(self.G_raw.device, _F64)
-        if not torch.isfinite(phi).all():
-            raise ValueError(
-                "features contain NaN or inf; check the network producing the head input "
-                "(or filter those samples) before calling accumulate()."
-            )
+        phi, w = checked_features_and_weights(features, weights, self.in_features)
+        phi = phi.to(self.G_raw.device)
+        w = None if w is None else w.to(self.G_raw.device)
         if phi.shape[0] == 0:
             return
         phi = torch.cat([phi, phi.new_ones(phi.shape[0], 1)], dim=1)
-        if weights is None:
+        if w is None:
             self.G_raw.add_(phi.T @ phi)
             self.sum_weights.add_(phi.shape[0])
         else:
-            w = weights.detach().reshape(-1).to(self.G_raw.device, _F64)
-            if not torch.isfinite(w).all():
-                raise ValueError(
-                    "weights contain NaN or inf; clip the advantage weights (e.g. exp(β·A) "
-                    "clamped to a maximum) before calling accumulate()."
-                )
-            if (w < 0).any():
-                raise ValueError(
-                    f"weights must be non-negative, got min {w.min().item():.3g}; use "
-                    "likelihood weights such as exp(β·A), not raw advantages."
-                )
             self.G_raw.add_((phi * w[:, None]).T @ phi)
             self.sum_weights.add_(w.sum())
         self.count.add_(phi.shape[0])
@@ -286,33 +254,11 @@ class LastLayerLaplace(nn.Module):
         Returns:
             ``self``.
         """
-        o, d = self.out_features, self.in_features
-        if weight.shape != (o, d):
-            raise ValueError(
-                f"weight must have shape [out, d] = {[o, d]}, got {list(weight.shape)}; "
-                "pass the nn.Linear head's .weight."
-            )
-        if bias is None or bias.shape != (o,):
-            got = None if bias is None else list(bias.shape)
-            raise ValueError(
-                f"bias must have shape [{o}], got {got}; for a bias-free head pass zeros."
-            )
         dev = self.G_raw.device
-        theta = torch.cat([weight.detach(), bias.detach()[:, None]], dim=1).to(dev, _F64)
-        if not torch.isfinite(theta).all():
-            raise ValueError("weight/bias contain NaN or inf; the MAP head has diverged.")
-        sigma2 = torch.as_tensor(noise_variance).detach().to(dev, _F64)
-        if sigma2.ndim > 1 or sigma2.numel() not in (1, o):
-            raise ValueError(
-                f"noise_variance must be a float or a tensor of shape [{o}] (variance, not "
-                f"std, per action dim), got shape {list(sigma2.shape)}."
-            )
-        sigma2 = sigma2.reshape(-1).expand(o).clone()
-        if not (torch.isfinite(sigma2).all() and (sigma2 > 0).all()):
-            raise ValueError(
-                f"noise_variance must be positive and finite, got {sigma2.tolist()}; pass "
-                "σ² = exp(2·log_std) of the actor."
-            )
+        theta, sigma2 = checked_head(
+            weight, bias, noise_variance, self.out_features, self.in_features
+        )
+        theta, sigma2 = theta.to(dev, _F64), sigma2.to(dev, _F64)
         config = (
             self.prior_precision_config
             if prior_precision is None
