@@ -8,6 +8,8 @@ from torch import Tensor
 from torchrl.data.tensor_specs import Binary, Composite, TensorSpec, Unbounded
 from torchrl.envs.transforms import Transform
 
+from torchrl_dual._utils import read_key
+
 __all__ = ["PreviousTransition"]
 
 
@@ -79,14 +81,12 @@ class PreviousTransition(Transform):
         self.previous_valid_key = previous_valid_key
 
     def _read(self, tensordict: TensorDictBase, key: NestedKey, where: str) -> Tensor:
-        value = tensordict.get(key, None)
-        if value is None:
-            raise KeyError(
-                f"PreviousTransition: the {where} has no {key!r} (keys: "
-                f"{list(tensordict.keys(True, True))}). Pass observation_key= / action_key= "
-                "with the keys your env uses."
-            )
-        return value
+        return read_key(
+            tensordict,
+            key,
+            f"PreviousTransition (the {where})",
+            "Pass observation_key= / action_key= with the keys your env uses.",
+        )
 
     def _action_spec(self) -> TensorSpec:
         parent = self.parent
