@@ -1,4 +1,4 @@
-"""DUAL's acting policy, assembled in one place (Eq. 9 + Eq. 10, Algorithm 1 l. 11-12)."""
+"""DUAL's acting policy, assembled in one place (Eq. 9 + Eq. 10, Algorithm 1 l. 11)."""
 
 from __future__ import annotations
 

@@ -16,11 +16,12 @@ __all__ = ["PreviousTransition"]
 class PreviousTransition(Transform):
     r"""Hands the policy at step ``t`` the state and executed action of step ``t − 1``.
 
-    DUAL's shift signal (Eq. 10, Algorithm 1 l. 12) is ``d_t = ‖ŝ_t − s_t‖₂`` with
+    DUAL's shift signal (Eq. 10, Algorithm 1 l. 11) is ``d_t = ‖ŝ_t − s_t‖₂`` with
     ``ŝ_t = p(s' | s_{t-1}, a_{t-1}; θ)``. The policy computes it when it acts at ``t``
-    (:class:`~torchrl_dual.modules.LaplaceEnsembleActor` with ``predict_transition=True``
-    answers the transition query in the same trunk pass as the policy query), so the env
-    only has to remember the previous step. During ``env.step`` this transform copies the
+    (a :class:`~torchrl_dual.modules.TransitionModel` reads the keys below and writes
+    ``ŝ_t``; given to :class:`~torchrl_dual.modules.LaplaceEnsembleActor` as
+    ``transition_model=``, it answers in the same trunk pass as the policy query), so the
+    env only has to remember the previous step. During ``env.step`` this transform copies the
     *root* ``observation`` (``s_t``) and the executed ``action`` (``a_t``) into ``"next"``:
 
     ==============================  ============  ======================================

@@ -30,7 +30,8 @@ class OneStepFastPath:
 
     Every derived tensor is cached until a source tensor changes
     (:class:`~torchrl_dual.diffusion._fast_path.versioned_cache.VersionedCache`). The
-    results equal the general path to float rounding (``tests/diffusion/test_fast_path.py``).
+    results equal the general path to float rounding; the tests compare every shortcut
+    with the plain path of :class:`~torchrl_dual.modules.PlannerActor`.
 
     Args:
         model (TrajectoryDiffusion): the one-step planner (not registered here).

@@ -28,10 +28,11 @@ class OneStepFold:
     tensors they come from changes (an optimizer step, ``load_state_dict``, ``.to()``):
     see :class:`~torchrl_dual.diffusion._fast_path.versioned_cache.VersionedCache`.
 
-    The result equals the general path to float rounding (see
-    ``tests/modules/test_one_step_fold.py``); it is only used without autograd, on the
-    action path, where it saves the window construction, the mask and time features and
-    two layers of normalisation (DESIGN "Performance principles").
+    The result equals the general path to float rounding (the tests compare the two after
+    optimizer steps, ``load_state_dict``, ``.to()`` and normalizer refits); it is only
+    used without autograd, on the action path, which runs at every env step: there it
+    saves the window construction, the mask and time features and two layers of
+    normalisation.
 
     Args:
         model (TrajectoryDiffusion): the one-step planner (not registered as a submodule).

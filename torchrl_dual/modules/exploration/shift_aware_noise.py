@@ -29,7 +29,7 @@ class ShiftAwareNoise(TensorDictModuleBase):
 
     where ``ŝ_t = p(s' | s_{t-1}, a_{t-1}; θ)`` is the transition model's prediction for the
     current state from the previous state and the action actually executed there
-    (Algorithm 1 l. 12; DESIGN "Exploration noise"). Alg. 1 writes the same sample as
+    (Algorithm 1 l. 11). Alg. 1 writes the same sample as
     ``a_t ~ π̂(·|s_t) + λ N(0, d_t)``; this module follows Eq. 10 and adds ``λ d_t`` to
     the variance.
 

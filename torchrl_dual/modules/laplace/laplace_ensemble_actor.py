@@ -54,7 +54,7 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
             draws the executed action itself (Eq. 10), so this module then writes
             ``action = μ`` and no ``action_log_prob``.
         transition_model (TransitionModel, optional): DUAL's transition model
-            ``p(s'|s, a; θ)`` (Algorithm 1 l. 12). Under random exploration the ensemble
+            ``p(s'|s, a; θ)`` (Algorithm 1 l. 11). Under random exploration the ensemble
             then also reads the previous step (``previous_observation``,
             ``previous_action``, ``previous_valid``, written by the
             :class:`~torchrl_dual.transforms.PreviousTransition` env transform) and writes

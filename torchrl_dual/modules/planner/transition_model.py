@@ -1,4 +1,4 @@
-"""DUAL's transition model ``p(s' | s, a; θ)``: the one owner of ``ŝ_t`` (Alg. 1, l. 5 and 12)."""
+"""DUAL's transition model ``p(s' | s, a; θ)``: the one owner of ``ŝ_t`` (Alg. 1, l. 5 and 11)."""
 
 from __future__ import annotations
 
