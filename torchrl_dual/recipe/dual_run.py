@@ -1,8 +1,9 @@
 """The state of one DUAL run and the steps of Algorithm 1 that act on it.
 
 :class:`DualRun` owns the data, networks, losses, optimizers, replay buffers, logger
-and counters of a run, checkpoints all of them atomically, and resumes from them.
-``recipes/o2o.py`` calls its methods in the order of Algorithm 1.
+and counters of a run, checkpoints all of them atomically (each weight once), and
+resumes from them. :func:`~torchrl_dual.recipe.dual.run_dual` calls its methods in the
+order of Algorithm 1.
 """
 
 from __future__ import annotations
@@ -11,29 +12,65 @@ import random
 from pathlib import Path
 
 import numpy as np
-import o2o_setup as setup
 import torch
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDictBase
 from torchrl.collectors import Collector
-from torchrl.data import OfflineToOnlineReplayBuffer
+from torchrl.data import (
+    LazyTensorStorage,
+    OfflineToOnlineReplayBuffer,
+    RandomSampler,
+    ReplayBuffer,
+)
 from torchrl.envs.utils import ExplorationType
 from torchrl.record.loggers import get_logger
 from tqdm.auto import tqdm
 
-from torchrl_dual import TransitionModel
 from torchrl_dual.checkpoint import RunCheckpoint, rng_state, set_rng_state
 from torchrl_dual.data import TRANSITION_KEYS
 from torchrl_dual.diffusion import WindowReplayBuffer
 from torchrl_dual.objectives import progressive_distillation, train_planner
+from torchrl_dual.recipe import env_kits, networks
+from torchrl_dual.recipe.critics import CRITICS
+from torchrl_dual.recipe.errors import ConfigError, UserError
+from torchrl_dual.recipe.plots import plot_learning_curve
 
 STAGES = ("planner", "distillation", "actor_critic", "laplace", "offline_eval")
 # Settings that may change when a run is resumed; everything else must match.
-_RESUMABLE_KEYS = ("resume", "progress", "interrupt_at_frames", "num_threads", "device")
+RESUMABLE_KEYS = ("resume", "progress", "interrupt_at_frames", "num_threads", "device", "debug")
+_COUNTERS = (
+    "stages_done",
+    "frames",
+    "updates",
+    "updates_since_refit",
+    "update_credit",
+    "next_episode",
+    "history",
+)
+
+
+def check_output_dir(cfg: DictConfig) -> None:
+    """``output_dir`` must be a directory (or not exist yet) and hold no checkpoint unless
+    ``resume=true``: a fresh run never overwrites another run's checkpoint."""
+    output_dir = Path(cfg.output_dir)
+    for path in (output_dir, *output_dir.parents):
+        if path.exists() and not path.is_dir():
+            raise ConfigError("output_dir", cfg.output_dir, f"{path} is a file, not a directory")
+    checkpoint = output_dir / "checkpoint.pt"
+    if checkpoint.exists() and not cfg.resume:
+        raise ConfigError(
+            "resume",
+            False,
+            f"{checkpoint} exists: pass resume=true to continue that run, or choose "
+            "another output_dir (or delete it) to start afresh",
+        )
 
 
 class DualRun:
-    """Everything one run of Algorithm 1 needs, with checkpoint and resume."""
+    """Everything one run of Algorithm 1 needs, with checkpoint and resume.
+
+    ``cfg`` must have passed :func:`~torchrl_dual.recipe.validate_config`.
+    """
 
     def __init__(self, cfg: DictConfig) -> None:
         self.cfg = cfg
@@ -43,33 +80,37 @@ class DualRun:
         fingerprint = {
             k: v
             for k, v in OmegaConf.to_container(cfg, resolve=True).items()
-            if k not in _RESUMABLE_KEYS
+            if k not in RESUMABLE_KEYS
         }
+        check_output_dir(cfg)
         self.checkpoint = RunCheckpoint(self.output_dir / "checkpoint.pt", fingerprint)
-        if self.checkpoint.exists() and not cfg.resume:
-            raise FileExistsError(
-                f"{self.checkpoint.path} exists: pass resume=true to continue that run, or "
-                "choose another output_dir (or delete it) to start afresh."
-            )
-        if cfg.resume and self.checkpoint.exists():
-            self.checkpoint.load()  # fail fast on a corrupt or incompatible checkpoint
+        # Read a checkpoint first, so a corrupt or incompatible one fails before any work.
+        saved = self._load_checkpoint() if cfg.resume and self.checkpoint.exists() else None
         # ---- data and envs (Alg. 1 line 1)
-        self.data = setup.make_offline_dataset(cfg)
-        self.env = setup.make_train_env(cfg)
-        setup.check_dims(self.env, self.data)
-        self.evaluate_policy = setup.make_evaluator(cfg, self.data)
-        self.windows = WindowReplayBuffer(
-            self.data.transitions, cfg.planner.horizon, cfg.planner.batch_size, device=cfg.device
-        )
-        self.offline_buffer = setup.make_offline_buffer(self.data, cfg)
-        # ---- networks: teacher g_θ', one-step transition model and actor π_θ
-        self.teacher = setup.make_planner(cfg, self.data)
-        self.transition = TransitionModel(setup.one_step_like(self.teacher))
-        self.actor = setup.make_actor(cfg, self.teacher, self.transition)
-        self.critic = setup.make_critic(cfg, self.actor, self.data)
-        self.actor_loss = setup.make_actor_loss(cfg, self.actor, self.critic)
+        self.data = env_kits.make_offline_dataset(cfg)
+        self.env = env_kits.make_train_env(cfg)
+        env_kits.check_dims(self.env, self.data, cfg.env.name)
+        self.evaluate_policy = env_kits.make_evaluator(cfg, self.data)
+        try:
+            self.windows = WindowReplayBuffer(
+                self.data.transitions,
+                cfg.planner.horizon,
+                cfg.planner.batch_size,
+                device=cfg.device,
+            )
+        except ValueError as err:  # no episode is long enough for a window
+            raise UserError("planner.horizon", cfg.planner.horizon, str(err)) from err
+        self.offline_buffer = self._offline_buffer()
+        # ---- networks: teacher g_θ', actor π_θ and its transition model, critics
+        self.teacher = networks.make_planner(cfg, self.data)
+        self.actor = networks.make_actor(cfg, self.teacher)
+        self.transition = networks.make_transition_model(cfg, self.teacher, self.actor)
+        make_critic = CRITICS[cfg.critic.name][1]
+        self.critic = make_critic(cfg, self.data.obs_dim, self.data.action_dim)
+        self.actor_loss = networks.make_actor_loss(cfg, self.actor, self.critic)
         self.actor_optimizer = torch.optim.Adam(self.actor_loss.parameters(), lr=cfg.actor.lr)
-        self.ensemble, self.policy = setup.make_policies(cfg, self.actor, self.env)
+        self.policy = networks.make_policy(cfg, self.actor, self.env.action_spec, self.transition)
+        self.ensemble = self.policy[0]  # LaplaceEnsembleActor: acts and holds ŝ_t's model
         self.replay = OfflineToOnlineReplayBuffer(
             self.offline_buffer,
             online_capacity=max(cfg.budget.online_frames, 1),
@@ -84,9 +125,7 @@ class DualRun:
         self.update_credit = 0.0
         self.next_episode = int(self.data.transitions["episode"].max()) + 1
         self.history: list[dict] = []
-        logger_state = None
-        if cfg.resume and self.checkpoint.exists():
-            logger_state = self.load()
+        logger_state = self.load(saved) if saved is not None else None
         self.logger = get_logger(
             cfg.logger.backend, str(self.output_dir / "logs"), "dual", state_dict=logger_state
         )
@@ -98,11 +137,23 @@ class DualRun:
         np.random.seed(seed)
         torch.manual_seed(seed)
 
-    def _modules(self) -> dict:
+    def _offline_buffer(self) -> ReplayBuffer:
+        """Uniform transitions from D_offline; a plain ``ReplayBuffer`` so its samples carry
+        the same keys as the online part of ``OfflineToOnlineReplayBuffer``."""
+        buffer = ReplayBuffer(
+            storage=LazyTensorStorage(len(self.data), device=self.cfg.device),
+            sampler=RandomSampler(),
+            batch_size=self.cfg.online.batch_size,
+        )
+        buffer.extend(self.data.transitions)
+        return buffer
+
+    def modules(self) -> dict:
+        """What the checkpoint holds, each weight once: the frozen transition model is
+        inside the ensemble, a shared one is the actor's own planner."""
         return {
             "teacher": self.teacher,
-            "transition": self.transition,
-            "ensemble": self.ensemble,  # the actor, its σ̄ and the Laplace posterior
+            "ensemble": self.ensemble,  # actor, σ̄, Laplace posterior, frozen ŝ_t model
             "critic": self.critic.loss,
             "critic_optimizer": self.critic.optimizer,
             "actor_optimizer": self.actor_optimizer,
@@ -111,41 +162,36 @@ class DualRun:
     def save(self) -> None:
         """Checkpoints everything needed to continue (atomic write)."""
         online = self.replay.online_buffer
-        state = {name: module.state_dict() for name, module in self._modules().items()}
+        state = {name: module.state_dict() for name, module in self.modules().items()}
+        state.update({name: getattr(self, name) for name in _COUNTERS})
         state.update(
-            stages_done=list(self.stages_done),
-            frames=self.frames,
-            updates=self.updates,
-            updates_since_refit=self.updates_since_refit,
-            update_credit=self.update_credit,
-            next_episode=self.next_episode,
-            history=list(self.history),
             online_data=online[: len(online)].clone() if len(online) else None,
             rng=rng_state(),
             logger=self.logger.state_dict() if hasattr(self.logger, "state_dict") else None,
         )
         self.checkpoint.save(state)
 
-    def load(self):
-        state = self.checkpoint.load()
+    def _load_checkpoint(self) -> dict:
         try:
-            for name, module in self._modules().items():
+            return self.checkpoint.load()
+        except RuntimeError as err:  # corrupt, not a checkpoint, or another run's settings
+            raise UserError("resume", True, str(err)) from err
+
+    def load(self, state: dict | None = None):
+        """Restores the checkpoint's ``state`` (read if not given); returns the logger's."""
+        state = self._load_checkpoint() if state is None else state
+        try:
+            for name, module in self.modules().items():
                 module.load_state_dict(state[name])
-        except (KeyError, RuntimeError) as err:
-            raise RuntimeError(
-                f"The checkpoint {self.checkpoint.path} does not fit this run's networks "
-                f"({err}). Resume with the settings that wrote it, or use another output_dir."
+        except (KeyError, RuntimeError, ValueError) as err:
+            raise UserError(
+                "resume",
+                True,
+                f"the checkpoint {self.checkpoint.path} does not fit this run's networks "
+                f"({err}). Resume with the settings that wrote it, or use another output_dir.",
             ) from err
-        for key in (
-            "stages_done",
-            "frames",
-            "updates",
-            "updates_since_refit",
-            "update_credit",
-            "next_episode",
-            "history",
-        ):
-            setattr(self, key, state[key])
+        for name in _COUNTERS:
+            setattr(self, name, state[name])
         if state["online_data"] is not None:
             self.replay.extend(state["online_data"])
             # The collector starts a new episode on resume: never reuse the cut one's id.
@@ -192,8 +238,9 @@ class DualRun:
             logger=self.logger,
             progress=self.cfg.progress,
         )
-        self.transition.sampler.model.load_state_dict(student.state_dict())
         self.actor.model.load_state_dict(student.state_dict())
+        if self.transition.frozen:  # a shared transition model is actor.model itself
+            self.transition.model.load_state_dict(student.state_dict())
 
     def update(self, batch: TensorDictBase) -> dict:
         """One critic (IQL) and one actor (Eq. 7) gradient step, Alg. 1 lines 7-8 / 15-16."""
@@ -233,8 +280,7 @@ class DualRun:
     def _all_transitions(self, chunk: int = 8192):
         for source in (self.data.transitions, self.replay.online_buffer):
             for start in range(0, len(source), chunk):
-                batch = source[start : start + chunk]
-                yield batch.to(self.cfg.device)
+                yield source[start : start + chunk].to(self.cfg.device)
 
     def fit_laplace(self) -> None:
         """Alg. 1 lines 9 and 17: last-layer Laplace of L_π on D (Eq. 8)."""
@@ -304,8 +350,6 @@ class DualRun:
     def finish(self) -> None:
         """Writes the learning curve and prints where everything is."""
         self.save()
-        from plots import plot_learning_curve
-
         png = plot_learning_curve(
             self.history,
             self.output_dir / "learning_curve.png",

@@ -1,0 +1,45 @@
+"""The offline-to-online recipe as a library: tables, a validated config, Algorithm 1.
+
+``recipes/o2o.py`` is the Hydra entry point; everything it runs lives here, so that a
+``pip install`` gets it too:
+
+* :data:`ENV_KITS` (``env_kits``) — one entry per ``env.kind``: offline data, train env,
+  evaluator, action projection;
+* :data:`ALGORITHMS` (``algorithms``) — one entry per ``algo``: its config sections,
+  critics, cross-key checks and run function (only ``dual`` today);
+* :data:`CRITICS` (``critics``) — one entry per ``critic.name``;
+* :func:`validate_config` (``schema``) — the schema of every config group, checked
+  before any data or network; errors are :class:`UserError` (``errors``), reported as
+  one ``error:`` line and exit code 2;
+* :func:`run_dual` / :class:`DualRun` (``dual``, ``dual_run``) — Algorithm 1 and the
+  state of a run with checkpoint and resume.
+"""
+
+from torchrl_dual.recipe.algorithms import ALGORITHMS, Algorithm
+from torchrl_dual.recipe.cli import check_command_line, compose_checked, hydra_task, run
+from torchrl_dual.recipe.critics import CRITICS
+from torchrl_dual.recipe.dual import run_dual
+from torchrl_dual.recipe.dual_run import DualRun
+from torchrl_dual.recipe.env_kits import ENV_KITS, EnvKit
+from torchrl_dual.recipe.errors import ConfigError, UserError, user_errors
+from torchrl_dual.recipe.plots import plot_learning_curve
+from torchrl_dual.recipe.schema import validate_config
+
+__all__ = [
+    "ALGORITHMS",
+    "CRITICS",
+    "ENV_KITS",
+    "Algorithm",
+    "ConfigError",
+    "DualRun",
+    "EnvKit",
+    "UserError",
+    "check_command_line",
+    "compose_checked",
+    "hydra_task",
+    "plot_learning_curve",
+    "run",
+    "run_dual",
+    "user_errors",
+    "validate_config",
+]

@@ -1,0 +1,152 @@
+"""The recipe's command line: check it before Hydra runs, then run the chosen algorithm.
+
+``recipes/o2o.py`` calls :func:`check_command_line` before handing over to
+``@hydra.main``. It composes the config once itself (:func:`compose_checked`), so
+Hydra's own composition errors (an unknown group option, an unknown key, a malformed
+override) and every :func:`~torchrl_dual.recipe.validate_config` error end as one
+``error:`` line and exit code 2, before Hydra creates the output directory.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from hydra import compose, initialize_config_dir
+from hydra._internal.utils import get_args_parser
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.core.override_parser.types import Override, OverrideType
+from hydra.errors import HydraException, OverrideParseException
+from omegaconf import DictConfig, OmegaConf
+
+from torchrl_dual.recipe.algorithms import ALGORITHMS
+from torchrl_dual.recipe.errors import ConfigError, UserError, unknown_key, user_errors
+from torchrl_dual.recipe.schema import validate_config
+
+# Hydra flags that do not run the task (or run many): Hydra handles them unchecked.
+_PASS_THROUGH = ("help", "hydra_help", "cfg", "info", "shell_completion", "multirun")
+_OTHER_CONFIG = ("config_path", "config_name", "config_dir", "experimental_rerun")
+
+
+def run(cfg: DictConfig) -> Any:
+    """Validates ``cfg`` (raising :class:`~torchrl_dual.recipe.errors.ConfigError`) and
+    runs its algorithm, e.g. :func:`~torchrl_dual.recipe.dual.run_dual`."""
+    validate_config(cfg)
+    return ALGORITHMS[cfg.algo].run(cfg)
+
+
+def _parse(line: str) -> Override:
+    try:
+        return OverridesParser.create().parse_override(line)
+    except (HydraException, OverrideParseException) as err:
+        reason = " ".join(str(err).split()).split(" expecting ")[0]
+        raise ConfigError(
+            None, None, f"malformed override '{line}' ({reason}); write key=value"
+        ) from err
+
+
+def _group_options(config_dir: Path, group: str) -> list[str] | None:
+    """The options of config group ``group`` (``None`` if it is not a group)."""
+    folder = config_dir / group
+    if not folder.is_dir():
+        return None
+    return sorted(p.stem for p in folder.glob("*.yaml"))
+
+
+def _leaf_keys(cfg: Any, prefix: str = "") -> list[str]:
+    if not isinstance(cfg, DictConfig):
+        return []
+    keys = []
+    for name in cfg.keys():
+        dotted = f"{prefix}{name}"
+        keys += [dotted, *_leaf_keys(cfg._get_node(name), f"{dotted}.")]
+    return keys
+
+
+def compose_checked(config_dir: str | Path, overrides: Sequence[str], config_name: str = "config"):
+    """Composes ``config_name`` with ``overrides`` as Hydra would and validates it.
+
+    Raises:
+        ConfigError: a malformed override, an unknown group option or key, anything
+            Hydra cannot compose, or any :func:`validate_config` error.
+
+    Returns:
+        the composed and validated ``DictConfig`` (without the ``hydra`` node).
+    """
+    config_dir = Path(config_dir).resolve()
+    parsed = [_parse(line) for line in overrides]
+    parsed = [o for o in parsed if not o.key_or_group.startswith("hydra")]
+    groups, keys = [], []
+    for override in parsed:
+        if override.is_sweep_override():
+            raise ConfigError(
+                override.key_or_group,
+                override.input_line.split("=", 1)[-1],
+                "a sweep needs --multirun (-m); write a list as key=[a,b]",
+            )
+        options = _group_options(config_dir, override.key_or_group)
+        (groups if options is not None else keys).append(override)
+        if options is None or override.is_delete():
+            continue
+        value = override.get_value_element_as_str()
+        if value not in options:
+            raise ConfigError(
+                override.key_or_group, value, "unknown option; choose one of " + ", ".join(options)
+            )
+    with initialize_config_dir(config_dir=str(config_dir), version_base="1.3"):
+        try:
+            base = compose(config_name, [o.input_line for o in groups])
+            known = _leaf_keys(base)
+            for override in keys:
+                name = override.key_or_group
+                if override.type == OverrideType.CHANGE and name not in known:
+                    raise unknown_key(name, known)
+                if override.type == OverrideType.ADD and name in known:
+                    value = override.get_value_element_as_str()
+                    raise ConfigError(
+                        f"+{name}",
+                        value,
+                        f"{name} exists already; write {name}={value} to change it",
+                    )
+            cfg = compose(config_name, [o.input_line for o in parsed])
+        except HydraException as err:
+            raise ConfigError(None, None, str(err).splitlines()[0]) from err
+    OmegaConf.set_struct(cfg, True)
+    return validate_config(cfg)
+
+
+def _debug(overrides: Sequence[str]) -> bool:
+    return any(o.replace(" ", "").lower() in ("debug=true", "++debug=true") for o in overrides)
+
+
+def check_command_line(
+    config_dir: str | Path, config_name: str = "config", argv: Sequence[str] | None = None
+) -> None:
+    """Exits with 2 and one ``error:`` line if the command line's config is not valid.
+
+    Leaves ``--help``, ``--cfg``, ``--info``, ``--multirun`` and the options that pick
+    another config to Hydra; a multirun checks each job's config when it starts.
+    """
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        with contextlib.redirect_stderr(io.StringIO()):
+            args = get_args_parser().parse_args(argv)
+    except SystemExit:  # a bad flag: Hydra's own argparse reports it when it parses
+        return
+    if any(getattr(args, flag) for flag in _PASS_THROUGH + _OTHER_CONFIG):
+        return
+    with user_errors(debug=_debug(args.overrides)):
+        compose_checked(config_dir, args.overrides, config_name)
+
+
+def hydra_task(cfg: DictConfig) -> Any:
+    """The body of ``@hydra.main``: :func:`run` with user errors reported as one line."""
+    with user_errors(debug=bool(cfg.get("debug", False))):
+        return run(cfg)
+
+
+__all__ = ["UserError", "check_command_line", "compose_checked", "hydra_task", "run"]

@@ -1,0 +1,106 @@
+"""The recipe's critics ``Q_φ`` and ``V`` (Alg. 1 lines 7 and 15): a table by ``critic.name``.
+
+Only TorchRL's IQL critics today (``critic/iql.yaml``); Cal-QL joins as a second entry
+of :data:`CRITICS`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+from omegaconf import DictConfig
+from tensordict.nn import TensorDictModule
+from torch import nn
+from torchrl.modules import MLP, ProbabilisticActor, ValueOperator
+from torchrl.objectives import IQLLoss, SoftUpdate
+
+from torchrl_dual.recipe.rules import Integer, Real, Text, key
+
+
+@dataclass
+class IQLCriticSettings:
+    """``critic/iql.yaml``: TorchRL ``IQLLoss`` expectile value network and twin Q networks."""
+
+    name: str = key(Text(), "the CRITICS entry")
+    hidden: int = key(Integer(1), "MLP width of V and Q")
+    depth: int = key(Integer(1), "hidden layers of V and Q")
+    lr: float = key(Real(0, low_open=True), "Adam learning rate of V and Q")
+    expectile: float = key(Real(0, 1, low_open=True, high_open=True), "IQL expectile τ")
+    discount: float = key(Real(0, 1, low_open=True), "γ")
+    target_update_tau: float = key(Real(0, 1, low_open=True), "soft target update rate")
+
+
+@dataclass
+class Critic:
+    """TorchRL's IQL critics and what updates them."""
+
+    loss: IQLLoss
+    optimizer: torch.optim.Optimizer
+    target_updater: SoftUpdate
+
+
+class _NoActor(nn.Module):
+    """The actor slot of TorchRL 0.14.1's ``IQLLoss``, which cannot be left empty.
+
+    ``IQLLoss.__init__`` converts its ``actor_network`` to functional parameters and
+    ``qvalue_loss`` reads ``actor_network.in_keys`` for the observation keys, so an actor
+    is required even though the recipe only calls ``qvalue_loss`` and ``value_loss``:
+    DUAL's actor loss is :class:`~torchrl_dual.WeightedMAPActorLoss` (Eq. 7). This one
+    has no parameters, so the loss's state_dict holds no copy of the actor's weights.
+    """
+
+    def forward(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        raise RuntimeError(
+            "IQLLoss.actor_loss is not DUAL's actor loss; use WeightedMAPActorLoss (Eq. 7)."
+        )
+
+
+def make_iql_critic(cfg: DictConfig, obs_dim: int, action_dim: int) -> Critic:
+    """IQL's expectile value network V and twin Q networks (TorchRL ``IQLLoss``).
+
+    Built in a fixed order (Q MLP, V MLP, then ``IQLLoss``, which redraws the second Q
+    network's weights) so a seed gives the same critics.
+    """
+    c = cfg.critic
+    cells = [c.hidden] * c.depth
+
+    class _QNet(nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.mlp = MLP(
+                in_features=obs_dim + action_dim,
+                out_features=1,
+                num_cells=cells,
+                activation_class=nn.ReLU,
+            )
+
+        def forward(self, observation, action):
+            return self.mlp(torch.cat([observation, action], -1))
+
+    qvalue = ValueOperator(_QNet(), in_keys=["observation", "action"])
+    value = ValueOperator(
+        MLP(in_features=obs_dim, out_features=1, num_cells=cells, activation_class=nn.ReLU),
+        in_keys=["observation"],
+    )
+    no_actor = ProbabilisticActor(
+        TensorDictModule(_NoActor(), in_keys=["observation"], out_keys=["loc", "scale"]),
+        in_keys=["loc", "scale"],
+        distribution_class=torch.distributions.Normal,
+    )
+    loss = IQLLoss(
+        no_actor, qvalue, value, expectile=c.expectile, num_qvalue_nets=2, loss_function="l2"
+    ).to(cfg.device)
+    loss.make_value_estimator(gamma=c.discount)
+    params = list(loss.qvalue_network_params.values(True, True)) + list(
+        loss.value_network_params.values(True, True)
+    )
+    optimizer = torch.optim.Adam(params, lr=c.lr)
+    return Critic(loss, optimizer, SoftUpdate(loss, tau=c.target_update_tau))
+
+
+CRITICS: dict[str, tuple[type, Callable[[DictConfig, int, int], Critic]]] = {
+    "iql": (IQLCriticSettings, make_iql_critic),
+}
+"""``critic.name`` -> (schema of ``critic.*``, ``(cfg, obs_dim, action_dim) -> Critic``)."""

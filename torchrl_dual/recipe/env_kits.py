@@ -1,0 +1,241 @@
+"""The table of environment kits: one entry per ``env.kind`` (Algorithm 1 line 1).
+
+An :class:`EnvKit` holds everything the recipe needs from one kind of environment: the
+schema of its ``env.*`` keys, the offline data set ``D_offline``, the online env, the
+evaluator returning D4RL-normalized scores, and the projection of the policy's action
+onto what the env executes. Adding an environment is adding one entry to
+:data:`ENV_KITS` and one ``recipes/config/env/<name>.yaml`` that sets ``kind``; nothing
+else in the recipe branches on the env.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from omegaconf import DictConfig
+from torch import nn
+from torchrl.envs import EnvBase
+
+from torchrl_dual.data import (
+    OfflineDataset,
+    load_or_generate_frozenlake_dataset,
+    load_or_generate_maze_dataset,
+    validate_transitions,
+)
+from torchrl_dual.data.cache import default_cache_dir
+from torchrl_dual.envs import (
+    FROZENLAKE_MAPS,
+    POINTMAZE_IDS,
+    flatten_pointmaze_obs,
+    frozenlake_num_states,
+    frozenlake_success_probability,
+    make_frozenlake_env,
+    make_pointmaze_env,
+    make_pointmaze_gym_env,
+)
+from torchrl_dual.evaluation import evaluate_episodes, frozenlake_policy_actions
+from torchrl_dual.recipe.errors import UserError
+from torchrl_dual.recipe.rules import Choice, Integer, Real, Text, key
+from torchrl_dual.transforms import PreviousTransition
+
+Evaluator = Callable[[nn.Module], dict[str, float]]
+"""``policy -> {"return": ..., "normalized_score": ..., ...}`` under deterministic actions."""
+
+
+@dataclass(frozen=True)
+class EnvKit:
+    """What the recipe needs from one kind of environment.
+
+    Args:
+        settings (type): schema dataclass of the ``env.*`` keys (see ``rules.key``).
+        load_data (callable): ``cfg -> OfflineDataset``, ``D_offline`` (cached).
+        make_env (callable): ``cfg -> EnvBase``, the online env (the recipe appends
+            :class:`~torchrl_dual.transforms.PreviousTransition` for Eq. 10's ``d_t``).
+        make_evaluator (callable): ``(cfg, data) -> Evaluator``.
+        action_projection (callable, optional): maps the sampled action to the executed
+            one (stored in the replay buffer), e.g. the one-hot argmax of a discrete env.
+    """
+
+    settings: type
+    load_data: Callable[[DictConfig], OfflineDataset]
+    make_env: Callable[[DictConfig], EnvBase]
+    make_evaluator: Callable[[DictConfig, OfflineDataset], Evaluator]
+    action_projection: Callable[[torch.Tensor], torch.Tensor] | None = None
+
+
+# ----------------------------------------------------------------------------- PointMaze
+@dataclass
+class PointMazeSettings:
+    """``env/pointmaze_*.yaml``: Gymnasium-Robotics PointMaze, maze2d-style local data."""
+
+    name: str = key(Text(), "used in output_dir and the plot title")
+    kind: str = key(Text(), "the ENV_KITS entry")
+    maze: str = key(Choice(tuple(POINTMAZE_IDS)), "layout")
+    max_episode_steps: int = key(Integer(1), "time limit of an episode")
+
+
+def _pointmaze_data(cfg: DictConfig) -> OfflineDataset:
+    env = cfg.env
+    return load_or_generate_maze_dataset(
+        env.maze,
+        cfg.budget.dataset_transitions,
+        cfg.seed,
+        cfg.data_cache_dir,
+        max_episode_steps=env.max_episode_steps,
+    )
+
+
+def _pointmaze_env(cfg: DictConfig) -> EnvBase:
+    env = cfg.env
+    return make_pointmaze_env(
+        env.maze, max_episode_steps=env.max_episode_steps, seed=cfg.seed, device="cpu"
+    )
+
+
+def _pointmaze_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
+    env = cfg.env
+
+    def make_gym_env():
+        return make_pointmaze_gym_env(env.maze, max_episode_steps=env.max_episode_steps)
+
+    def evaluate(policy: nn.Module) -> dict[str, float]:
+        returns = evaluate_episodes(
+            make_gym_env,
+            policy,
+            cfg.budget.eval_episodes,
+            observation_fn=flatten_pointmaze_obs,
+            action_fn=lambda a: np.clip(a, -1.0, 1.0),
+            seed=10_000 + cfg.seed,
+            device=cfg.device,
+        )
+        mean = float(returns.mean())
+        return {
+            "return": mean,
+            "return_std": float(returns.std()),
+            "normalized_score": float(data.normalized_score(mean)),
+        }
+
+    return evaluate
+
+
+# ----------------------------------------------------------------------------- Frozen-Lake
+@dataclass
+class FrozenLakeSettings:
+    """``env/frozenlake.yaml``: slippery Frozen-Lake with the paper's slip shift."""
+
+    name: str = key(Text(), "used in output_dir and the plot title")
+    kind: str = key(Text(), "the ENV_KITS entry")
+    map_name: str = key(Choice(FROZENLAKE_MAPS), "map")
+    offline_success_rate: float = key(Real(0, 1, low_open=True), "intended-move probability")
+    online_success_rate: float = key(Real(0, 1, low_open=True), "intended-move probability")
+    epsilon: float = key(Real(0, 1), "random-action probability of the behaviour policy")
+    max_episode_steps: int = key(Integer(1), "time limit of an episode")
+
+
+def _frozenlake_data(cfg: DictConfig) -> OfflineDataset:
+    env = cfg.env
+    return load_or_generate_frozenlake_dataset(
+        env.map_name,
+        cfg.budget.dataset_transitions,
+        cfg.seed,
+        cfg.data_cache_dir,
+        success_rate=env.offline_success_rate,
+        eval_success_rate=env.online_success_rate,
+        epsilon=env.epsilon,
+        max_episode_steps=env.max_episode_steps,
+    )
+
+
+def _frozenlake_env(cfg: DictConfig) -> EnvBase:
+    env = cfg.env
+    return make_frozenlake_env(
+        env.map_name,
+        success_rate=env.online_success_rate,
+        seed=cfg.seed,
+        max_episode_steps=env.max_episode_steps,
+    )
+
+
+def _frozenlake_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
+    """The exact success probability of the greedy policy (value iteration, no sampling)."""
+    env = cfg.env
+    num_states = frozenlake_num_states(env.map_name)
+
+    def evaluate(policy: nn.Module) -> dict[str, float]:
+        actions = frozenlake_policy_actions(policy, num_states, cfg.device)
+        success = float(
+            frozenlake_success_probability(
+                actions, env.map_name, env.online_success_rate, horizon=env.max_episode_steps
+            )
+        )
+        return {"return": success, "normalized_score": float(data.normalized_score(success))}
+
+    return evaluate
+
+
+def one_hot_argmax(action: torch.Tensor) -> torch.Tensor:
+    """The executed discrete action as a one-hot vector (what the env receives)."""
+    return nn.functional.one_hot(action.argmax(-1), action.shape[-1]).to(action.dtype)
+
+
+# ----------------------------------------------------------------------------- the table
+ENV_KITS: dict[str, EnvKit] = {
+    "pointmaze": EnvKit(PointMazeSettings, _pointmaze_data, _pointmaze_env, _pointmaze_evaluator),
+    "frozenlake": EnvKit(
+        FrozenLakeSettings,
+        _frozenlake_data,
+        _frozenlake_env,
+        _frozenlake_evaluator,
+        action_projection=one_hot_argmax,
+    ),
+}
+"""``env.kind`` -> :class:`EnvKit`."""
+
+
+def env_kit(cfg: DictConfig) -> EnvKit:
+    return ENV_KITS[cfg.env.kind]
+
+
+def make_offline_dataset(cfg: DictConfig) -> OfflineDataset:
+    """``D_offline`` from the cache (or generated and cached), checked (Alg. 1 line 1)."""
+    data = env_kit(cfg).load_data(cfg)
+    try:
+        validate_transitions(data.transitions)
+    except ValueError as err:
+        cache = cfg.data_cache_dir if cfg.data_cache_dir is not None else default_cache_dir()
+        raise UserError(
+            "data_cache_dir",
+            cache,
+            f"the cached offline data of env={cfg.env.name} is invalid: {err} Delete its "
+            "entry in the cache to regenerate it.",
+        ) from err
+    return data
+
+
+def make_train_env(cfg: DictConfig) -> EnvBase:
+    """The online env with :class:`PreviousTransition`, which carries ``(s_{t-1}, a_{t-1})``
+    to the policy; the policy turns them into ``d_t`` of Eq. (10)."""
+    return env_kit(cfg).make_env(cfg).append_transform(PreviousTransition())
+
+
+def check_dims(env: EnvBase, data: OfflineDataset, name: Any = None) -> None:
+    """Fails when the data set and the env disagree on observation or action size."""
+    obs_dim = env.observation_spec["observation"].shape[-1]
+    action_dim = env.action_spec.shape[-1]
+    if (data.obs_dim, data.action_dim) != (obs_dim, action_dim):
+        raise UserError(
+            None if name is None else "env",
+            name,
+            f"the offline data has observation/action dims ({data.obs_dim}, "
+            f"{data.action_dim}) but the env has ({obs_dim}, {action_dim}). Regenerate the "
+            "data for this env (delete its cache entry) or pick the matching env.",
+        )
+
+
+def make_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
+    """Deterministic evaluation returning the mean return and the normalized score."""
+    return env_kit(cfg).make_evaluator(cfg, data)

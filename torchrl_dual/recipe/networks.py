@@ -1,0 +1,94 @@
+"""DUAL's networks, loss and acting policy built from the config (Algorithm 1 line 1).
+
+Each ``make_*`` builds one part; :class:`~torchrl_dual.recipe.DualRun` calls them in a
+fixed order (teacher, transition-model copy, actor, critics) so a seed gives the same
+weights.
+"""
+
+from __future__ import annotations
+
+import copy
+
+from omegaconf import DictConfig
+from tensordict.nn import TensorDictSequential
+from torchrl.data.tensor_specs import TensorSpec
+
+from torchrl_dual import PlannerActor, TransitionModel, WeightedMAPActorLoss, make_dual_policy
+from torchrl_dual.data import OfflineDataset
+from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
+from torchrl_dual.recipe.critics import Critic
+from torchrl_dual.recipe.env_kits import env_kit
+
+TRANSITION_MODELS = ("frozen", "shared")
+"""Where Eq. (10)'s ``ŝ_t`` comes from (``exploration.transition_model``)."""
+
+
+def make_planner(cfg: DictConfig, data: OfflineDataset) -> TrajectoryDiffusion:
+    """The N-step diffusion planner ``g_θ'`` (Eq. 3), its normalizer fitted on ``D_offline``."""
+    p = cfg.planner
+    layout = TrajectoryLayout(data.obs_dim, data.action_dim, p.horizon)
+    model = TrajectoryDiffusion(
+        layout, num_steps=p.num_steps, schedule=p.schedule, hidden=p.hidden, depth=p.depth
+    )
+    model.normalizer.fit(data.transitions["observation"], data.transitions["action"])
+    return model.to(cfg.device)
+
+
+def one_step_like(teacher: TrajectoryDiffusion) -> TrajectoryDiffusion:
+    """An untrained copy of the teacher's architecture with ``num_steps = 1`` (for loading
+    the distilled student into)."""
+    student = copy.deepcopy(teacher)
+    student.num_steps = 1
+    return student
+
+
+def make_actor(cfg: DictConfig, teacher: TrajectoryDiffusion) -> PlannerActor:
+    """The actor ``π_θ`` (Eq. 5, 7): a one-step planner shaped like the teacher, whose
+    weights the distillation loads."""
+    return PlannerActor(
+        one_step_like(teacher), latent=cfg.actor.latent, init_std=cfg.actor.init_std
+    )
+
+
+def make_transition_model(
+    cfg: DictConfig, teacher: TrajectoryDiffusion, actor: PlannerActor
+) -> TransitionModel:
+    """``p(s' | s, a; θ)``, the source of Eq. (10)'s ``ŝ_t`` (``exploration.transition_model``).
+
+    ``frozen``: its own frozen copy of the distilled student (loaded after distillation),
+    which the actor's fine-tuning leaves alone; saved inside the ensemble. ``shared``: the
+    actor's own fine-tuned planner (Alg. 1's single ``θ``), held by reference and saved
+    only as the actor's weights.
+    """
+    if cfg.exploration.transition_model == "frozen":
+        return TransitionModel(one_step_like(teacher))
+    return TransitionModel(actor.model, frozen=False)
+
+
+def make_actor_loss(cfg: DictConfig, actor: PlannerActor, critic: Critic) -> WeightedMAPActorLoss:
+    """The weighted MAP actor loss of Eq. (7) on the critics."""
+    a = cfg.actor
+    return WeightedMAPActorLoss.from_iql(
+        actor,
+        critic.loss,
+        weighting=a.weighting,
+        temperature=a.temperature,
+        max_weight=a.max_weight,
+    )
+
+
+def make_policy(
+    cfg: DictConfig, actor: PlannerActor, action_spec: TensorSpec, transition: TransitionModel
+) -> TensorDictSequential:
+    """DUAL's acting policy: the Laplace ensemble (Eq. 9), which also answers the transition
+    model's ``ŝ_t`` in its trunk pass, then the shift-aware noise (Eq. 10)."""
+    return make_dual_policy(
+        actor,
+        action_spec,
+        transition_model=transition,
+        num_samples=cfg.laplace.num_samples,
+        prior_precision=cfg.laplace.prior_precision,
+        shift_weight=cfg.exploration.shift_weight,
+        action_projection=env_kit(cfg).action_projection,
+        device=cfg.device,
+    )
