@@ -1,9 +1,20 @@
-"""A bimodal toy data set of 1-D trajectories that go either left or right."""
+"""Plain helpers of the test suite (importable as ``toy`` from any test directory).
+
+* a bimodal toy data set of 1-D trajectories that go either left or right;
+* the one-step planner's reference computations (the unfolded path the exact fast path
+  must equal) and the weight changes every cache of derived tensors must notice.
+"""
 
 from __future__ import annotations
 
+import copy
+
 import torch
 from tensordict import TensorDict
+from torch import nn
+
+from torchrl_dual.diffusion import TrajectoryDiffusion
+from torchrl_dual.modules import PlannerSampler
 
 LEFT_FRACTION = 0.3
 
@@ -51,3 +62,88 @@ def mode_statistics(windows: torch.Tensor, observation: torch.Tensor) -> tuple[f
     dist = torch.stack([((windows - m) ** 2).mean((-2, -1)).sqrt() for m in modes], dim=-1)
     left = (windows[..., 1].mean(-1) < 0).float().mean()
     return float(left), float(dist.min(-1).values.mean())
+
+
+# ----------------------------------------------------------------------------- one-step planner
+def transition_inputs(
+    *batch: int, obs_dim: int = 3, action_dim: int = 2, seed: int = 1
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(s_t, s_{t-1}, a_{t-1})`` in raw units, the inputs of DUAL's two acting queries."""
+    gen = torch.Generator().manual_seed(seed)
+    return (
+        torch.randn(*batch, obs_dim, generator=gen) * 2.0 + 1.0,
+        torch.randn(*batch, obs_dim, generator=gen) * 2.0 + 1.0,
+        torch.randn(*batch, action_dim, generator=gen) * 0.5,
+    )
+
+
+def fine_tuned(model: nn.Module, *, scale: float = 0.05, seed: int = 7) -> nn.Module:
+    """A deep copy of ``model`` whose parameters moved by ``scale``-sized noise."""
+    twin = copy.deepcopy(model)
+    gen = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for parameter in twin.parameters():
+            parameter.add_(scale * torch.randn(parameter.shape, generator=gen))
+    return twin
+
+
+def plain_features(
+    model: TrajectoryDiffusion, observation: torch.Tensor, action: torch.Tensor | None = None
+) -> torch.Tensor:
+    """The unfolded trunk ``φ`` of a zero-latent query at ``t = 1`` (``s_0`` or ``s_0, a_0``)."""
+    norm = model.normalizer
+    action = None if action is None else norm.normalize_action(action)
+    z, mask = model.layout.conditioned_window(norm.normalize_observation(observation), action)
+    return model.denoiser.features(z, torch.ones(z.shape[:-2], dtype=z.dtype), mask)
+
+
+def plain_prediction(
+    model: TrajectoryDiffusion, observation: torch.Tensor, action: torch.Tensor
+) -> torch.Tensor:
+    """The zero-latent transition prediction ``ŝ'`` through the general sampler."""
+    return PlannerSampler(model).predict_next_observation(observation, action, deterministic=True)
+
+
+WEIGHT_CHANGES = ("adam", "adam_foreach", "load_state_dict", "normalizer_fit", "double")
+
+
+def apply_weight_change(model: TrajectoryDiffusion, change: str) -> None:
+    """Changes the planner's tensors in one of the ways a cache of derived tensors must notice.
+
+    ``adam*`` takes two optimizer steps (for a frozen model, an in-place edit of every
+    weight instead), ``load_state_dict`` copies other weights in, ``normalizer_fit``
+    refits the statistics and ``double`` replaces every tensor (``.to()``).
+    """
+    layout = model.layout
+    if change.startswith("adam"):
+        parameters = [p for p in model.parameters() if p.requires_grad]
+        if not parameters:
+            with torch.no_grad():
+                for parameter in model.parameters():
+                    parameter.mul_(1.1)
+            return
+        optimizer = torch.optim.Adam(parameters, lr=0.05, foreach=change == "adam_foreach")
+        z, mask = layout.conditioned_window(torch.randn(5, layout.obs_dim))
+        for _ in range(2):
+            optimizer.zero_grad()
+            model.denoiser(z, torch.ones(5), mask).square().mean().backward()
+            optimizer.step()
+    elif change == "load_state_dict":
+        model.load_state_dict(fine_tuned(model, scale=0.5, seed=3).state_dict())
+    elif change == "normalizer_fit":
+        gen = torch.Generator().manual_seed(4)
+        model.normalizer.fit(
+            torch.randn(64, layout.obs_dim, generator=gen) * 5.0 - 1.0,
+            torch.randn(64, layout.action_dim, generator=gen) + 1.0,
+        )
+    elif change == "double":
+        model.double()
+    else:
+        raise ValueError(f"unknown change {change!r}")
+
+
+def assert_all_close(got, expected, *, tol: float = 1e-5) -> None:
+    """``torch.testing.assert_close`` over two equally long sequences of tensors."""
+    assert len(got) == len(expected), (len(got), len(expected))
+    for a, b in zip(got, expected, strict=True):
+        torch.testing.assert_close(a, b, rtol=tol, atol=tol)

@@ -1,4 +1,6 @@
-"""The folded first layer of the one-step actor equals the general path, and follows weight changes."""
+"""Tests of ``OneStepFold`` (``torchrl_dual/diffusion/_fast_path/one_step_fold.py``): the folded
+first layer and read-out of the one-step planner equal the general path, and follow every
+change of the tensors they are derived from."""
 
 from __future__ import annotations
 
@@ -6,107 +8,119 @@ import copy
 
 import pytest
 import torch
+from torch.nn import functional as F  # noqa: N812
+from toy import (
+    WEIGHT_CHANGES,
+    apply_weight_change,
+    assert_all_close,
+    plain_features,
+    plain_prediction,
+    transition_inputs,
+)
 
-from torchrl_dual.modules import PlannerActor, TransitionModel
+from torchrl_dual.diffusion._fast_path.one_step_fold import OneStepFold
 
 
-def _actor(make_model, seed: int = 0) -> PlannerActor:
-    torch.manual_seed(seed)
-    model = make_model(num_steps=1)
+def _model(make_model, seed: int = 0):
+    model = make_model(num_steps=1, seed=seed)
     gen = torch.Generator().manual_seed(seed)
-    model.normalizer.fit(  # non-trivial mean and scale, so the folding of (μ, σ) matters
+    model.normalizer.fit(  # per-dimension mean and scale, so the folding of (μ, σ) matters
         torch.randn(256, 3, generator=gen) * torch.tensor([0.5, 2.0, 4.0]) + 3.0,
         torch.randn(256, 2, generator=gen) * 0.3 - 0.2,
     )
-    return PlannerActor(model)
+    return model
 
 
-def _general(actor, observation, previous_observation=None, previous_action=None):
-    """The unfolded path (autograd on), detached."""
-    with torch.enable_grad():
-        if previous_observation is None:
-            return actor.features(observation).detach()
-        out = actor.encode_with_transition(observation, previous_observation, previous_action)
-        return tuple(x.detach() for x in out)
+def _fold(model) -> OneStepFold:
+    layout = model.layout
+    sigma_1 = float(model.schedule(torch.ones(()))[1])
+    rows = slice(layout.transition_dim, layout.transition_dim + layout.obs_dim)
+    return OneStepFold(model, sigma_1, rows)
 
 
-def _inputs(*batch, seed=1):
-    gen = torch.Generator().manual_seed(seed)
+def _folded(fold, model, observation, previous_observation, previous_action):
+    """``(φ(s_t), φ(s_{t-1}, a_{t-1}), ŝ_t)`` computed from the folded tensors alone."""
+    w_state, w_action, const, w_next, b_next = fold.tensors()
+    trunk = model.denoiser.trunk
+    policy = trunk(F.linear(observation, w_state, const[0]))
+    query = F.linear(previous_observation, w_state, const[1]) + F.linear(previous_action, w_action)
+    transition = trunk(query)
+    return policy, transition, F.linear(transition, w_next, b_next)
+
+
+def _general(model, observation, previous_observation, previous_action):
     return (
-        torch.randn(*batch, 3, generator=gen) * 2.0 + 3.0,
-        torch.randn(*batch, 3, generator=gen) * 2.0 + 3.0,
-        torch.randn(*batch, 2, generator=gen) * 0.3,
+        plain_features(model, observation),
+        plain_features(model, previous_observation, previous_action),
+        plain_prediction(model, previous_observation, previous_action),
     )
 
 
 @pytest.mark.parametrize("batch", [(), (7,), (2, 3)], ids=["unbatched", "B", "B0xB1"])
-def test_folded_features_and_shared_pass_equal_the_general_path(make_model, batch):
-    actor = _actor(make_model)
-    observation, previous_observation, previous_action = _inputs(*batch)
+def test_folded_queries_equal_the_general_path(make_model, batch):
+    model = _model(make_model)
+    inputs = transition_inputs(*batch)
     with torch.no_grad():
-        folded = actor.features(observation)
-        shared = actor.encode_with_transition(observation, previous_observation, previous_action)
-        reference = TransitionModel(actor.model).predict(previous_observation, previous_action)
-    torch.testing.assert_close(folded, _general(actor, observation), rtol=1e-5, atol=1e-5)
-    general = _general(actor, observation, previous_observation, previous_action)
-    for got, expected in zip(shared, general, strict=True):
-        torch.testing.assert_close(got, expected, rtol=1e-5, atol=1e-5)
-    torch.testing.assert_close(shared[2], reference, rtol=1e-5, atol=1e-5)
+        folded = _folded(_fold(model), model, *inputs)
+        general = _general(model, *inputs)
+    assert folded[0].shape == (*batch, model.denoiser.feature_dim)
+    assert folded[2].shape == (*batch, 3)
+    assert_all_close(folded, general)
+
+
+def test_folded_tensors_have_the_documented_shapes(make_model):
+    w_state, w_action, const, w_next, b_next = _fold(_model(make_model)).tensors()
+    hidden = 32
+    assert (w_state.shape, w_action.shape, const.shape) == ((hidden, 3), (hidden, 2), (2, hidden))
+    assert (w_next.shape, b_next.shape) == ((3, hidden), (3,))
 
 
 def test_folded_tensors_are_reused_until_a_source_tensor_changes(make_model):
-    actor = _actor(make_model)
-    first = actor._fold.tensors()
-    assert actor._fold.tensors() is first  # cache hit: nothing was recomputed
+    model = _model(make_model)
+    fold = _fold(model)
+    first = fold.tensors()
+    assert fold.tensors() is first  # cache hit: nothing was recomputed
     with torch.no_grad():
-        actor.model.denoiser.blocks[0].net[1].weight.add_(1.0)  # not an input of the fold
-    assert actor._fold.tensors() is first
+        model.denoiser.blocks[0].net[1].weight.add_(1.0)  # not an input of the fold
+    assert fold.tensors() is first
     with torch.no_grad():
-        actor.model.denoiser.input_layer.bias.add_(1.0)
-    assert actor._fold.tensors() is not first
+        model.denoiser.input_layer.bias.add_(1.0)
+    assert fold.tensors() is not first
+    second = fold.tensors()
+    model.normalizer.obs_mean.add_(1.0)  # the normalizer is a source too
+    assert fold.tensors() is not second
 
 
-@pytest.mark.parametrize(
-    "change",
-    ["adam", "adam_foreach", "load_state_dict", "normalizer_fit", "double"],
-)
-def test_folded_path_follows_every_kind_of_weight_change(make_model, change):
-    actor = _actor(make_model)
-    observation, previous_observation, previous_action = _inputs(5)
+@pytest.mark.parametrize("change", WEIGHT_CHANGES)
+def test_folded_queries_follow_every_kind_of_weight_change(make_model, change):
+    model = _model(make_model)
+    fold = _fold(model)
+    inputs = transition_inputs(5)
     with torch.no_grad():
-        actor.encode_with_transition(observation, previous_observation, previous_action)
-    if change.startswith("adam"):
-        optimizer = torch.optim.Adam(actor.parameters(), lr=0.05, foreach=change == "adam_foreach")
-        for _ in range(2):
-            optimizer.zero_grad()
-            target = torch.randn(5, 2)
-            (actor(observation) - target).pow(2).mean().backward()
-            optimizer.step()
-    elif change == "load_state_dict":
-        actor.load_state_dict(_actor(make_model, seed=3).state_dict())
-    elif change == "normalizer_fit":
-        actor.model.normalizer.fit(torch.randn(64, 3) * 5 - 1, torch.randn(64, 2) + 1)
-    else:
-        actor.double()
-        observation, previous_observation, previous_action = (
-            x.double() for x in (observation, previous_observation, previous_action)
-        )
+        before = _folded(fold, model, *inputs)
+    apply_weight_change(model, change)
+    dtype = model.denoiser.head.weight.dtype
+    inputs = tuple(x.to(dtype) for x in inputs)
     with torch.no_grad():
-        shared = actor.encode_with_transition(observation, previous_observation, previous_action)
-        folded = actor.features(observation)
-    general = _general(actor, observation, previous_observation, previous_action)
-    for got, expected in zip(shared, general, strict=True):
-        torch.testing.assert_close(got, expected, rtol=1e-5, atol=1e-5)
-    torch.testing.assert_close(folded, general[0], rtol=1e-5, atol=1e-5)
+        folded = _folded(fold, model, *inputs)
+        general = _general(model, *inputs)
+    assert folded[2].dtype == dtype
+    if change != "double":  # the change matters: a stale cache would be caught
+        assert not torch.allclose(folded[2], before[2], atol=1e-4)
+    assert_all_close(folded, general)
 
 
 def test_a_deep_copy_folds_its_own_weights(make_model):
-    actor = _actor(make_model)
-    observation = _inputs(4)[0]
+    model = _model(make_model)
+    fold = _fold(model)
+    inputs = transition_inputs(4)
+    observation = inputs[0]
     with torch.no_grad():
-        actor.features(observation)
-        twin = copy.deepcopy(actor)
-        twin.model.denoiser.input_layer.weight.mul_(-1.0)
-        assert not torch.allclose(twin.features(observation), actor.features(observation))
-        folded = twin.features(observation)
-    torch.testing.assert_close(folded, _general(twin, observation), rtol=1e-5, atol=1e-5)
+        fold.tensors()  # filled before the copy
+        twin, twin_fold = copy.deepcopy((model, fold))  # one memo: the copy folds the copy
+        twin.denoiser.input_layer.weight.mul_(-1.0)
+        mine = _folded(fold, model, *inputs)[0]
+        theirs = _folded(twin_fold, twin, *inputs)[0]
+        assert not torch.allclose(mine, theirs)
+        torch.testing.assert_close(theirs, plain_features(twin, observation), rtol=1e-5, atol=1e-5)
+        torch.testing.assert_close(mine, plain_features(model, observation), rtol=1e-5, atol=1e-5)

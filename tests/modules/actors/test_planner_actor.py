@@ -1,4 +1,6 @@
-"""Tests for the last-layer actors (``μ(s)`` affine in a final ``nn.Linear``, Eq. 5 and Eq. 7)."""
+"""Tests of ``PlannerActor`` (``torchrl_dual/modules/actors/planner_actor.py``), DUAL's actor:
+``μ(s) = τ_{a_0}`` of the one-step planner (Eq. 5, Eq. 7), its exact fast path and the
+transition query it answers in the same pass (Eq. 10)."""
 
 from __future__ import annotations
 
@@ -7,12 +9,42 @@ import copy
 import pytest
 import torch
 from tensordict import TensorDict
-from tensordict.nn import NormalParamExtractor
-from torch import nn
 from torchrl.envs.utils import ExplorationType, set_exploration_type
-from torchrl.modules import MLP
+from toy import (
+    WEIGHT_CHANGES,
+    apply_weight_change,
+    assert_all_close,
+    fine_tuned,
+    plain_prediction,
+    transition_inputs,
+)
 
-from torchrl_dual.modules import LinearHeadActor, PlannerActor, PlannerPolicy, PlannerSampler
+from torchrl_dual.diffusion import TrajectoryDiffusion
+from torchrl_dual.modules import (
+    LastLayerActor,
+    PlannerActor,
+    PlannerPolicy,
+    PlannerSampler,
+    TransitionModel,
+)
+from torchrl_dual.objectives import WeightedMAPActorLoss
+
+TRANSITIONS = ("shared", "frozen-copy")
+PAIRED_TRUNK_DTYPE_BUG = pytest.mark.xfail(
+    strict=True,
+    raises=RuntimeError,
+    reason="package bug: PairedTrunk misses .double() of the denoisers (see test_paired_trunk.py)",
+)
+CHANGE_CASES = [
+    pytest.param(
+        change,
+        kind,
+        id=f"{change}-{kind}",
+        marks=PAIRED_TRUNK_DTYPE_BUG if (change, kind) == ("double", "frozen-copy") else (),
+    )
+    for kind in TRANSITIONS
+    for change in WEIGHT_CHANGES
+]
 
 
 def _with_head(actor, weight: torch.Tensor, bias: torch.Tensor):
@@ -23,8 +55,27 @@ def _with_head(actor, weight: torch.Tensor, bias: torch.Tensor):
     return actor
 
 
-# ----------------------------------------------------------------------------- PlannerActor
-def test_planner_actor_equals_the_deterministic_one_step_planner_policy(make_model):
+def _transition(actor: PlannerActor, kind: str) -> TransitionModel:
+    """The actor's own planner (Algorithm 1's single θ), or a frozen, different copy."""
+    if kind == "shared":
+        return TransitionModel(actor.model, frozen=False)
+    return TransitionModel(fine_tuned(actor.model))
+
+
+def _generic(actor, transition_model, *inputs):
+    """The two plain calls (autograd on: no fast path anywhere), detached."""
+    with torch.enable_grad():
+        out = LastLayerActor.encode_with_transition(actor, inputs[0], transition_model, *inputs[1:])
+    return tuple(x.detach() for x in out)
+
+
+def _fast(actor, transition_model, *inputs):
+    with torch.no_grad():
+        return actor.encode_with_transition(inputs[0], transition_model, *inputs[1:])
+
+
+# ----------------------------------------------------------------------------- the mean action
+def test_the_mean_equals_the_deterministic_one_step_planner_policy(make_model):
     model = make_model(num_steps=1)
     actor = PlannerActor(model)
     observation = torch.randn(6, 3) * 3.0 + 1.5
@@ -37,44 +88,7 @@ def test_planner_actor_equals_the_deterministic_one_step_planner_policy(make_mod
     torch.testing.assert_close(mu, policy_td["action"], rtol=1e-5, atol=1e-5)
 
 
-@pytest.mark.parametrize("batch", [(), (5,), (2, 3)], ids=["unbatched", "B", "B0xB1"])
-@pytest.mark.parametrize("latent", ["zero", "sample"])
-def test_shared_pass_answers_the_policy_and_the_transition_query(make_model, batch, latent):
-    from torchrl_dual.modules import TransitionModel
-
-    model = make_model(num_steps=1)
-    actor = PlannerActor(model, latent=latent)
-    gen = torch.Generator().manual_seed(0)
-    observation = torch.randn(*batch, 3, generator=gen) * 2.0
-    previous_observation = torch.randn(*batch, 3, generator=gen)
-    previous_action = torch.randn(*batch, 2, generator=gen)
-    calls = []
-    original = model.denoiser.trunk
-    model.denoiser.trunk = lambda hidden: calls.append(hidden.shape) or original(hidden)
-    with torch.no_grad():
-        torch.manual_seed(1)
-        features, context, predicted = actor.encode_with_transition(
-            observation, previous_observation, previous_action
-        )
-        assert len(calls) == 1  # one trunk pass for both queries
-        torch.manual_seed(1)
-        with torch.enable_grad():  # the general (unfolded) path
-            alone = actor.features(observation).detach()
-        reference = TransitionModel(model).predict(previous_observation, previous_action)
-    assert features.shape == (*batch, model.denoiser.feature_dim)
-    assert predicted.shape == observation.shape
-    torch.testing.assert_close(features, alone, rtol=1e-5, atol=1e-5)
-    torch.testing.assert_close(predicted, reference, rtol=1e-5, atol=1e-5)
-    torch.testing.assert_close(context, observation)
-
-
-def test_shared_pass_rejects_mismatched_previous_observation(make_model):
-    actor = PlannerActor(make_model(num_steps=1))
-    with pytest.raises(ValueError, match=r"previous_observation \(4, 3\).*\(5, 3\)"):
-        actor.encode_with_transition(torch.zeros(5, 3), torch.zeros(4, 3), torch.zeros(4, 2))
-
-
-def test_planner_actor_mean_is_affine_in_the_head_weights(make_model):
+def test_the_mean_is_affine_in_the_head_weights(make_model):
     actor = PlannerActor(make_model(num_steps=1))
     observation = torch.randn(5, 3)
     gen = torch.Generator().manual_seed(3)
@@ -90,27 +104,170 @@ def test_planner_actor_mean_is_affine_in_the_head_weights(make_model):
     torch.testing.assert_close(mu_ext, 2 * mu1 - mu2, rtol=1e-5, atol=1e-5)
 
 
-def test_planner_actor_readout_scale_is_the_derivative_of_the_action(make_model):
+def test_readout_scale_is_the_derivative_of_the_action(make_model):
     actor = PlannerActor(make_model(num_steps=1))
     observation = torch.randn(4, 3)
-    features = actor.features(observation)
-    head = actor.head_output(features)
+    head = actor.head_output(actor.features(observation))
     delta = 0.5
     shifted = actor.readout(head + delta, observation) - actor.readout(head, observation)
     torch.testing.assert_close(shifted.abs() / delta, actor.readout_scale().expand(4, 2))
+    torch.testing.assert_close(
+        actor.readout_scale(), actor.sigma_1 * actor.model.normalizer.action_std
+    )
 
 
-def test_planner_actor_features_feed_the_head_that_gives_the_mean(make_model):
+def test_features_feed_the_head_that_gives_the_mean(make_model):
     actor = PlannerActor(make_model(num_steps=1))
     observation = torch.randn(4, 3)
     features = actor.features(observation)
     assert features.shape == (4, actor.head.in_features)
+    assert actor.head is actor.model.denoiser.head
+    assert actor.head_rows.tolist() == [3, 4]  # a_0: row 0, after the 3 state entries
     torch.testing.assert_close(
         actor.readout(actor.head_output(features), observation), actor(observation)
     )
 
 
-def test_planner_actor_rejects_a_multi_step_model_and_bad_options(make_model):
+# ----------------------------------------------------------------------------- fast path
+@pytest.mark.parametrize("batch", [(), (7,), (2, 3)], ids=["unbatched", "B", "B0xB1"])
+def test_fast_features_equal_the_plain_features(make_model, batch):
+    actor = PlannerActor(make_model(num_steps=1))
+    observation = transition_inputs(*batch)[0]
+    with torch.no_grad():
+        fast = actor.features(observation)
+    with torch.enable_grad():
+        plain = actor.features(observation)
+    assert plain.requires_grad and not fast.requires_grad  # the two paths really ran
+    torch.testing.assert_close(fast, plain.detach(), rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("batch", [(), (5,), (2, 3)], ids=["unbatched", "B", "B0xB1"])
+@pytest.mark.parametrize("kind", TRANSITIONS)
+def test_encode_with_transition_fast_equals_the_generic_two_calls(
+    make_model, monkeypatch, batch, kind
+):
+    actor = PlannerActor(make_model(num_steps=1))
+    transition = _transition(actor, kind)
+    inputs = transition_inputs(*batch)
+    calls = []
+    original = actor._fast.features_with_transition
+    monkeypatch.setattr(
+        actor._fast, "features_with_transition", lambda *a: calls.append(1) or original(*a)
+    )
+    fast = _fast(actor, transition, *inputs)
+    assert calls == [1]  # the one-pass shortcut was taken
+    features, context, predicted = fast
+    assert features.shape == (*batch, actor.head.in_features)
+    assert predicted.shape == inputs[0].shape
+    torch.testing.assert_close(context, inputs[0])
+    assert_all_close(fast, _generic(actor, transition, *inputs))
+    torch.testing.assert_close(predicted, plain_prediction(transition.model, *inputs[1:]))
+
+
+@pytest.mark.parametrize(
+    "incompatible",
+    ["multi-step", "sample-latent", "other-width"],
+)
+def test_an_incompatible_transition_model_falls_back_to_two_correct_calls(
+    make_model, monkeypatch, incompatible
+):
+    actor = PlannerActor(make_model(num_steps=1))
+    if incompatible == "multi-step":
+        transition = TransitionModel(make_model(num_steps=2))
+    elif incompatible == "sample-latent":
+        transition = TransitionModel(fine_tuned(actor.model), latent="sample")
+    else:
+        transition = TransitionModel(
+            TrajectoryDiffusion(actor.model.layout, num_steps=1, hidden=16, depth=1)
+        )
+
+    def not_taken(*args):
+        raise AssertionError("the one-pass shortcut does not apply to this transition model")
+
+    monkeypatch.setattr(actor._fast, "features_with_transition", not_taken)
+    inputs = transition_inputs(4)
+    torch.manual_seed(0)
+    fast = _fast(actor, transition, *inputs)
+    torch.manual_seed(0)
+    with torch.no_grad():
+        features = actor.features(inputs[0])
+        predicted = transition.predict(*inputs[1:])
+    assert_all_close(fast, (features, inputs[0], predicted))
+
+
+def test_gradients_flow_through_the_policy_query_with_autograd(make_model):
+    actor = PlannerActor(make_model(num_steps=1))
+    frozen = TransitionModel.frozen_copy(actor.model)
+    observation, previous_observation, previous_action = transition_inputs(4)
+    features, context, predicted = actor.encode_with_transition(
+        observation, frozen, previous_observation, previous_action
+    )
+    assert features.requires_grad and not predicted.requires_grad
+    actor.readout(actor.head_output(features), context).sum().backward()
+    for name in ("input_layer.weight", "blocks.0.net.1.weight", "head.weight"):
+        assert actor.model.denoiser.get_parameter(name).grad.abs().sum() > 0, name
+    assert all(p.grad is None for p in frozen.parameters())
+    shared = TransitionModel(actor.model, frozen=False)
+    predicted = actor.encode_with_transition(
+        observation, shared, previous_observation, previous_action
+    )[2]
+    assert predicted.requires_grad  # shared weights: ŝ_t is a function of the actor's θ
+
+
+def test_a_mismatched_previous_observation_is_rejected(make_model):
+    actor = PlannerActor(make_model(num_steps=1))
+    shared = TransitionModel(actor.model, frozen=False)
+    with pytest.raises(ValueError, match=r"previous_observation \(4, 3\).*\(5, 3\)"):
+        actor.encode_with_transition(
+            torch.zeros(5, 3), shared, torch.zeros(4, 3), torch.zeros(4, 2)
+        )
+
+
+@pytest.mark.parametrize("change, kind", CHANGE_CASES)
+def test_the_fast_path_follows_every_kind_of_weight_change(make_model, change, kind):
+    actor = PlannerActor(make_model(num_steps=1))
+    transition = _transition(actor, kind)
+    inputs = transition_inputs(5)
+    before = _fast(actor, transition, *inputs)  # fills every cache
+    apply_weight_change(actor.model, change)
+    if kind == "frozen-copy":
+        apply_weight_change(transition.model, change)
+    if change == "double":
+        actor.double()
+        inputs = tuple(x.double() for x in inputs)
+    fast = _fast(actor, transition, *inputs)
+    with torch.no_grad():
+        folded = actor.features(inputs[0])
+    if change != "double":
+        assert not torch.allclose(fast[2], before[2], atol=1e-4)
+    assert_all_close(fast, _generic(actor, transition, *inputs))
+    torch.testing.assert_close(folded, fast[0], rtol=1e-5, atol=1e-5)
+
+
+def test_the_paired_pass_follows_actor_training_and_leaves_a_frozen_copy_alone(make_model):
+    actor = PlannerActor(make_model(num_steps=1))
+    frozen = TransitionModel.frozen_copy(actor.model)
+    before = copy.deepcopy(frozen.state_dict())
+    loss = WeightedMAPActorLoss(actor, weighting="uniform")
+    optimizer = torch.optim.Adam(loss.parameters(), lr=0.05)
+    inputs = transition_inputs(8)
+    first = _fast(actor, frozen, *inputs)  # fills the caches
+    batch = TensorDict(observation=inputs[0], action=torch.randn(8, 2), batch_size=[8])
+    for _ in range(3):
+        optimizer.zero_grad()
+        loss(batch)["loss_actor"].backward()
+        assert all(p.grad is None for p in frozen.parameters())
+        optimizer.step()
+    for key, value in frozen.state_dict().items():
+        assert torch.equal(value, before[key]), key
+    after = _fast(actor, frozen, *inputs)
+    assert not torch.allclose(after[0], first[0], atol=1e-4)  # the actor moved
+    torch.testing.assert_close(after[2], first[2])  # ŝ_t did not
+    assert_all_close(after, _generic(actor, frozen, *inputs))
+
+
+# ----------------------------------------------------------------------------- options
+def test_a_multi_step_model_and_bad_options_are_rejected(make_model):
     with pytest.raises(ValueError, match="one-step planner, got num_steps=4"):
         PlannerActor(make_model(num_steps=4))
     with pytest.raises(ValueError, match="choose one of"):
@@ -121,71 +278,20 @@ def test_planner_actor_rejects_a_multi_step_model_and_bad_options(make_model):
         PlannerActor(make_model(num_steps=1))(torch.randn(2, 4))
 
 
-# ----------------------------------------------------------------------------- LinearHeadActor
-def test_linear_head_actor_mean_is_the_loc_half_of_a_torchrl_mlp_actor():
-    net = nn.Sequential(
-        MLP(in_features=3, out_features=4, num_cells=[8, 8]), NormalParamExtractor()
-    )
-    actor = LinearHeadActor(net[0], 2)
-    observation = torch.randn(5, 3)
-    loc, _ = net(observation)
-    torch.testing.assert_close(actor(observation), loc)
-    assert actor.head is net[0][-1]
-    torch.testing.assert_close(actor.readout_scale(), torch.ones(2))
+def test_a_sampled_latent_needs_a_schedule_that_ends_in_pure_noise(make_model, make_layout):
+    from torchrl_dual.diffusion import TrajectoryDiffusion
+
+    linear = TrajectoryDiffusion(make_layout(), schedule="linear", num_steps=1, hidden=8, depth=1)
+    with pytest.raises(ValueError, match=r"latent='sample' needs .*'linear' schedule has α_1"):
+        PlannerActor(linear, latent="sample")
+    PlannerActor(linear)  # the zero latent is fine with any schedule
 
 
-def test_linear_head_actor_rejects_networks_not_ending_in_linear():
-    with pytest.raises(TypeError, match="last module is nn.Linear, got Tanh"):
-        LinearHeadActor(
-            MLP(in_features=3, out_features=2, num_cells=[8], activate_last_layer=True), 2
-        )
-    with pytest.raises(TypeError, match="empty network"):
-        LinearHeadActor(nn.Sequential(), 2)
-    with pytest.raises(ValueError, match="fewer than action_dim=3"):
-        LinearHeadActor(MLP(in_features=3, out_features=2, num_cells=[8]), 3)
-
-
-def test_std_is_the_clamped_exp_of_log_std():
-    actor = LinearHeadActor(
-        MLP(in_features=3, out_features=2, num_cells=[8]), 2, min_std=0.1, max_std=1.0
-    )
+def test_a_sampled_latent_draws_a_new_mean_at_every_call(make_model):
+    actor = PlannerActor(make_model(num_steps=1), latent="sample")
+    observation = torch.randn(4, 3)
     with torch.no_grad():
-        actor.log_std.copy_(torch.tensor([-10.0, 10.0]))
-    torch.testing.assert_close(actor.std, torch.tensor([0.1, 1.0]))
-
-
-# ----------------------------------------------------------------------------- from_actor
-def _iql_actor():
-    from tensordict.nn import TensorDictModule
-    from torchrl.modules import ProbabilisticActor, TanhNormal
-
-    torch.manual_seed(0)
-    net = nn.Sequential(
-        MLP(in_features=3, out_features=4, num_cells=[16, 16]), NormalParamExtractor()
-    )
-    module = TensorDictModule(net, in_keys=["observation"], out_keys=["loc", "scale"])
-    return ProbabilisticActor(module, in_keys=["loc", "scale"], distribution_class=TanhNormal)
-
-
-def test_from_actor_shares_the_weights_of_a_torchrl_probabilistic_actor():
-    iql_actor = _iql_actor()
-    actor = LinearHeadActor.from_actor(iql_actor)
-    observation = torch.randn(6, 3)
-    td = iql_actor(TensorDict({"observation": observation}, [6]))
-    assert actor.action_dim == 2
-    torch.testing.assert_close(actor(observation), td["loc"])
-    with torch.no_grad():  # training the TorchRL actor moves the wrapped one too
-        iql_actor.module[0].module[0][-1].bias.add_(1.0)
-    td = iql_actor(TensorDict({"observation": observation}, [6]))
-    torch.testing.assert_close(actor(observation), td["loc"])
-
-
-def test_from_actor_unwraps_modules_and_plain_networks_and_rejects_others():
-    from tensordict.nn import TensorDictModule
-
-    mlp = MLP(in_features=3, out_features=2, num_cells=[8])
-    for wrapped in (mlp, TensorDictModule(mlp, in_keys=["observation"], out_keys=["action"])):
-        actor = LinearHeadActor.from_actor(wrapped)
-        assert actor.action_dim == 2 and actor.head is mlp[-1]
-    with pytest.raises(TypeError, match=r"no final nn.Linear.*Tanh"):
-        LinearHeadActor.from_actor(nn.Sequential(nn.Linear(3, 2), nn.Tanh()))
+        assert not torch.allclose(actor(observation), actor(observation))
+    zero = PlannerActor(actor.model)
+    with torch.no_grad():
+        assert torch.equal(zero(observation), zero(observation))

@@ -1,0 +1,85 @@
+"""Tests of the ``LastLayerActor`` base class (``torchrl_dual/modules/actors/last_layer_actor.py``):
+``μ(s) = readout((W φ(s) + b)[rows], context)``, the split Eq. 7-9 work on."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+from torch import nn
+from torchrl.modules import MLP
+from toy import transition_inputs
+
+from torchrl_dual.modules import LastLayerActor, LinearHeadActor, TransitionModel
+
+
+class _Affine(LastLayerActor):
+    """``μ(s) = 2 · (W s + b)[1:3] + s[..., :2]``: a read-out with a scale and a shift."""
+
+    def __init__(self) -> None:
+        super().__init__(2)
+        self.head = nn.Linear(3, 4)
+        self._set_head_rows(1, 3)
+
+    def features(self, observation):
+        return observation
+
+    def readout(self, head_rows, context):
+        return 2.0 * head_rows + context[..., :2]
+
+    def readout_scale(self):
+        return torch.full((2,), 2.0)
+
+
+def test_the_mean_is_the_readout_of_the_selected_head_rows():
+    actor = _Affine()
+    observation = torch.randn(5, 3)
+    expected = 2.0 * actor.head(observation)[:, 1:3] + observation[:, :2]
+    torch.testing.assert_close(actor(observation), expected)
+    weight, bias = actor.head_parameters()
+    assert weight.data_ptr() == actor.head.weight[1].data_ptr()  # views of the head
+    torch.testing.assert_close(actor.head_output(observation), actor.head(observation)[:, 1:3])
+    assert actor.head_rows.tolist() == [1, 2] and "head_rows" in actor.state_dict()
+
+
+def test_std_is_the_clamped_exp_of_log_std_and_saved_with_the_actor():
+    actor = LinearHeadActor(
+        MLP(in_features=3, out_features=2, num_cells=[8]), 2, min_std=0.1, max_std=1.0
+    )
+    torch.testing.assert_close(actor.std, torch.full((2,), 0.3))
+    with torch.no_grad():
+        actor.log_std.copy_(torch.tensor([-10.0, 10.0]))
+    torch.testing.assert_close(actor.std, torch.tensor([0.1, 1.0]))
+    assert actor.state_dict()["log_std"].tolist() == [-10.0, 10.0]
+    assert math.isclose(actor.min_log_std, math.log(0.1))
+
+
+def test_an_init_std_outside_the_bounds_is_rejected():
+    with pytest.raises(
+        ValueError, match=r"init_std=3.0 must lie in \[min_std=0.001, max_std=2.0\]"
+    ):
+        LastLayerActor(2, init_std=3.0)
+
+
+def test_a_subclass_without_features_or_encode_says_what_to_override():
+    class Bare(LastLayerActor):
+        pass
+
+    actor = Bare(2)
+    with pytest.raises(NotImplementedError, match="Bare must override features\\(\\) or encode"):
+        actor.features(torch.zeros(1, 3))
+    with pytest.raises(NotImplementedError):
+        actor.readout(torch.zeros(1, 2), torch.zeros(1, 3))
+
+
+def test_encode_with_transition_is_encode_and_the_transition_prediction(make_model):
+    actor = _Affine()
+    transition = TransitionModel(make_model(num_steps=1))
+    observation, previous_observation, previous_action = transition_inputs(4)
+    features, context, predicted = actor.encode_with_transition(
+        observation, transition, previous_observation, previous_action
+    )
+    torch.testing.assert_close(features, observation)
+    assert context is observation
+    torch.testing.assert_close(predicted, transition.predict(previous_observation, previous_action))
