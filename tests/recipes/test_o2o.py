@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
 
 from torchrl_dual.data import OfflineDataset, make_transitions
 from torchrl_dual.data.cache import load_cached_dataset, save_cached_dataset
+from torchrl_dual.recipe import DualRun, UserError, compose_checked, env_kits, networks
 
 REPO = Path(__file__).resolve().parents[2]
 RECIPES = REPO / "recipes"
@@ -38,6 +38,7 @@ def run_recipe(output_dir: Path, cache_dir: Path, *overrides: str) -> subprocess
         f"output_dir={output_dir}",
         f"data_cache_dir={cache_dir}",
         "progress=false",
+        "num_threads=1",  # tiny networks: one thread avoids OpenMP contention
         *overrides,
     ]
     env = {**os.environ, "OMP_NUM_THREADS": "1", "HYDRA_FULL_ERROR": "0"}
@@ -50,10 +51,13 @@ def succeeded(proc: subprocess.CompletedProcess) -> subprocess.CompletedProcess:
 
 
 def failed(proc: subprocess.CompletedProcess) -> str:
-    """Asserts a non-zero exit and returns stdout + stderr for message checks."""
+    """Asserts exit code 2 with one ``error:`` line on stderr and no traceback; returns it."""
     out = proc.stdout + proc.stderr
-    assert proc.returncode != 0, f"expected a failure, got exit 0\n{out[-4000:]}"
-    return out
+    assert proc.returncode == 2, f"expected exit 2, got {proc.returncode}\n{out[-4000:]}"
+    errors = [line for line in proc.stderr.splitlines() if line.startswith("error: ")]
+    assert len(errors) == 1, proc.stderr[-4000:]
+    assert "Traceback" not in out
+    return errors[0]
 
 
 def checkpoint_state(output_dir: Path) -> dict:
@@ -228,7 +232,7 @@ def test_an_unknown_env_fails_listing_the_available_envs(cache_dir, tmp_path):
 
 def test_an_unknown_option_fails_naming_it(cache_dir, tmp_path):
     message = failed(run_recipe(tmp_path / "run", cache_dir, "foo=1"))
-    assert "foo" in message and "not in struct" in message
+    assert message == "error: unknown key 'foo'"
 
 
 def test_offline_data_with_nan_fails_naming_the_field_and_the_count(umaze_run, cache_dir, tmp_path):
@@ -250,16 +254,19 @@ def test_offline_data_with_nan_fails_naming_the_field_and_the_count(umaze_run, c
 
 # ----------------------------------------------------------------------------- check_dims
 @pytest.fixture
-def setup_module_and_cfg():
-    sys.path.insert(0, str(RECIPES))
-    try:
-        import o2o_setup
-
-        with initialize_config_dir(config_dir=str(RECIPES / "config"), version_base="1.3"):
-            cfg = compose("config", overrides=["budget=smoke", "env=frozenlake"])
-        yield o2o_setup, cfg
-    finally:
-        sys.path.remove(str(RECIPES))
+def smoke_cfg(tmp_path, cache_dir):
+    """The composed, validated Frozen-Lake smoke config (no subprocess)."""
+    return compose_checked(
+        RECIPES / "config",
+        [
+            "budget=smoke",
+            "env=frozenlake",
+            f"output_dir={tmp_path / 'run'}",
+            f"data_cache_dir={cache_dir}",
+            "progress=false",
+            "num_threads=1",
+        ],
+    )
 
 
 def fake_dataset(obs_dim: int, action_dim: int) -> OfflineDataset:
@@ -276,48 +283,47 @@ def fake_dataset(obs_dim: int, action_dim: int) -> OfflineDataset:
     return OfflineDataset(td, 0.0, 1.0)
 
 
-def test_check_dims_accepts_data_that_matches_the_env(setup_module_and_cfg):
-    setup, cfg = setup_module_and_cfg
-    env = setup.make_train_env(cfg)
+def test_check_dims_accepts_data_that_matches_the_env(smoke_cfg):
+    env = env_kits.make_train_env(smoke_cfg)
     obs_dim = env.observation_spec["observation"].shape[-1]
     action_dim = env.action_spec.shape[-1]
-    setup.check_dims(env, fake_dataset(obs_dim, action_dim))
+    env_kits.check_dims(env, fake_dataset(obs_dim, action_dim))
 
 
 @pytest.mark.parametrize("which", ["observation", "action"])
-def test_check_dims_rejects_data_whose_dims_differ_from_the_env(which, setup_module_and_cfg):
-    setup, cfg = setup_module_and_cfg
-    env = setup.make_train_env(cfg)
+def test_check_dims_rejects_data_whose_dims_differ_from_the_env(which, smoke_cfg):
+    env = env_kits.make_train_env(smoke_cfg)
     obs_dim = env.observation_spec["observation"].shape[-1]
     action_dim = env.action_spec.shape[-1]
     data = fake_dataset(obs_dim + (which == "observation"), action_dim + (which == "action"))
-    with pytest.raises(ValueError, match="observation/action dims") as err:
-        setup.check_dims(env, data)
+    with pytest.raises(UserError, match="observation/action dims") as err:
+        env_kits.check_dims(env, data, "frozenlake")
+    assert str(err.value).startswith("env=frozenlake: the offline data has")
     assert f"({data.obs_dim}, {data.action_dim})" in str(err.value)
     assert f"({obs_dim}, {action_dim})" in str(err.value)
 
 
 # ----------------------------------------------------------------------------- policies
 @pytest.mark.parametrize("source", ["frozen", "shared"])
-def test_both_transition_models_give_the_policy_a_shift_distance(source, setup_module_and_cfg):
+def test_both_transition_models_give_the_policy_a_shift_distance(source, smoke_cfg):
     from tensordict import TensorDict
 
     from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
-    from torchrl_dual.modules import TransitionModel
 
-    setup, cfg = setup_module_and_cfg
+    cfg = smoke_cfg
     cfg.exploration.transition_model = source
-    env = setup.make_train_env(cfg)
+    env = env_kits.make_train_env(cfg)
     obs_dim = env.observation_spec["observation"].shape[-1]
     layout = TrajectoryLayout(obs_dim, env.action_spec.shape[-1], cfg.planner.horizon)
     torch.manual_seed(0)
     teacher = TrajectoryDiffusion(layout, num_steps=1, hidden=32, depth=1)
-    transition = TransitionModel(setup.one_step_like(teacher))
-    actor = setup.make_actor(cfg, teacher, transition)
-    assert (actor.transition_model is transition.sampler.model) == (source == "frozen")
-    ensemble, policy = setup.make_policies(cfg, actor, env)
+    actor = networks.make_actor(cfg, teacher)
+    transition = networks.make_transition_model(cfg, teacher, actor)
+    assert transition.frozen == (source == "frozen")
+    assert (transition.model is actor.model) == (source == "shared")
+    policy = networks.make_policy(cfg, actor, env.action_spec, transition)
     states = env.observation_spec["observation"].rand((64,)).float()
-    ensemble.fit_laplace([TensorDict(observation=states, batch_size=[64])])
+    policy[0].fit_laplace([TensorDict(observation=states, batch_size=[64])])
     rollout = env.rollout(30, policy, break_when_any_done=False)
     valid = rollout["previous_valid"]
     assert (rollout["shift_distance"][~valid] == 0).all()
@@ -331,8 +337,28 @@ def test_both_transition_models_give_the_policy_a_shift_distance(source, setup_m
     assert torch.allclose(after, before) == (source == "frozen")
 
 
-def test_an_unknown_transition_model_fails_listing_the_choices(setup_module_and_cfg):
-    setup, cfg = setup_module_and_cfg
-    cfg.exploration.transition_model = "oracle"
-    with pytest.raises(ValueError, match=r"'oracle'.*\('frozen', 'shared'\)"):
-        setup.make_actor(cfg, None, None)
+# ----------------------------------------------------------------------------- checkpoint
+# PlannerActor registers its last layer twice (``head`` is ``model.denoiser.head``).
+_HEAD_ALIAS = ("actor.head.", "actor.model.denoiser.head.")
+
+
+@pytest.mark.parametrize("source", ["frozen", "shared"])
+def test_the_checkpoint_holds_each_weight_once(source, smoke_cfg):
+    smoke_cfg.exploration.transition_model = source
+    run = DualRun(smoke_cfg)
+    run.save()
+    state = checkpoint_state(Path(smoke_cfg.output_dir))
+    assert "transition" not in state  # no separate copy of the transition model
+    names: dict[int, list[tuple[str, str]]] = {}
+    for entry in ("teacher", "ensemble", "critic"):
+        for name, value in state[entry].items():
+            if isinstance(value, torch.Tensor) and value.numel():
+                names.setdefault(value.untyped_storage().data_ptr(), []).append((entry, name))
+    shared = [sorted(n.replace(*_HEAD_ALIAS) for _, n in group) for group in names.values()]
+    shared = [group for group in shared if len(group) > 1]
+    assert all(len({e for e, _ in names[p]}) == 1 for p in names), "a weight in two entries"
+    assert all(len(set(group)) == 1 for group in shared), f"weights saved twice: {shared}"
+    transition_keys = [n for n in state["ensemble"] if n.startswith("transition_model.")]
+    # frozen: its own copy, saved inside the ensemble; shared: the actor's weights only
+    assert bool(transition_keys) == (source == "frozen")
+    assert not [n for n in state["critic"] if n.startswith("actor_network")]
