@@ -47,12 +47,6 @@ def test_the_stacked_weights_are_rebuilt_after_either_trunk_changes():
     _check(trunk, first, second, hidden)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=RuntimeError,
-    reason="package bug: PairedTrunk._probe holds only parameters, which Module.double() / "
-    ".to() convert in place (same object, same _version), so the stacked weights go stale",
-)
 def test_the_stacked_weights_follow_a_dtype_change():
     first, second = _denoisers()
     trunk = PairedTrunk(first, second)

@@ -17,7 +17,9 @@ class VersionedCache(Generic[T]):
     A tensor is modified when its version counter moves (every in-place operation bumps
     it: optimizer steps, ``copy_`` in ``load_state_dict``, ...). Replacement (``.to()``
     to another device or dtype, ``load_state_dict(..., assign=True)``) is detected by
-    identity on the tensors ``probe()`` returns, all of ``sources()`` by default; pass a
+    identity and storage on the tensors ``probe()`` returns (a parameter converted by
+    ``Module.double()`` or ``.to()`` keeps its identity but gets new storage), all of
+    ``sources()`` by default; pass a
     few representative tensors (e.g. the first and last weights of a network) when
     ``sources()`` is long, since the check runs at every call. ``compute`` runs without
     autograd: use the cache on inference paths only.
@@ -45,7 +47,7 @@ class VersionedCache(Generic[T]):
         self.compute = compute
         self.probe = probe or sources
         self._tensors: list[Tensor] = []
-        self._probed: list[Tensor] = []
+        self._probed: list[tuple[Tensor, int]] = []
         self._versions: list[int] | None = None
         self._value: T | None = None
 
@@ -54,7 +56,8 @@ class VersionedCache(Generic[T]):
             return False
         probed = self.probe()
         if len(probed) != len(self._probed) or any(
-            a is not b for a, b in zip(probed, self._probed, strict=True)
+            a is not b or a.data_ptr() != ptr
+            for a, (b, ptr) in zip(probed, self._probed, strict=True)
         ):
             return False
         return [t._version for t in self._tensors] == self._versions
@@ -62,7 +65,7 @@ class VersionedCache(Generic[T]):
     def get(self) -> T:
         if not self._valid():
             self._tensors = list(self.sources())
-            self._probed = list(self.probe())
+            self._probed = [(t, t.data_ptr()) for t in self.probe()]
             with torch.no_grad():
                 self._value = self.compute()
             self._versions = [t._version for t in self._tensors]
