@@ -224,15 +224,7 @@ def test_two_runs_with_the_same_seed_give_identical_evaluations(umaze_run, cache
 
 
 # ----------------------------------------------------------------------------- bad input
-def test_an_unknown_env_fails_listing_the_available_envs(cache_dir, tmp_path):
-    message = failed(run_recipe(tmp_path / "run", cache_dir, "env=doesnotexist"))
-    assert "doesnotexist" in message
-    assert "pointmaze_umaze" in message and "frozenlake" in message
-
-
-def test_an_unknown_option_fails_naming_it(cache_dir, tmp_path):
-    message = failed(run_recipe(tmp_path / "run", cache_dir, "foo=1"))
-    assert message == "error: unknown key 'foo'"
+# An unknown env, key or value: tests/recipes/test_config_errors.py.
 
 
 def test_offline_data_with_nan_fails_naming_the_field_and_the_count(umaze_run, cache_dir, tmp_path):

@@ -1,0 +1,207 @@
+"""Bad input to ``recipes/o2o.py`` ends with exit code 2 and one ``error:`` line.
+
+Most cases compose the config in-process exactly as the command line does
+(:func:`torchrl_dual.recipe.compose_checked`: Hydra composition, then
+:func:`~torchrl_dual.recipe.validate_config`) and check the message; a handful run the
+real command line to check the exit code, stderr and the absence of a traceback.
+docs/recipe.md lists these inputs with their messages.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from torchrl_dual.recipe import ConfigError, compose_checked
+
+REPO = Path(__file__).resolve().parents[2]
+CONFIG_DIR = REPO / "recipes" / "config"
+ENVS = "frozenlake, pointmaze_large, pointmaze_medium, pointmaze_umaze"
+
+# (overrides, the message after "error: ")
+CASES = [
+    ("budget.online_frames=-5", "budget.online_frames=-5: must be an integer >= 0"),
+    ("critic.expectile=1.5", "critic.expectile=1.5: must lie in (0, 1)"),
+    ("env=antmaze", f"env=antmaze: unknown option; choose one of {ENVS}"),
+    ("budget=tiny", "budget=tiny: unknown option; choose one of default, paper, smoke"),
+    ("algo=iql", "algo=iql: unknown option; choose one of dual"),
+    (
+        "budget.onlin_frames=3",
+        "unknown key 'budget.onlin_frames'; did you mean budget.online_frames?",
+    ),
+    ("planner.hiden=3", "unknown key 'planner.hiden'; did you mean planner.hidden?"),
+    ("+foo=1", "unknown key 'foo'"),
+    ("+seed=2", "+seed=2: seed exists already; write seed=2 to change it"),
+    ("~planner.hidden", "missing key 'planner.hidden' in planner"),
+    ("seed==3", "malformed override 'seed==3' (extraneous input '='); write key=value"),
+    ("seed=0,1", "seed=0,1: a sweep needs --multirun (-m); write a list as key=[a,b]"),
+    ("seed=-1", "seed=-1: must be an integer in [0, 4294967295]"),
+    ("seed=1.5", "seed=1.5: must be an integer in [0, 4294967295]"),
+    ("num_threads=0", "num_threads=0: must be an integer >= 1"),
+    ("resume=maybe", "resume=maybe: must be true or false"),
+    ("interrupt_at_frames=-1", "interrupt_at_frames=-1: must be null or an integer >= 0"),
+    ("device=banana", "device=banana: not a torch device; use cpu, cuda or cuda:N"),
+    ("budget.frames_per_batch=0", "budget.frames_per_batch=0: must be an integer >= 1"),
+    ("budget.eval_episodes=0", "budget.eval_episodes=0: must be an integer >= 1"),
+    ("budget.eval_every=0", "budget.eval_every=0: must be an integer >= 1"),
+    ("budget.checkpoint_every=0", "budget.checkpoint_every=0: must be an integer >= 1"),
+    ("budget.network_width=abc", "budget.network_width=abc: must be an integer >= 1"),
+    (
+        "budget.distill_updates=[10,10]",
+        "budget.distill_updates=[10, 10]: must have 5 entries, one per halving round of "
+        "planner.num_steps=32 -> 1",
+    ),
+    (
+        "budget.distill_updates=[10,0,10,10,10]",
+        "budget.distill_updates=[10, 0, 10, 10, 10]: must be a list of integers >= 1",
+    ),
+    ("planner.num_steps=24", "planner.num_steps=24: must be a power of 2 (1, 2, 4, 8, ...)"),
+    (
+        "planner.schedule=quadratic",
+        "planner.schedule=quadratic: unknown option; choose one of cosine, linear",
+    ),
+    ("planner.action_condition_prob=1.5", "planner.action_condition_prob=1.5: must lie in [0, 1]"),
+    (
+        "env=frozenlake planner.horizon=100",
+        "planner.horizon=100: must be < env.max_episode_steps=100 (a window holds "
+        "horizon + 1 steps of one episode)",
+    ),
+    (
+        "actor.latent=sample planner.schedule=linear",
+        "actor.latent=sample: needs planner.schedule=cosine, which ends in pure noise (got linear)",
+    ),
+    (
+        "actor.weighting=ranking",
+        "actor.weighting=ranking: unknown option; choose one of advantage, sac, uniform",
+    ),
+    ("laplace.num_samples=0", "laplace.num_samples=0: must be an integer >= 1"),
+    (
+        "laplace.prior_precision=-1",
+        "laplace.prior_precision=-1: must be 'evidence' or a number > 0",
+    ),
+    ("exploration.shift_weight=-0.1", "exploration.shift_weight=-0.1: must be a number >= 0"),
+    (
+        "exploration.transition_model=oracle",
+        "exploration.transition_model=oracle: unknown option; choose one of frozen, shared",
+    ),
+    ("online.offline_fraction=1.0", "online.offline_fraction=1.0: must lie in (0, 1)"),
+    ("critic.discount=0", "critic.discount=0: must lie in (0, 1]"),
+    ("env.maze=tiny", "env.maze=tiny: unknown option; choose one of umaze, medium, large"),
+    ("env=frozenlake env.epsilon=2", "env.epsilon=2: must lie in [0, 1]"),
+    ("env.kind=mujoco", "env.kind=mujoco: unknown option; choose one of pointmaze, frozenlake"),
+    (
+        "logger.backend=nope",
+        "logger.backend=nope: unknown option; choose one of csv, tensorboard, wandb, mlflow, trackio",
+    ),
+]
+
+
+def compose(tmp_path: Path, *overrides: str):
+    return compose_checked(
+        CONFIG_DIR, [f"output_dir={tmp_path / 'run'}", "data_cache_dir=null", *overrides]
+    )
+
+
+def test_the_default_and_smoke_configs_are_valid(tmp_path):
+    assert compose(tmp_path).budget.name == "default"
+    assert compose(tmp_path, "budget=smoke", "env=frozenlake").planner.hidden == 64
+
+
+@pytest.mark.parametrize(("overrides", "message"), CASES, ids=[c[0] for c in CASES])
+def test_a_bad_input_fails_naming_the_key_the_value_and_what_is_allowed(
+    overrides, message, tmp_path
+):
+    with pytest.raises(ConfigError) as err:
+        compose(tmp_path, *overrides.split())
+    assert str(err.value) == message
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has CUDA")
+def test_device_cuda_without_cuda_fails_before_anything_runs(tmp_path):
+    with pytest.raises(
+        ConfigError, match="^device=cuda: CUDA is not available here; use device=cpu$"
+    ):
+        compose(tmp_path, "device=cuda")
+
+
+def test_an_output_dir_that_is_a_file_fails(tmp_path):
+    path = tmp_path / "file"
+    path.write_text("x")
+    with pytest.raises(ConfigError) as err:
+        compose_checked(CONFIG_DIR, [f"output_dir={path}"])
+    assert str(err.value) == f"output_dir={path}: {path} is a file, not a directory"
+
+
+def test_an_existing_checkpoint_without_resume_fails(tmp_path):
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "checkpoint.pt").write_bytes(b"")
+    with pytest.raises(
+        ConfigError, match=r"^resume=false: .*checkpoint.pt exists: pass resume=true"
+    ):
+        compose(tmp_path)
+
+
+def test_resume_with_a_logger_that_cannot_resume_fails(tmp_path, monkeypatch):
+    from torchrl_dual.recipe import schema
+
+    monkeypatch.setitem(schema.LOGGER_BACKENDS, "mlflow", None)  # as if installed
+    with pytest.raises(ConfigError) as err:
+        compose(tmp_path, "resume=true", "logger.backend=mlflow")
+    assert str(err.value) == (
+        "logger.backend=mlflow: cannot resume (resume=true); use one of csv, tensorboard, wandb"
+    )
+
+
+# ----------------------------------------------------------------------------- command line
+def recipe(*args: str, cwd: Path = REPO, **env: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "recipes/o2o.py", *args],
+        cwd=cwd,
+        env={**os.environ, "OMP_NUM_THREADS": "1", "HYDRA_FULL_ERROR": "0", **env},
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+@pytest.mark.parametrize(
+    "override",
+    ["env=antmaze", "budget.onlin_frames=3", "output_dir"],
+)
+def test_the_command_line_exits_2_with_one_error_line_and_no_traceback(override, tmp_path):
+    if override == "output_dir":  # an existing file: Hydra must not get to create it
+        (tmp_path / "file").write_text("x")
+        override = f"output_dir={tmp_path / 'file'}"
+    proc = recipe(override, f"hydra.run.dir={tmp_path / 'hydra'}")
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    assert proc.stderr.strip().splitlines() == [f"error: {self_message(override, tmp_path)}"]
+    assert "Traceback" not in proc.stdout + proc.stderr
+    assert not (tmp_path / "hydra").exists()  # stopped before Hydra's run directory
+
+
+def self_message(override: str, tmp_path: Path) -> str:
+    if override.startswith("output_dir="):
+        path = override.split("=", 1)[1]
+        return f"{override}: {path} is a file, not a directory"
+    return dict(CASES)[override]
+
+
+def test_debug_true_adds_the_traceback_and_still_exits_2(tmp_path):
+    proc = recipe("critic.expectile=1.5", "debug=true", f"output_dir={tmp_path / 'run'}")
+    assert proc.returncode == 2
+    assert "Traceback" in proc.stderr
+    assert proc.stderr.strip().splitlines()[-1] == "error: critic.expectile=1.5: must lie in (0, 1)"
+
+
+def test_cfg_job_still_prints_the_config_and_a_multirun_job_reports_its_error(tmp_path):
+    proc = recipe("--cfg", "job", "budget=smoke")
+    assert proc.returncode == 0 and "network_width: 64" in proc.stdout
+    proc = recipe("-m", "critic.expectile=1.5", f"hydra.sweep.dir={tmp_path / 'sweep'}")
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    assert "error: critic.expectile=1.5: must lie in (0, 1)" in proc.stderr.splitlines()
+    assert "Traceback" not in proc.stderr
