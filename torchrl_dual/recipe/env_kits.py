@@ -51,7 +51,8 @@ class EnvKit:
     """What the recipe needs from one kind of environment.
 
     Args:
-        settings (type): schema dataclass of the ``env.*`` keys (see ``rules.key``).
+        settings (type): schema dataclass of the ``env.*`` keys, a subclass of
+            :class:`EnvSettings` (see ``rules.key``).
         load_data (callable): ``cfg -> OfflineDataset``, ``D_offline`` (cached).
         make_env (callable): ``cfg -> EnvBase``, the online env (the recipe appends
             :class:`~torchrl_dual.transforms.PreviousTransition` for Eq. 10's ``d_t``).
@@ -67,15 +68,21 @@ class EnvKit:
     action_projection: Callable[[torch.Tensor], torch.Tensor] | None = None
 
 
-# ----------------------------------------------------------------------------- PointMaze
 @dataclass
-class PointMazeSettings:
-    """``env/pointmaze_*.yaml``: Gymnasium-Robotics PointMaze, maze2d-style local data."""
+class EnvSettings:
+    """The ``env.*`` keys every kit has; a kit's schema adds its own."""
 
     name: str = key(Text(), "used in output_dir and the plot title")
     kind: str = key(Text(), "the ENV_KITS entry")
-    maze: str = key(Choice(tuple(POINTMAZE_IDS)), "layout")
     max_episode_steps: int = key(Integer(1), "time limit of an episode")
+
+
+# ----------------------------------------------------------------------------- PointMaze
+@dataclass
+class PointMazeSettings(EnvSettings):
+    """``env/pointmaze_*.yaml``: Gymnasium-Robotics PointMaze, maze2d-style local data."""
+
+    maze: str = key(Choice(tuple(POINTMAZE_IDS)), "layout")
 
 
 def _pointmaze_data(cfg: DictConfig) -> OfflineDataset:
@@ -124,16 +131,13 @@ def _pointmaze_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
 
 # ----------------------------------------------------------------------------- Frozen-Lake
 @dataclass
-class FrozenLakeSettings:
+class FrozenLakeSettings(EnvSettings):
     """``env/frozenlake.yaml``: slippery Frozen-Lake with the paper's slip shift."""
 
-    name: str = key(Text(), "used in output_dir and the plot title")
-    kind: str = key(Text(), "the ENV_KITS entry")
     map_name: str = key(Choice(FROZENLAKE_MAPS), "map")
     offline_success_rate: float = key(Real(0, 1, low_open=True), "intended-move probability")
     online_success_rate: float = key(Real(0, 1, low_open=True), "intended-move probability")
     epsilon: float = key(Real(0, 1), "random-action probability of the behaviour policy")
-    max_episode_steps: int = key(Integer(1), "time limit of an episode")
 
 
 def _frozenlake_data(cfg: DictConfig) -> OfflineDataset:

@@ -64,13 +64,15 @@ class ConfigError(UserError):
 
 
 def unknown_key(key: str, known: Iterable[str]) -> ConfigError:
-    """The error for a key no schema has, with the closest known key as a hint.
+    """The error for a key no schema has, with the closest known key of the same depth as
+    a hint.
 
     Examples:
         >>> str(unknown_key("budget.onlin_frames", ["budget.online_frames", "seed"]))
         "unknown key 'budget.onlin_frames'; did you mean budget.online_frames?"
     """
-    close = get_close_matches(key, list(known), n=1, cutoff=0.6)
+    depth = key.count(".")
+    close = get_close_matches(key, [k for k in known if k.count(".") == depth], n=1, cutoff=0.6)
     hint = f"; did you mean {close[0]}?" if close else ""
     return ConfigError(None, None, f"unknown key '{key}'{hint}")
 
