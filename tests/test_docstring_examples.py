@@ -4,7 +4,8 @@ Equivalent to ``pytest --doctest-modules torchrl_dual`` but works from a plain `
 at the repository root: modules are discovered at collection time, so a new module is
 covered without editing this file. One test per module; nothing is skipped silently:
 a module that fails to import fails its test, except when a third-party optional
-dependency is missing, which is reported as a skip with its name.
+dependency is missing, which is reported as a skip with its name. ``torchrl_dual.recipe``
+(the Hydra recipe's library, tested by ``tests/recipes``) is left out.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import doctest
 import importlib
 import io
 import pkgutil
+from pathlib import Path
 
 import pytest
 import torch
@@ -20,26 +22,59 @@ import torch
 import torchrl_dual
 
 OPTIONFLAGS = doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE
+EXCLUDED = ("torchrl_dual.recipe",)
+# Modules whose docstrings must keep at least one example (the public entry points).
+MUST_HAVE_EXAMPLES = (
+    "torchrl_dual._utils",
+    "torchrl_dual.checkpoint",
+    "torchrl_dual.diffusion._fast_path.paired_trunk",
+    "torchrl_dual.diffusion._fast_path.versioned_cache",
+    "torchrl_dual.diffusion.model",
+    "torchrl_dual.diffusion.trajectory_layout",
+    "torchrl_dual.modules.actors.planner_actor",
+    "torchrl_dual.modules.dual_policy",
+    "torchrl_dual.modules.exploration.shift_aware_noise",
+    "torchrl_dual.modules.laplace.laplace_ensemble_actor",
+    "torchrl_dual.modules.planner.planner_policy",
+    "torchrl_dual.modules.planner.transition_model",
+    "torchrl_dual.objectives.distillation",
+    "torchrl_dual.objectives.update_loop",
+)
 
 
-def _discover() -> list[str]:
-    names, broken = [], []
-    for info in pkgutil.walk_packages(
-        torchrl_dual.__path__, prefix="torchrl_dual.", onerror=broken.append
-    ):
+def _discover(path=torchrl_dual.__path__, prefix: str = "torchrl_dual.") -> list[str]:
+    """Every module below ``path`` from the files alone (nothing is imported here, so a
+    broken or excluded subpackage cannot break collection)."""
+    names = []
+    for info in pkgutil.iter_modules(path, prefix):
+        if info.name in EXCLUDED:
+            continue
         names.append(info.name)
-    # walk_packages swallows a subpackage whose __init__ fails to import: keep it so
-    # that its test fails loudly instead.
-    return sorted(set(names) | set(broken))
+        if info.ispkg:
+            names += _discover(
+                [str(Path(info.module_finder.path) / info.name.split(".")[-1])], info.name + "."
+            )
+    return sorted(names)
 
 
 MODULES = _discover()
 
 
-def test_module_discovery_finds_the_package():
-    assert "torchrl_dual.diffusion.model" in MODULES
-    assert "torchrl_dual.objectives.distillation" in MODULES
-    assert "torchrl_dual.modules.planner.planner_policy" in MODULES
+def _examples(module_name: str) -> int:
+    module = importlib.import_module(module_name)
+    tests = doctest.DocTestFinder(exclude_empty=True).find(module, module_name)
+    return sum(len(test.examples) for test in tests)
+
+
+def test_module_discovery_finds_the_package_and_leaves_out_the_recipe():
+    assert set(MUST_HAVE_EXAMPLES) <= set(MODULES)
+    assert "torchrl_dual.modules.actors.last_layer_actor" in MODULES
+    assert not [name for name in MODULES if name.startswith("torchrl_dual.recipe")]
+
+
+@pytest.mark.parametrize("module_name", MUST_HAVE_EXAMPLES)
+def test_the_public_entry_points_keep_their_examples(module_name):
+    assert _examples(module_name) > 0, f"{module_name} lost its docstring examples"
 
 
 @pytest.mark.parametrize("module_name", MODULES)

@@ -77,6 +77,28 @@ def transition_inputs(
     )
 
 
+def previous_step_td(
+    batch: int = 6,
+    *,
+    valid: torch.Tensor | None = None,
+    obs_dim: int = 3,
+    action_dim: int = 2,
+    observation_scale: float = 1.0,
+) -> TensorDict:
+    """``s_t`` and the previous step ``(s_{t-1}, a_{t-1}, valid)`` as the
+    ``PreviousTransition`` env transform writes them (``valid`` all true by default)."""
+    observation, previous_observation, previous_action = transition_inputs(
+        batch, obs_dim=obs_dim, action_dim=action_dim
+    )
+    return TensorDict(
+        observation=observation * observation_scale,
+        previous_observation=previous_observation * observation_scale,
+        previous_action=previous_action,
+        previous_valid=torch.ones(batch, 1, dtype=torch.bool) if valid is None else valid,
+        batch_size=[batch],
+    )
+
+
 def fine_tuned(model: nn.Module, *, scale: float = 0.05, seed: int = 7) -> nn.Module:
     """A deep copy of ``model`` whose parameters moved by ``scale``-sized noise."""
     twin = copy.deepcopy(model)

@@ -1,5 +1,5 @@
-"""Tests of ``DistillationLoss`` (``torchrl_dual/objectives/distillation.py``) and the
-``progressive_distillation`` driver (``torchrl_dual/training.py``)."""
+"""Tests of ``DistillationLoss`` and the ``progressive_distillation`` driver
+(``torchrl_dual/objectives/distillation.py``, Algorithm 1 line 5)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import statistics
 import pytest
 import torch
 
-from torchrl_dual.objectives import DistillationLoss
-from torchrl_dual.objectives import progressive_distillation
+from torchrl_dual.objectives import DistillationLoss, progressive_distillation
+from torchrl_dual.objectives import distillation as distillation_module
 
 pytestmark = pytest.mark.usefixtures("seeded")
 
@@ -79,11 +79,36 @@ def test_only_the_student_receives_gradients_and_updates(make_model, make_window
     assert any(k.startswith("denoiser.") for k in changed)
 
 
-def test_the_frozen_teacher_weights_never_require_grad(make_model, make_windows):
-    loss_fn = DistillationLoss(*_pair(make_model))
+def test_an_optimizer_step_on_the_loss_leaves_the_teacher_and_its_targets_bit_identical(
+    make_model, make_windows
+):
+    student, teacher = _pair(make_model)
+    loss_fn = DistillationLoss(student, teacher)
+    trainable = [p for p in loss_fn.parameters() if p.requires_grad]
+    teacher_ptrs = {t.data_ptr() for t in loss_fn.teacher_buffers.values(True, True)}
+    assert not teacher_ptrs & {p.data_ptr() for p in trainable}  # no shared storage
     assert not any(t.requires_grad for t in loss_fn.teacher_buffers.values(True, True))
-    loss_fn(make_windows())
-    assert not any(t.requires_grad for t in loss_fn.teacher_buffers.values(True, True))
+    layout = teacher.layout
+    cond, mask = layout.conditioned_window(torch.randn(4, layout.obs_dim))
+    z = torch.where(mask, cond, torch.randn_like(cond))
+    i = torch.full((4,), 2.0)
+    target = loss_fn.teacher_target(z, i, cond, mask)
+    buffers, student_state = loss_fn.teacher_buffers.clone(), _state(student)
+
+    optimizer = torch.optim.SGD(trainable, lr=1.0)  # a large step: any leak would show
+    for _ in range(2):
+        optimizer.zero_grad()
+        loss_fn(make_windows())["loss_distillation"].backward()
+        optimizer.step()
+
+    assert all(
+        torch.equal(a, b)
+        for a, b in zip(
+            loss_fn.teacher_buffers.values(True, True), buffers.values(True, True), strict=True
+        )
+    )
+    assert torch.equal(loss_fn.teacher_target(z, i, cond, mask), target)
+    assert not torch.equal(student.denoiser.head.weight, student_state["denoiser.head.weight"])
 
 
 def test_the_input_tensordict_is_not_modified(make_model, make_windows, td_steady):
@@ -120,7 +145,9 @@ def test_a_full_condition_mask_leaves_nothing_to_distil_and_zero_loss(make_model
 
 
 def test_missing_key_error_names_the_key(make_model, make_windows):
-    with pytest.raises(KeyError, match=r"no observation entry 'observation'"):
+    with pytest.raises(
+        KeyError, match=r"observation entry reads 'observation'.*set_keys\(observation=\.\.\.\)"
+    ):
         DistillationLoss(*_pair(make_model))(make_windows().exclude("observation"))
 
 
@@ -138,9 +165,19 @@ def test_malformed_windows_are_rejected_with_the_reason(make_model, make_windows
         loss_fn(windows)
 
 
-def test_reduction_none_returns_one_loss_per_window(make_model, make_windows):
-    loss_fn = DistillationLoss(*_pair(make_model), reduction="none")
-    assert loss_fn(make_windows(batch=6))["loss_distillation"].shape == (6,)
+@pytest.mark.parametrize("reduction", ["mean", "sum"])
+def test_mean_and_sum_reduce_the_per_window_losses(make_model, make_windows, reduction):
+    student, teacher = _pair(make_model)
+    losses = {}
+    for name in ("none", reduction):
+        torch.manual_seed(11)  # the same t and ε draws for both
+        loss_fn = DistillationLoss(student, teacher, reduction=name)
+        losses[name] = loss_fn(make_windows(batch=6))["loss_distillation"]
+    per_window = losses["none"]
+    assert per_window.shape == (6,) and per_window.std() > 0
+    expected = per_window.mean() if reduction == "mean" else per_window.sum()
+    assert losses[reduction].shape == ()
+    torch.testing.assert_close(losses[reduction], expected)
 
 
 def test_the_one_step_student_target_is_the_two_step_teacher_sample(make_model):
@@ -202,6 +239,15 @@ class _RecordingLogger:
     def log_scalar(self, name, value, step=None):
         self.names.append(name)
 
+    def rounds(self) -> dict[str, int]:
+        """Logged ``loss_distillation`` entries per round prefix, in order."""
+        counts: dict[str, int] = {}
+        for name in self.names:
+            prefix, key = name.split("/")
+            if key == "loss_distillation":
+                counts[prefix] = counts.get(prefix, 0) + 1
+        return counts
+
 
 def test_progressive_distillation_halves_32_to_1_and_leaves_the_teacher_unchanged(
     make_toy_setup,
@@ -217,8 +263,13 @@ def test_progressive_distillation_halves_32_to_1_and_leaves_the_teacher_unchange
     assert student is not teacher and student.num_steps == 1
     assert teacher.num_steps == 32
     _assert_same_state(teacher, teacher_state)
-    rounds = list(dict.fromkeys(name.split("/")[0] for name in logger.names))
-    assert rounds == ["distill_16", "distill_8", "distill_4", "distill_2", "distill_1"]
+    assert list(logger.rounds()) == [
+        "distill_16",
+        "distill_8",
+        "distill_4",
+        "distill_2",
+        "distill_1",
+    ]
     assert not torch.equal(student.denoiser.head.weight, teacher.denoiser.head.weight)
     assert torch.equal(student.normalizer.obs_mean, teacher.normalizer.obs_mean)
     cond, mask = student.layout.conditioned_window(torch.zeros(3, 1))
@@ -227,8 +278,60 @@ def test_progressive_distillation_halves_32_to_1_and_leaves_the_teacher_unchange
 
 def test_progressive_distillation_stops_at_final_steps(make_toy_setup):
     teacher, buffer = make_toy_setup(num_steps=8)
-    student = progressive_distillation(teacher, buffer.sample, 1, final_steps=2, progress=False)
+    logger = _RecordingLogger()
+    student = progressive_distillation(
+        teacher, buffer.sample, 1, final_steps=2, logger=logger, log_every=1, progress=False
+    )
     assert student.num_steps == 2
+    assert list(logger.rounds()) == ["distill_4", "distill_2"]
+
+
+def test_progressive_distillation_spends_the_given_updates_in_each_round(make_toy_setup):
+    teacher, buffer = make_toy_setup(num_steps=8)
+    calls = []
+
+    def sample():
+        calls.append(1)
+        return buffer.sample()
+
+    logger = _RecordingLogger()
+    progressive_distillation(teacher, sample, [1, 3, 2], logger=logger, log_every=1, progress=False)
+    assert len(calls) == 6
+    assert logger.rounds() == {"distill_4": 1, "distill_2": 3, "distill_1": 2}
+
+
+@pytest.mark.parametrize("ema_decay", [0.5, None])
+def test_progressive_distillation_keeps_the_ema_student(make_toy_setup, monkeypatch, ema_decay):
+    teacher, buffer = make_toy_setup(num_steps=2)
+    averages, last_weights = [], []
+    original = distillation_module.run_updates
+
+    def recording_run_updates(loss, *args, ema=None, **kwargs):
+        out = original(loss, *args, ema=ema, **kwargs)
+        averages.append(ema)
+        last_weights.append([p.detach().clone() for p in loss.student.parameters()])
+        return out
+
+    monkeypatch.setattr(distillation_module, "run_updates", recording_run_updates)
+    student = progressive_distillation(
+        teacher, buffer.sample, 3, ema_decay=ema_decay, lr=1e-2, progress=False
+    )
+    kept = [p.detach() for p in student.parameters()]
+    if ema_decay is None:
+        assert averages == [None]
+        expected = last_weights[0]
+    else:
+        assert averages[0].decay == ema_decay
+        expected = averages[0].shadow
+        assert any(not torch.equal(a, b) for a, b in zip(expected, last_weights[0], strict=True))
+    assert all(torch.equal(a, b) for a, b in zip(kept, expected, strict=True))
+
+
+def test_progressive_distillation_rejects_a_wrong_number_of_round_budgets(make_model):
+    with pytest.raises(
+        ValueError, match=r"updates_per_round has 2 entries but distilling 8 -> 1 steps takes 3"
+    ):
+        progressive_distillation(make_model(num_steps=8), lambda: None, [1, 2], progress=False)
 
 
 @pytest.mark.parametrize("final_steps", [0, 3, 16])

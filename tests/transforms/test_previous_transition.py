@@ -1,5 +1,7 @@
-"""Tests of the shift signal d_t of DUAL Eq. 10: PreviousTransition carries (s_{t-1}, a_{t-1}),
-ShiftAwareNoise turns them into d_t, on a tiny env whose dynamics change mid-rollout."""
+"""Tests of ``PreviousTransition`` (``torchrl_dual/transforms/previous_transition.py``) and the
+shift signal d_t of DUAL Eq. 10 it feeds: the transform carries (s_{t-1}, a_{t-1}), a transition
+model turns them into ŝ_t and ShiftAwareNoise into d_t, on a tiny env whose dynamics change
+mid-rollout."""
 
 from __future__ import annotations
 
@@ -68,16 +70,27 @@ class DriftPointEnv(EnvBase):
         torch.manual_seed(seed)
 
 
+def original_dynamics(observation, previous_observation, previous_action, previous_valid):
+    """ŝ_t = s_{t-1} + a_{t-1} (the dynamics before the change); s_t itself after a reset."""
+    return torch.where(previous_valid, previous_observation + previous_action, observation)
+
+
 def make_policy(action_spec, shift_weight: float = WEIGHT) -> TensorDictSequential:
-    """A fake actor with fixed loc/scale, then Eq. 10 noise with the ORIGINAL dynamics."""
+    """A fake actor with fixed loc/scale, a transition model with the ORIGINAL dynamics, then
+    Eq. 10 noise."""
 
     def fake_actor(observation):
         loc = torch.full_like(observation, LOC)
         return loc, torch.full_like(observation, SCALE), loc.clone()
 
     actor = TensorDictModule(fake_actor, ["observation"], ["loc", "scale", "action"])
-    noise = ShiftAwareNoise(lambda s, a: s + a, action_spec, shift_weight)
-    return TensorDictSequential(actor, noise)
+    transition = TensorDictModule(
+        original_dynamics,
+        ["observation", "previous_observation", "previous_action", "previous_valid"],
+        ["expected_observation"],
+    )
+    noise = ShiftAwareNoise(action_spec, shift_weight)
+    return TensorDictSequential(actor, transition, noise)
 
 
 def make_env(batch_size=()) -> TransformedEnv:

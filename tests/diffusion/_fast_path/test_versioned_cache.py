@@ -45,6 +45,17 @@ def test_a_replaced_source_tensor_is_noticed_by_identity_even_at_the_same_versio
     assert cache.get() == 6.0 and compute.calls == 2
 
 
+def test_a_parameter_converted_in_place_by_module_to_is_noticed_by_its_storage():
+    layer = torch.nn.Linear(2, 2)
+    weight = layer.weight
+    cache = VersionedCache(lambda: [layer.weight], lambda: layer.weight.sum())
+    assert cache.get().dtype == torch.float32
+    version = weight._version
+    layer.double()  # same Parameter object, same version counter, new storage
+    assert layer.weight is weight and weight._version == version
+    assert cache.get().dtype == torch.float64
+
+
 def test_with_a_probe_only_the_probed_tensors_are_checked_by_identity():
     holder = {"a": torch.ones(3), "b": torch.ones(2)}
     probed = {"a": holder["a"]}

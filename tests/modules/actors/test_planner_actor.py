@@ -30,18 +30,8 @@ from torchrl_dual.modules import (
 from torchrl_dual.objectives import WeightedMAPActorLoss
 
 TRANSITIONS = ("shared", "frozen-copy")
-PAIRED_TRUNK_DTYPE_BUG = pytest.mark.xfail(
-    strict=True,
-    raises=RuntimeError,
-    reason="package bug: PairedTrunk misses .double() of the denoisers (see test_paired_trunk.py)",
-)
 CHANGE_CASES = [
-    pytest.param(
-        change,
-        kind,
-        id=f"{change}-{kind}",
-        marks=PAIRED_TRUNK_DTYPE_BUG if (change, kind) == ("double", "frozen-copy") else (),
-    )
+    pytest.param(change, kind, id=f"{change}-{kind}")
     for kind in TRANSITIONS
     for change in WEIGHT_CHANGES
 ]
