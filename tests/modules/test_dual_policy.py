@@ -148,12 +148,6 @@ def test_an_action_projection_is_applied_to_the_executed_action(make_model):
     assert torch.equal(out["action"].sum(-1), torch.ones(8))
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=TypeError,
-    reason="package bug: dual_policy.py indexes Composite.keys() ('_CompositeSpecKeysView' "
-    "object is not subscriptable)",
-)
 def test_a_composite_action_spec_is_read_at_its_action_entry(make_model):
     actor = PlannerActor(make_model(num_steps=1))
     spec = Composite(other=Bounded(-5.0, 5.0, shape=(2,)), action=Bounded(-0.1, 0.1, shape=(2,)))

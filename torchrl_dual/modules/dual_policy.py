@@ -6,6 +6,7 @@ from collections.abc import Callable
 
 import torch
 from tensordict.nn import TensorDictSequential
+from tensordict.utils import NestedKey
 from torch import Tensor
 from torchrl.data.tensor_specs import BoundedContinuous, Composite, TensorSpec
 
@@ -25,6 +26,7 @@ def make_dual_policy(
     shift_weight: float = 0.5,
     action_projection: Callable[[Tensor], Tensor] | None = None,
     return_log_prob: bool = False,
+    action_key: NestedKey = "action",
     device: torch.device | str | None = None,
 ) -> TensorDictSequential:
     """DUAL's online policy: Laplace ensemble (Eq. 9) then shift-aware noise (Eq. 10).
@@ -54,6 +56,8 @@ def make_dual_policy(
         action_projection (callable, optional): applied to the executed action (e.g. the
             one-hot argmax of a discrete env).
         return_log_prob (bool): also write ``action_log_prob``. Defaults to ``False``.
+        action_key (NestedKey): the executed action's key, and its entry in a Composite
+            ``action_spec``. Defaults to ``"action"``.
         device (torch.device, optional): where the policy lives.
 
     Examples:
@@ -80,7 +84,7 @@ def make_dual_policy(
             "TransitionModel.frozen_copy(student) (or TransitionModel(actor.model, "
             "frozen=False)), or set shift_weight=0."
         )
-    spec = action_spec[action_spec.keys()[0]] if isinstance(action_spec, Composite) else action_spec
+    spec = action_spec[action_key] if isinstance(action_spec, Composite) else action_spec
     low = high = None
     if isinstance(spec, BoundedContinuous):
         low, high = spec.space.low.to(device or "cpu"), spec.space.high.to(device or "cpu")
@@ -92,11 +96,13 @@ def make_dual_policy(
         action_high=high,
         sample_action=False,  # ShiftAwareNoise draws the executed action (Eq. 10)
         transition_model=transition_model,
+        action_key=action_key,
     )
     noise = ShiftAwareNoise(
         action_spec,
         shift_weight=shift_weight,
         action_projection=action_projection,
         return_log_prob=return_log_prob,
+        action_key=action_key,
     )
     return TensorDictSequential(ensemble, noise).to(device or "cpu")
