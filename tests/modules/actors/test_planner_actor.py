@@ -285,3 +285,18 @@ def test_a_sampled_latent_draws_a_new_mean_at_every_call(make_model):
     zero = PlannerActor(actor.model)
     with torch.no_grad():
         assert torch.equal(zero(observation), zero(observation))
+
+
+def test_a_deep_copy_of_the_actor_takes_the_fast_path_with_its_own_weights(make_model):
+    actor = PlannerActor(make_model(num_steps=1))
+    inputs = transition_inputs(4)
+    shared = TransitionModel(actor.model, frozen=False)
+    before = _fast(actor, shared, *inputs)  # caches filled before the copy
+    twin = copy.deepcopy(actor)
+    twin_shared = TransitionModel(twin.model, frozen=False)
+    with torch.no_grad():
+        twin.model.denoiser.input_layer.weight.mul_(-1.0)
+    fast = _fast(twin, twin_shared, *inputs)
+    assert not torch.allclose(fast[0], before[0])
+    assert_all_close(fast, _generic(twin, twin_shared, *inputs))
+    assert_all_close(_fast(actor, shared, *inputs), before)  # the original is untouched
