@@ -1,8 +1,8 @@
 """Batch-1 action latency: Gaussian MLP actor vs the N-step planner vs the distilled planner.
 
 Measures, in one process, the time one policy call takes on a ``[1, obs_dim]`` observation
-(what an env step costs the agent). Distillation exists for speed (DESIGN.md,
-"Performance principles"), so the student is always timed next to its teacher.
+(what an env step costs the agent). Distillation exists for speed (the action path is the
+hot path), so the student is always timed next to its teacher.
 
 Weights are untrained: the cost of a forward pass does not depend on the weight values,
 only on the architecture and the number of sampling steps.
@@ -301,7 +301,7 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
     print(markdown_table(rows))
     print()
     report_goal(rows, "planner_n1", "distillation issue", within_mlp=2.0)
-    report_goal(rows, "dual_m5", "uncertainty-aware actor issue", within_mlp=1.5)
+    report_goal(rows, "dual_m5", "restructuring issue #8", within_mlp=1.3)
     medians = {name: row["median"] for name, row in rows.items()}
     if args.profile:
         profile(

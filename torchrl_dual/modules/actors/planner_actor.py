@@ -78,7 +78,7 @@ class PlannerActor(LastLayerActor):
         self.sigma_1 = float(sigma)
         self._fast = OneStepFastPath(model, self.sigma_1, self._next_state_slice)
 
-    def _fast_path(self) -> bool:
+    def _use_fast_path(self) -> bool:
         """Inference with the zero latent: the exact shortcut applies."""
         return self.latent == "zero" and not torch.is_grad_enabled()
 
@@ -91,7 +91,7 @@ class PlannerActor(LastLayerActor):
 
     def features(self, observation: torch.Tensor) -> torch.Tensor:
         self._check_observation(observation)
-        if self._fast_path():
+        if self._use_fast_path():
             return self._fast.features(observation)
         layout, norm = self.model.layout, self.model.normalizer
         z, mask = layout.conditioned_window(norm.normalize_observation(observation))
@@ -127,7 +127,7 @@ class PlannerActor(LastLayerActor):
         previous_action = previous_action.to(observation.dtype)
         planner = transition_model.model
         if (
-            self._fast_path()
+            self._use_fast_path()
             and transition_model.latent == "zero"
             and self._fast.pairs_with(planner)
         ):

@@ -134,7 +134,7 @@ class ShiftAwareNoise(TensorDictModuleBase):
         if spec is not None and not isinstance(spec, TensorSpec):
             raise TypeError(
                 f"ShiftAwareNoise: spec must be a TorchRL TensorSpec (the action spec), got "
-                f"{type(spec).__name__}. ŝ_t now comes from a TransitionModel before this module."
+                f"{type(spec).__name__}. ŝ_t comes from a TransitionModel placed before this module."
             )
         if not float(shift_weight) >= 0:
             raise ValueError(
