@@ -28,7 +28,7 @@ MUST_HAVE_EXAMPLES = (
     "torchrl_dual._utils",
     "torchrl_dual.checkpoint",
     "torchrl_dual.diffusion._fast_path.paired_trunk",
-    "torchrl_dual.diffusion._fast_path.versioned_cache",
+    "torchrl_dual._versioned_cache",
     "torchrl_dual.diffusion.model",
     "torchrl_dual.diffusion.trajectory_layout",
     "torchrl_dual.modules.actors.planner_actor",

@@ -543,3 +543,12 @@ def test_a_non_last_layer_actor_or_transition_model_is_rejected(make_model):
     actor = _actor("planner", make_model)
     with pytest.raises(TypeError, match="transition_model must be a TransitionModel, got function"):
         LaplaceEnsembleActor(actor, transition_model=lambda s, a: s)
+
+
+def test_a_frozen_transition_model_on_the_actors_own_planner_is_refused(make_model):
+    from torchrl_dual.modules import PlannerActor, TransitionModel
+
+    model = make_model(num_steps=1)
+    actor = PlannerActor(model)
+    with pytest.raises(ValueError, match="frozen=False"):
+        LaplaceEnsembleActor(actor, transition_model=TransitionModel(model))

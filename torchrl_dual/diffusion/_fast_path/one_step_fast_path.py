@@ -29,7 +29,7 @@ class OneStepFastPath:
       trunks as one batched pass (stacked weights, ``baddbmm``).
 
     Every derived tensor is cached until a source tensor changes
-    (:class:`~torchrl_dual.diffusion._fast_path.versioned_cache.VersionedCache`). The
+    (:class:`~torchrl_dual._versioned_cache.VersionedCache`). The
     results equal the general path to float rounding; the tests compare every shortcut
     with the plain path of :class:`~torchrl_dual.modules.PlannerActor`.
 

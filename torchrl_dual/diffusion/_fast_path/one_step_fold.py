@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from torchrl_dual.diffusion._fast_path.versioned_cache import VersionedCache
+from torchrl_dual._versioned_cache import VersionedCache
 from torchrl_dual.diffusion.model import TrajectoryDiffusion
 
 
@@ -26,7 +26,7 @@ class OneStepFold:
     in. The state read-out of the transition query, ``μ_s + σ_s ⊙ (−σ_1 (W v + b))``,
     folds into one affine map too. The folded tensors are recomputed whenever one of the
     tensors they come from changes (an optimizer step, ``load_state_dict``, ``.to()``):
-    see :class:`~torchrl_dual.diffusion._fast_path.versioned_cache.VersionedCache`.
+    see :class:`~torchrl_dual._versioned_cache.VersionedCache`.
 
     The result equals the general path to float rounding (the tests compare the two after
     optimizer steps, ``load_state_dict``, ``.to()`` and normalizer refits); it is only

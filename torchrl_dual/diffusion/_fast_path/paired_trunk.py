@@ -6,7 +6,7 @@ import torch
 from torch import Tensor, nn
 from torch.nn import functional as F  # noqa: N812
 
-from torchrl_dual.diffusion._fast_path.versioned_cache import VersionedCache
+from torchrl_dual._versioned_cache import VersionedCache
 from torchrl_dual.diffusion.denoiser import ResidualMLPDenoiser
 
 
@@ -22,7 +22,7 @@ class PairedTrunk:
     (``torch.baddbmm``), so the shift signal costs no second pass.
 
     The stacked weights are rebuilt only when a weight of either trunk changes
-    (:class:`~torchrl_dual.diffusion._fast_path.versioned_cache.VersionedCache`); use this on
+    (:class:`~torchrl_dual._versioned_cache.VersionedCache`); use this on
     inference paths (no autograd).
 
     Args:

@@ -10,7 +10,7 @@ from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import NestedKey
 
 from torchrl_dual._utils import is_deterministic, read_key
-from torchrl_dual.diffusion._fast_path.versioned_cache import VersionedCache
+from torchrl_dual._versioned_cache import VersionedCache
 from torchrl_dual.modules._gaussian import gaussian_log_prob
 from torchrl_dual.modules.actors.last_layer_actor import LastLayerActor
 from torchrl_dual.modules.laplace.last_layer_laplace import LastLayerLaplace
@@ -110,6 +110,17 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         if transition_model is not None and not isinstance(transition_model, TransitionModel):
             raise TypeError(
                 f"transition_model must be a TransitionModel, got {type(transition_model).__name__}."
+            )
+        if (
+            transition_model is not None
+            and transition_model.frozen
+            and transition_model.model is getattr(actor, "model", None)
+        ):
+            raise ValueError(
+                "transition_model=TransitionModel(actor.model) freezes the actor's own planner "
+                "(frozen=True is the default), which would stop its fine-tuning. Share the "
+                "weights with TransitionModel(actor.model, frozen=False), or keep a frozen "
+                "copy with TransitionModel.frozen_copy(actor.model)."
             )
         self.actor = actor
         in_features = actor.head.in_features

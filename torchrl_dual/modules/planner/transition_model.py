@@ -151,6 +151,3 @@ class TransitionModel(TensorDictModuleBase):
         predicted = self.predict(previous_observation, previous_action.to(observation.dtype))
         self.write_expected(tensordict, observation, predicted, valid)
         return tensordict
-
-    def extra_repr(self) -> str:
-        return f"frozen={self.frozen}, latent={self.latent!r}"

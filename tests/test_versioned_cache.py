@@ -1,11 +1,11 @@
-"""Tests of ``VersionedCache`` (``torchrl_dual/diffusion/_fast_path/versioned_cache.py``):
+"""Tests of ``VersionedCache`` (``torchrl_dual/_versioned_cache.py``):
 a derived value is recomputed exactly when one of its source tensors changes."""
 
 from __future__ import annotations
 
 import torch
 
-from torchrl_dual.diffusion._fast_path.versioned_cache import VersionedCache
+from torchrl_dual._versioned_cache import VersionedCache
 
 
 class _Counted:
