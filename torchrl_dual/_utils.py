@@ -1,5 +1,6 @@
-"""Two helpers every module of the package shares: reading a required tensordict entry
-and asking whether the current exploration mode is deterministic."""
+"""Helpers every module of the package shares: reading a required tensordict entry (for
+any reader, and for a loss with its ``set_keys`` fix) and asking whether the current
+exploration mode is deterministic."""
 
 from __future__ import annotations
 
@@ -32,6 +33,23 @@ def read_key(tensordict: TensorDictBase, key: NestedKey, reader: str, fix: str =
         )
         raise KeyError(f"{message} {fix}" if fix else message)
     return value
+
+
+def read_loss_input(tensordict: TensorDictBase, key: NestedKey, role: str) -> Tensor:
+    """A loss module's input: :func:`read_key` whose fix names ``loss.set_keys(role=...)``.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> read_loss_input(TensorDict(obs=torch.zeros(2), batch_size=[2]), "obs", "observation")
+        tensor([0., 0.])
+    """
+    return read_key(
+        tensordict,
+        key,
+        f"The loss's {role} entry",
+        f"Rename the entry or call loss.set_keys({role}=...).",
+    )
 
 
 def is_deterministic() -> bool:

@@ -9,18 +9,8 @@ from tensordict import TensorDictBase
 from tensordict.utils import NestedKey
 from torchrl.objectives.common import LossModule
 
-from torchrl_dual._utils import read_key
+from torchrl_dual._utils import read_loss_input
 from torchrl_dual.diffusion.model import TrajectoryDiffusion
-
-
-def fetch(tensordict: TensorDictBase, key: NestedKey, role: str) -> torch.Tensor:
-    """A loss input: :func:`~torchrl_dual._utils.read_key` with the ``set_keys`` fix."""
-    return read_key(
-        tensordict,
-        key,
-        f"The loss's {role} entry",
-        f"Rename the entry or call loss.set_keys({role}=...).",
-    )
 
 
 def normalized_windows(
@@ -40,8 +30,8 @@ def normalized_windows(
     ``p(τ | s_0, a_0)``).
     """
     layout = model.layout
-    observation = fetch(tensordict, observation_key, "observation")
-    action = fetch(tensordict, action_key, "action")
+    observation = read_loss_input(tensordict, observation_key, "observation")
+    action = read_loss_input(tensordict, action_key, "action")
     for role, value, dim in (
         ("observation", observation, layout.obs_dim),
         ("action", action, layout.action_dim),

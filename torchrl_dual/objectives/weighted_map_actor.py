@@ -11,8 +11,8 @@ from tensordict.utils import NestedKey
 from torch.distributions import Normal
 from torchrl.objectives.common import LossModule
 
+from torchrl_dual._utils import read_loss_input
 from torchrl_dual.modules.actors.last_layer_actor import LastLayerActor
-from torchrl_dual.objectives._trajectory_window_loss import fetch
 
 WEIGHTINGS = ("advantage", "sac", "uniform")
 
@@ -193,7 +193,7 @@ class WeightedMAPActorLoss(LossModule):
     def _inputs(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         values = []
         for role, dim in (("observation", None), ("action", self.actor.action_dim)):
-            value = fetch(tensordict, getattr(self.tensor_keys, role), role)
+            value = read_loss_input(tensordict, getattr(self.tensor_keys, role), role)
             if dim is not None and value.shape[-1] != dim:
                 raise ValueError(f"{role} must end with dim {dim}, got shape {tuple(value.shape)}.")
             if not torch.isfinite(value).all():
