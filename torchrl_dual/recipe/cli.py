@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from hydra import compose, initialize_config_dir
-from hydra._internal.utils import get_args_parser
+from hydra._internal.utils import get_args_parser  # Hydra's own argv parser (hydra-core 1.3)
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import Override, OverrideType
 from hydra.errors import HydraException, OverrideParseException
@@ -57,13 +57,14 @@ def _group_options(config_dir: Path, group: str) -> list[str] | None:
     return sorted(p.stem for p in folder.glob("*.yaml"))
 
 
-def _leaf_keys(cfg: Any, prefix: str = "") -> list[str]:
-    if not isinstance(cfg, DictConfig):
+def _dotted_keys(tree: Any, prefix: str = "") -> list[str]:
+    """Every key of a nested dict as ``a.b.c`` (groups included)."""
+    if not isinstance(tree, dict):
         return []
     keys = []
-    for name in cfg.keys():
+    for name, value in tree.items():
         dotted = f"{prefix}{name}"
-        keys += [dotted, *_leaf_keys(cfg._get_node(name), f"{dotted}.")]
+        keys += [dotted, *_dotted_keys(value, f"{dotted}.")]
     return keys
 
 
@@ -100,7 +101,7 @@ def compose_checked(config_dir: str | Path, overrides: Sequence[str], config_nam
     with initialize_config_dir(config_dir=str(config_dir), version_base="1.3"):
         try:
             base = compose(config_name, [o.input_line for o in groups])
-            known = _leaf_keys(base)
+            known = _dotted_keys(OmegaConf.to_container(base, resolve=False))
             for override in keys:
                 name = override.key_or_group
                 if override.type == OverrideType.CHANGE and name not in known:
