@@ -31,4 +31,4 @@ def test_latency_benchmark_times_every_candidate_and_writes_json(tmp_path):
         "dual_m5_two_pass",
     }
     assert all(value > 0 for value in medians.values())
-    assert "goal (uncertainty-aware actor issue)" in proc.stdout
+    assert "goal (restructuring issue #8)" in proc.stdout

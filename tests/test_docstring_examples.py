@@ -4,8 +4,7 @@ Equivalent to ``pytest --doctest-modules torchrl_dual`` but works from a plain `
 at the repository root: modules are discovered at collection time, so a new module is
 covered without editing this file. One test per module; nothing is skipped silently:
 a module that fails to import fails its test, except when a third-party optional
-dependency is missing, which is reported as a skip with its name. ``torchrl_dual.recipe``
-(the Hydra recipe's library, tested by ``tests/recipes``) is left out.
+dependency is missing, which is reported as a skip with its name.
 """
 
 from __future__ import annotations
@@ -22,7 +21,7 @@ import torch
 import torchrl_dual
 
 OPTIONFLAGS = doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE
-EXCLUDED = ("torchrl_dual.recipe",)
+EXCLUDED: tuple[str, ...] = ()
 # Modules whose docstrings must keep at least one example (the public entry points).
 MUST_HAVE_EXAMPLES = (
     "torchrl_dual._utils",
@@ -66,10 +65,10 @@ def _examples(module_name: str) -> int:
     return sum(len(test.examples) for test in tests)
 
 
-def test_module_discovery_finds_the_package_and_leaves_out_the_recipe():
+def test_module_discovery_finds_the_whole_package():
     assert set(MUST_HAVE_EXAMPLES) <= set(MODULES)
     assert "torchrl_dual.modules.actors.last_layer_actor" in MODULES
-    assert not [name for name in MODULES if name.startswith("torchrl_dual.recipe")]
+    assert "torchrl_dual.recipe.env_kits" in MODULES
 
 
 @pytest.mark.parametrize("module_name", MUST_HAVE_EXAMPLES)

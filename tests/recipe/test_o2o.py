@@ -224,7 +224,7 @@ def test_two_runs_with_the_same_seed_give_identical_evaluations(umaze_run, cache
 
 
 # ----------------------------------------------------------------------------- bad input
-# An unknown env, key or value: tests/recipes/test_config_errors.py.
+# An unknown env, key or value: tests/recipe/test_config_errors.py.
 
 
 def test_offline_data_with_nan_fails_naming_the_field_and_the_count(umaze_run, cache_dir, tmp_path):
