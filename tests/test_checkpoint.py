@@ -10,7 +10,13 @@ import numpy as np
 import pytest
 import torch
 
-from torchrl_dual.checkpoint import FORMAT_VERSION, RunCheckpoint, rng_state, set_rng_state
+from torchrl_dual.checkpoint import (
+    FORMAT_VERSION,
+    CheckpointError,
+    RunCheckpoint,
+    rng_state,
+    set_rng_state,
+)
 
 FINGERPRINT = {"env": {"name": "umaze", "seed": 0}, "lr": 1e-3}
 
@@ -41,7 +47,7 @@ def test_a_failed_write_leaves_the_previous_checkpoint_intact(tmp_path):
 def test_a_fingerprint_mismatch_names_every_dotted_key_with_both_values(tmp_path):
     RunCheckpoint(tmp_path / "ckpt.pt", FINGERPRINT).save({"step": 1})
     now = {"env": {"name": "medium", "seed": 0}, "lr": 1e-3, "batch": 64}
-    with pytest.raises(RuntimeError) as err:
+    with pytest.raises(CheckpointError) as err:
         RunCheckpoint(tmp_path / "ckpt.pt", now).load()
     message = str(err.value)
     assert "env.name: checkpoint='umaze' now='medium'" in message
@@ -53,7 +59,7 @@ def test_a_fingerprint_mismatch_names_every_dotted_key_with_both_values(tmp_path
 def test_a_corrupt_file_is_reported_as_such(tmp_path):
     path = tmp_path / "ckpt.pt"
     path.write_bytes(b"not a checkpoint at all")
-    with pytest.raises(RuntimeError, match=r"ckpt.pt is corrupt or unreadable \(.*Delete it"):
+    with pytest.raises(CheckpointError, match=r"ckpt.pt is corrupt or unreadable \(.*Delete it"):
         RunCheckpoint(path, FINGERPRINT).load()
 
 
@@ -72,7 +78,7 @@ def test_another_format_is_refused(tmp_path, payload):
 
 
 def test_loading_a_missing_checkpoint_says_how_to_start_afresh(tmp_path):
-    with pytest.raises(FileNotFoundError, match="run without resume=true"):
+    with pytest.raises(CheckpointError, match="run without resume=true"):
         RunCheckpoint(tmp_path / "none.pt", FINGERPRINT).load()
 
 

@@ -13,6 +13,11 @@ import torch
 FORMAT_VERSION = 1
 
 
+class CheckpointError(RuntimeError):
+    """A checkpoint that cannot be resumed: missing, corrupt, of another format, or written
+    by a run with other settings. The message says which and what to do."""
+
+
 def rng_state() -> dict[str, Any]:
     """The states of Python's, NumPy's and torch's global generators."""
     return {
@@ -70,18 +75,18 @@ class RunCheckpoint:
 
     def load(self) -> dict[str, Any]:
         if not self.exists():
-            raise FileNotFoundError(
+            raise CheckpointError(
                 f"No checkpoint at {self.path}; run without resume=true to start afresh."
             )
         try:
             payload = torch.load(self.path, map_location="cpu", weights_only=False)
         except Exception as err:  # noqa: BLE001 - any unpickling failure means corruption
-            raise RuntimeError(
+            raise CheckpointError(
                 f"The checkpoint {self.path} is corrupt or unreadable ({type(err).__name__}: "
                 f"{err}). Delete it to start afresh, or point output_dir elsewhere."
             ) from err
         if not isinstance(payload, dict) or payload.get("format_version") != FORMAT_VERSION:
-            raise RuntimeError(
+            raise CheckpointError(
                 f"{self.path} is not a torchrl-dual checkpoint of format {FORMAT_VERSION}; "
                 "delete it or use another output_dir."
             )
@@ -91,7 +96,7 @@ class RunCheckpoint:
                 f"{key}: checkpoint={old!r} now={new!r}"
                 for key, old, new in _differences(saved, self.fingerprint)
             ]
-            raise RuntimeError(
+            raise CheckpointError(
                 f"The checkpoint {self.path} comes from an incompatible run ("
                 + "; ".join(diff)
                 + "). Resume with the original settings, or use another output_dir."

@@ -11,7 +11,6 @@ from torchrl_dual.data.frozenlake_dataset import (
     generate_frozenlake_dataset,
     load_or_generate_frozenlake_dataset,
 )
-from torchrl_dual.data.layout import TRANSITION_KEYS, make_transitions, validate_transitions
 from torchrl_dual.data.maze_controller import MazeWaypointController
 from torchrl_dual.data.maze_dataset import (
     MAZE_GENERATOR_VERSION,
@@ -20,9 +19,14 @@ from torchrl_dual.data.maze_dataset import (
     load_or_generate_maze_dataset,
 )
 from torchrl_dual.data.minari import default_observation_keys, load_minari_dataset
-from torchrl_dual.data.offline import OfflineDataset
+from torchrl_dual.data.offline_dataset import OfflineDataset
 from torchrl_dual.data.replay import to_replay_buffer
 from torchrl_dual.data.scores import normalized_score
+from torchrl_dual.data.transition_layout import (
+    TRANSITION_KEYS,
+    make_transitions,
+    validate_transitions,
+)
 
 __all__ = [
     "FROZENLAKE_GENERATOR_VERSION",

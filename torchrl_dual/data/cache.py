@@ -25,7 +25,7 @@ from typing import Any
 
 from tensordict import TensorDict
 
-from torchrl_dual.data.offline import OfflineDataset
+from torchrl_dual.data.offline_dataset import OfflineDataset
 
 CACHE_FORMAT_VERSION = 1
 _META = "meta.json"

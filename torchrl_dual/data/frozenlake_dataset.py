@@ -21,8 +21,8 @@ import gymnasium as gym
 import numpy as np
 
 from torchrl_dual.data.cache import default_cache_dir, load_or_generate
-from torchrl_dual.data.layout import make_transitions
-from torchrl_dual.data.offline import OfflineDataset
+from torchrl_dual.data.offline_dataset import OfflineDataset
+from torchrl_dual.data.transition_layout import make_transitions
 from torchrl_dual.envs.frozenlake import FROZENLAKE_NUM_ACTIONS, frozenlake_num_states
 from torchrl_dual.envs.frozenlake_mdp import (
     FROZENLAKE_HORIZON,

@@ -21,9 +21,9 @@ from typing import Any
 import numpy as np
 
 from torchrl_dual.data.cache import default_cache_dir, load_or_generate
-from torchrl_dual.data.layout import make_transitions
 from torchrl_dual.data.maze_controller import MazeWaypointController
-from torchrl_dual.data.offline import OfflineDataset
+from torchrl_dual.data.offline_dataset import OfflineDataset
+from torchrl_dual.data.transition_layout import make_transitions
 from torchrl_dual.envs.pointmaze import (
     default_max_episode_steps,
     flatten_pointmaze_obs,

@@ -23,8 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from torchrl_dual.data.layout import make_transitions
-from torchrl_dual.data.offline import OfflineDataset
+from torchrl_dual.data.offline_dataset import OfflineDataset
+from torchrl_dual.data.transition_layout import make_transitions
 
 
 def default_observation_keys(keys: Sequence[str], env_id: str | None = None) -> list[str]:

@@ -9,7 +9,7 @@ from tensordict import TensorDictBase
 from torchrl.data import LazyMemmapStorage, LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.data.replay_buffers.samplers import Sampler
 
-from torchrl_dual.data.layout import validate_transitions
+from torchrl_dual.data.transition_layout import validate_transitions
 
 _STORAGES = ("tensor", "memmap")
 
@@ -29,7 +29,7 @@ def to_replay_buffer(
 
     Args:
         td (TensorDictBase): transitions in the project layout (see
-            :mod:`torchrl_dual.data.layout`).
+            :mod:`torchrl_dual.data.transition_layout`).
 
     Keyword Args:
         sampler (Sampler, optional): e.g. :class:`~torchrl.data.SliceSampler` with

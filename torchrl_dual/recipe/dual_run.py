@@ -26,7 +26,7 @@ from torchrl.envs.utils import ExplorationType
 from torchrl.record.loggers import get_logger
 from tqdm.auto import tqdm
 
-from torchrl_dual.checkpoint import RunCheckpoint, rng_state, set_rng_state
+from torchrl_dual.checkpoint import CheckpointError, RunCheckpoint, rng_state, set_rng_state
 from torchrl_dual.data import TRANSITION_KEYS
 from torchrl_dual.diffusion import WindowReplayBuffer
 from torchrl_dual.objectives import progressive_distillation, train_planner
@@ -174,7 +174,7 @@ class DualRun:
     def _load_checkpoint(self) -> dict:
         try:
             return self.checkpoint.load()
-        except RuntimeError as err:  # corrupt, not a checkpoint, or another run's settings
+        except CheckpointError as err:  # corrupt, not a checkpoint, or another run's settings
             raise UserError("resume", True, str(err)) from err
 
     def load(self, state: dict | None = None):

@@ -15,7 +15,7 @@ class OfflineDataset:
     """Transitions in the project layout with their score references.
 
     Attributes:
-        transitions (TensorDictBase): flat transitions (see :mod:`torchrl_dual.data.layout`).
+        transitions (TensorDictBase): flat transitions (see :mod:`torchrl_dual.data.transition_layout`).
         reference_min (float or None): return of the random reference policy.
         reference_max (float or None): return of the expert / controller reference policy.
         metadata (dict): JSON-serializable description (source, seeds, generator version...).
