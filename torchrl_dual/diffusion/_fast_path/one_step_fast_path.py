@@ -46,13 +46,22 @@ class OneStepFastPath:
         self._fold = OneStepFold(model, sigma_1, next_state_rows)
         # the transition planner last paired with, its fold and the paired trunks
         self._pair: tuple[TrajectoryDiffusion, OneStepFold, PairedTrunk] | None = None
+        self._pairs_with_memo: tuple[TrajectoryDiffusion, int, bool] | None = None
 
     def pairs_with(self, transition: TrajectoryDiffusion) -> bool:
         """Whether ``transition``'s query can join the policy query in one pass: the
         planner itself, or a one-step planner of the same layout, width, depth and
-        ``σ_1``."""
+        ``σ_1``. The answer is remembered for the last planner asked (the action path
+        asks at every step)."""
         if transition is self.model:
             return True
+        memo = self._pairs_with_memo
+        if memo is None or memo[0] is not transition or memo[1] != transition.num_steps:
+            memo = (transition, transition.num_steps, self._compatible(transition))
+            self._pairs_with_memo = memo
+        return memo[2]
+
+    def _compatible(self, transition: TrajectoryDiffusion) -> bool:
         if transition.num_steps != 1 or transition.layout != self.model.layout:
             return False
         mine, theirs = self.model.denoiser, transition.denoiser

@@ -47,25 +47,27 @@ class PairedTrunk:
             )
         self.denoisers = (first, second)
         self._eps = first.trunk_layers()[1].eps
+        # Modules keep their identity through .to() / load_state_dict (their tensors do
+        # not): the layer lists are read once, the tensors at every call.
+        self._layers = [self._trunk_layers(denoiser) for denoiser in self.denoisers]
+        self._probe_layers = [layer for layers in self._layers for layer in (layers[1], layers[-1])]
         self._cache = VersionedCache(self._sources, self._stack, self._probe)
 
     def _probe(self) -> list[Tensor]:
-        """Tensors whose replacement (``.to()``, ``assign=True`` loads) forces a rebuild."""
-        probes = []
-        for denoiser in self.denoisers:
-            blocks, output_norm = denoiser.trunk_layers()
-            probes += (blocks[0][1].weight, output_norm.weight)
-        return probes
+        """Tensors whose replacement (``.to()``, ``assign=True`` loads) forces a rebuild:
+        the first linear and the output norm's weight of each trunk."""
+        return [layer.weight for layer in self._probe_layers]
 
-    def _layers(self, denoiser: ResidualMLPDenoiser) -> list[nn.Module]:
+    @staticmethod
+    def _trunk_layers(denoiser: ResidualMLPDenoiser) -> list[nn.Module]:
         blocks, output_norm = denoiser.trunk_layers()
         return [layer for block in blocks for layer in block] + [output_norm]
 
     def _sources(self) -> list[Tensor]:
         return [
             tensor
-            for denoiser in self.denoisers
-            for layer in self._layers(denoiser)
+            for layers in self._layers
+            for layer in layers
             for tensor in (layer.weight, layer.bias)
         ]
 
@@ -73,7 +75,7 @@ class PairedTrunk:
         """Per layer: LayerNorm scale and shift ``[2, 1, H]``; linear ``Wᵀ [2, in, out]``
         and bias ``[2, 1, out]``."""
         stacked = []
-        for pair in zip(*(self._layers(d) for d in self.denoisers), strict=True):
+        for pair in zip(*self._layers, strict=True):
             weights = torch.stack([layer.weight for layer in pair])
             biases = torch.stack([layer.bias for layer in pair]).unsqueeze(1)
             if isinstance(pair[0], nn.Linear):

@@ -125,8 +125,11 @@ class TransitionModel(TensorDictModuleBase):
         self, tensordict: TensorDictBase, reader: str = "TransitionModel"
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """``(s_{t-1}, a_{t-1}, valid)`` from ``tensordict``, with an error naming the fix."""
-        return tuple(  # type: ignore[return-value]
-            read_key(tensordict, key, reader, _PREVIOUS_FIX) for key in self.in_keys[1:]
+        _, observation_key, action_key, valid_key = self.in_keys
+        return (
+            read_key(tensordict, observation_key, reader, _PREVIOUS_FIX),
+            read_key(tensordict, action_key, reader, _PREVIOUS_FIX),
+            read_key(tensordict, valid_key, reader, _PREVIOUS_FIX),
         )
 
     def write_expected(
