@@ -1,4 +1,5 @@
-"""Environment factories: PointMaze (Gymnasium-Robotics) and slippery Frozen-Lake."""
+"""Environment factories: PointMaze (Gymnasium-Robotics) and slippery Frozen-Lake, and their
+online dynamics shifts (:data:`SHIFTS`)."""
 
 from torchrl_dual.envs.frozenlake import (
     FROZENLAKE_MAPS,
@@ -25,8 +26,30 @@ from torchrl_dual.envs.pointmaze import (
     make_pointmaze_gym_env,
     pointmaze_env_id,
 )
+from torchrl_dual.envs.shifts import (
+    DEFAULT_SHIFT_ANGLE,
+    SHIFTS,
+    BiasedSlip,
+    DynamicsShift,
+    RotatedAction,
+    ScaledPhysics,
+    apply_shift,
+    biased_slip_table,
+    check_shift,
+    shift_names,
+)
 
 __all__ = [
+    "DEFAULT_SHIFT_ANGLE",
+    "SHIFTS",
+    "BiasedSlip",
+    "DynamicsShift",
+    "RotatedAction",
+    "ScaledPhysics",
+    "apply_shift",
+    "biased_slip_table",
+    "check_shift",
+    "shift_names",
     "FROZENLAKE_HORIZON",
     "FROZENLAKE_MAPS",
     "FROZENLAKE_NUM_ACTIONS",

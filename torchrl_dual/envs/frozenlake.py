@@ -3,7 +3,10 @@
 The paper's transition shift is a change of slip level: ``success_rate`` 3/4 (slip 1/4)
 offline and 2/3 (slip 1/3) online. Gymnasium 1.4 supports ``success_rate`` natively:
 the agent moves as intended with probability ``success_rate`` and in each perpendicular
-direction with probability ``(1 - success_rate) / 2``.
+direction with probability ``(1 - success_rate) / 2``. The online-only ``shift``
+``"biased_slip"`` (``"biased_slip_cw"``) sends every slip to the counter-clockwise
+(clockwise) side instead, which changes the optimal policy (see
+:mod:`~torchrl_dual.envs.shifts`).
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ import torch
 
 from torchrl_dual.envs.frozenlake_mdp import FROZENLAKE_HORIZON
 from torchrl_dual.envs.onehot_action import ContinuousOneHotAction
+from torchrl_dual.envs.shifts import apply_shift, check_shift
 
 FROZENLAKE_MAPS: tuple[str, ...] = ("4x4", "8x8")
 FROZENLAKE_NUM_ACTIONS = 4
@@ -40,6 +44,7 @@ def make_frozenlake_env(
     *,
     max_episode_steps: int = FROZENLAKE_HORIZON,
     action_low: float = 0.0,
+    shift: str = "none",
 ):
     """Creates slippery ``FrozenLake-v1`` as a TorchRL env for continuous policies.
 
@@ -60,6 +65,9 @@ def make_frozenlake_env(
         max_episode_steps (int): time limit. Defaults to 100.
         action_low (float): lower bound of the action box (``0.0``, or ``-1.0`` for
             tanh-squashed policies). Defaults to ``0.0``.
+        shift (str): online dynamics shift, ``"none"`` (default), ``"biased_slip"`` or
+            ``"biased_slip_cw"``; with a shift the base env is a
+            :class:`~torchrl.envs.GymWrapper` around the shifted Gymnasium env.
 
     Examples:
         >>> env = make_frozenlake_env("4x4", success_rate=2 / 3, seed=0)
@@ -69,20 +77,32 @@ def make_frozenlake_env(
         >>> rollout["action"].dtype, rollout["observation"].dtype
         (torch.float32, torch.float32)
     """
-    from torchrl.envs import Compose, DTypeCastTransform, GymEnv, StepCounter, TransformedEnv
+    from torchrl.envs import (
+        Compose,
+        DTypeCastTransform,
+        GymEnv,
+        GymWrapper,
+        StepCounter,
+        TransformedEnv,
+    )
 
     frozenlake_num_states(map_name)  # validates the name
     if not 0.0 < success_rate <= 1.0:
         raise ValueError(f"success_rate must be in (0, 1], got {success_rate}.")
-    base = GymEnv(
-        "FrozenLake-v1",
-        map_name=map_name,
-        is_slippery=True,
-        success_rate=float(success_rate),
-        max_episode_steps=int(max_episode_steps),
-        device=device,
-        categorical_action_encoding=False,
-    )
+    check_shift(shift, "frozenlake")
+    kwargs = {
+        "map_name": map_name,
+        "is_slippery": True,
+        "success_rate": float(success_rate),
+        "max_episode_steps": int(max_episode_steps),
+    }
+    if shift == "none":
+        base = GymEnv("FrozenLake-v1", device=device, categorical_action_encoding=False, **kwargs)
+    else:
+        import gymnasium as gym
+
+        shifted = apply_shift(gym.make("FrozenLake-v1", **kwargs), shift, kind="frozenlake")
+        base = GymWrapper(shifted, device=device, categorical_action_encoding=False)
     env = TransformedEnv(
         base,
         Compose(

@@ -8,6 +8,10 @@ actor can represent. With ``gamma=0.99`` on ``4x4`` the policy optimal at succes
 3/4 succeeds 0.6915 under 2/3, where the optimal one succeeds 0.7082 (the figures of the
 paper's slip shift). The best *time-dependent* policy for the 100-step criterion does
 better (0.839 under 2/3); it is reported as ``finite_horizon_optimum``.
+
+Every function takes ``shift`` (``"none"`` or ``"biased_slip"``, see
+:mod:`~torchrl_dual.envs.shifts`): the model is built from the env's own transition table
+after the shift rewrote it, so the exact figures and the env cannot disagree.
 """
 
 from __future__ import annotations
@@ -16,6 +20,8 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+
+from torchrl_dual.envs.shifts import apply_shift, check_shift
 
 FROZENLAKE_HORIZON = 100
 """Time limit of ``FrozenLake-v1`` (also for ``map_name="8x8"``)."""
@@ -45,10 +51,11 @@ class FrozenLakeMDP:
 
 
 @lru_cache(maxsize=32)
-def _mdp_cached(map_name: str, success_rate: float) -> FrozenLakeMDP:
+def _mdp_cached(map_name: str, success_rate: float, shift: str) -> FrozenLakeMDP:
     from gymnasium.envs.toy_text.frozen_lake import FrozenLakeEnv
 
     env = FrozenLakeEnv(map_name=map_name, is_slippery=True, success_rate=success_rate)
+    env = apply_shift(env, shift, kind="frozenlake").unwrapped
     n_s, n_a = env.observation_space.n, env.action_space.n
     transitions = np.zeros((n_s, n_a, n_s))
     rewards = np.zeros((n_s, n_a))
@@ -65,13 +72,17 @@ def _mdp_cached(map_name: str, success_rate: float) -> FrozenLakeMDP:
     return FrozenLakeMDP(transitions, rewards, terminal, initial, env.desc.copy())
 
 
-def frozenlake_mdp(map_name: str = "4x4", success_rate: float = 3 / 4) -> FrozenLakeMDP:
+def frozenlake_mdp(
+    map_name: str = "4x4", success_rate: float = 3 / 4, shift: str = "none"
+) -> FrozenLakeMDP:
     """Builds the exact tabular model of slippery ``FrozenLake-v1``.
 
     Args:
         map_name (str): ``"4x4"`` or ``"8x8"``.
         success_rate (float): probability of moving in the intended direction; the two
-            perpendicular directions share the rest equally.
+            perpendicular directions share the rest equally (``shift="none"``) or the
+            clockwise one takes all of it (``shift="biased_slip"``).
+        shift (str): ``"none"`` (default) or ``"biased_slip"``.
 
     Examples:
         >>> mdp = frozenlake_mdp("4x4", 3 / 4)
@@ -80,10 +91,13 @@ def frozenlake_mdp(map_name: str = "4x4", success_rate: float = 3 / 4) -> Frozen
     """
     if not 0.0 <= success_rate <= 1.0:
         raise ValueError(f"success_rate must be in [0, 1], got {success_rate}.")
-    return _mdp_cached(map_name, float(success_rate))
+    check_shift(shift, "frozenlake")
+    return _mdp_cached(map_name, float(success_rate), shift)
 
 
-def frozenlake_transition_matrix(map_name: str = "4x4", success_rate: float = 3 / 4) -> np.ndarray:
+def frozenlake_transition_matrix(
+    map_name: str = "4x4", success_rate: float = 3 / 4, shift: str = "none"
+) -> np.ndarray:
     """Returns ``P[s, a, s']`` of slippery Frozen-Lake (holes and goal are absorbing).
 
     Examples:
@@ -92,8 +106,11 @@ def frozenlake_transition_matrix(map_name: str = "4x4", success_rate: float = 3 
         True
         >>> round(float(P[0, 2, 1]), 4)  # RIGHT from the start: intended move
         0.6667
+        >>> P = frozenlake_transition_matrix("4x4", 2 / 3, shift="biased_slip")
+        >>> round(float(P[0, 2, 0]), 4), float(P[0, 2, 4])  # slips go up (stay), never down
+        (0.3333, 0.0)
     """
-    return frozenlake_mdp(map_name, success_rate).transitions.copy()
+    return frozenlake_mdp(map_name, success_rate, shift).transitions.copy()
 
 
 def _q_backup(mdp: FrozenLakeMDP, values: np.ndarray, gamma: float) -> np.ndarray:
@@ -109,6 +126,7 @@ def frozenlake_optimal_policy(
     gamma: float = 0.99,
     tol: float = 1e-12,
     max_iters: int = 100_000,
+    shift: str = "none",
 ) -> np.ndarray:
     """Greedy stationary policy of discounted value iteration (ties -> lowest action).
 
@@ -120,6 +138,7 @@ def frozenlake_optimal_policy(
         gamma (float): discount factor, in ``(0, 1)``. Defaults to ``0.99``.
         tol (float): sup-norm stopping tolerance.
         max_iters (int): iteration cap.
+        shift (str): ``"none"`` (default) or ``"biased_slip"``.
 
     Examples:
         >>> frozenlake_optimal_policy("4x4", 3 / 4).tolist()
@@ -127,7 +146,7 @@ def frozenlake_optimal_policy(
     """
     if not 0.0 < gamma < 1.0:
         raise ValueError(f"gamma must be in (0, 1), got {gamma}.")
-    mdp = frozenlake_mdp(map_name, success_rate)
+    mdp = frozenlake_mdp(map_name, success_rate, shift)
     values = np.zeros(mdp.num_states)
     for _ in range(max_iters):
         q = _q_backup(mdp, values, gamma)
@@ -147,6 +166,7 @@ def frozenlake_success_probability(
     *,
     horizon: int = FROZENLAKE_HORIZON,
     per_state: bool = False,
+    shift: str = "none",
 ) -> float | np.ndarray:
     """Exact probability that a policy reaches the goal within ``horizon`` steps.
 
@@ -160,6 +180,7 @@ def frozenlake_success_probability(
         horizon (int): number of steps (the env's time limit). Defaults to 100.
         per_state (bool): return the probability from every start state instead of
             the expectation over the initial distribution.
+        shift (str): ``"none"`` (default) or ``"biased_slip"``.
 
     Examples:
         >>> pi = frozenlake_optimal_policy("4x4", 3 / 4)
@@ -169,7 +190,7 @@ def frozenlake_success_probability(
         >>> round(frozenlake_success_probability(uniform, "4x4", 2 / 3), 4)
         0.0139
     """
-    mdp = frozenlake_mdp(map_name, success_rate)
+    mdp = frozenlake_mdp(map_name, success_rate, shift)
     n_s = mdp.num_states
     policy = np.asarray(policy)
     if policy.ndim == 1:
@@ -219,6 +240,7 @@ def frozenlake_value_iteration(
     policy: np.ndarray | None = None,
     gamma: float = 0.99,
     horizon: int = FROZENLAKE_HORIZON,
+    shift: str = "none",
 ) -> FrozenLakeSolution:
     """Solves slippery Frozen-Lake and evaluates policies exactly.
 
@@ -231,6 +253,7 @@ def frozenlake_value_iteration(
             policy to evaluate in this environment (e.g. the policy optimal elsewhere).
         gamma (float): discount used to pick the optimal stationary policy.
         horizon (int): time limit for the success probabilities.
+        shift (str): ``"none"`` (default) or ``"biased_slip"``.
 
     Examples:
         >>> offline = frozenlake_value_iteration("4x4", 3 / 4)
@@ -238,8 +261,8 @@ def frozenlake_value_iteration(
         >>> round(online.policy_success, 4), round(online.optimal_success, 4)
         (0.6915, 0.7082)
     """
-    mdp = frozenlake_mdp(map_name, success_rate)
-    optimal = frozenlake_optimal_policy(map_name, success_rate, gamma=gamma)
+    mdp = frozenlake_mdp(map_name, success_rate, shift)
+    optimal = frozenlake_optimal_policy(map_name, success_rate, gamma=gamma, shift=shift)
     values = np.zeros(mdp.num_states)
     for _ in range(int(horizon)):
         values = _q_backup(mdp, values, 1.0).max(1)
@@ -247,13 +270,15 @@ def frozenlake_value_iteration(
     return FrozenLakeSolution(
         optimal_policy=optimal,
         optimal_success=frozenlake_success_probability(
-            optimal, map_name, success_rate, horizon=horizon
+            optimal, map_name, success_rate, horizon=horizon, shift=shift
         ),
         policy_success=None
         if policy is None
-        else frozenlake_success_probability(policy, map_name, success_rate, horizon=horizon),
+        else frozenlake_success_probability(
+            policy, map_name, success_rate, horizon=horizon, shift=shift
+        ),
         random_success=frozenlake_success_probability(
-            uniform, map_name, success_rate, horizon=horizon
+            uniform, map_name, success_rate, horizon=horizon, shift=shift
         ),
         finite_horizon_optimum=float(mdp.initial @ values),
     )

@@ -21,6 +21,8 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from torchrl_dual.envs.shifts import apply_shift, check_shift
+
 POINTMAZE_IDS: dict[str, str] = {
     "umaze": "PointMaze_UMaze-v3",
     "medium": "PointMaze_Medium-v3",
@@ -99,6 +101,9 @@ def make_pointmaze_gym_env(
     max_episode_steps: int | None = None,
     continuing_task: bool = True,
     reward_type: str = "sparse",
+    shift: str = "none",
+    shift_angle: float | None = None,
+    shift_scale: float | None = None,
 ) -> gym.Env:
     """Builds the raw Gymnasium PointMaze env (dict observations) with the factory's settings.
 
@@ -110,6 +115,11 @@ def make_pointmaze_gym_env(
         max_episode_steps (int, optional): time limit; defaults to the registered one.
         continuing_task (bool): keep running after the goal is reached. Defaults to ``True``.
         reward_type (str): ``"sparse"`` (default) or ``"dense"``.
+        shift (str): an online dynamics shift of :data:`~torchrl_dual.envs.SHIFTS`
+            (``"none"``, ``"rotation"``, ``"damping"``, ``"mass"``). Defaults to ``"none"``.
+        shift_angle (float, optional): degrees of ``"rotation"`` (60 by default).
+        shift_scale (float, optional): factor of ``"damping"`` / ``"mass"`` (the
+            shift's default if ``None``).
 
     Examples:
         >>> env = make_pointmaze_gym_env("umaze", max_episode_steps=5)
@@ -119,7 +129,10 @@ def make_pointmaze_gym_env(
     """
     _register()
     env_id, kwargs = _gym_kwargs(maze, max_episode_steps, continuing_task, reward_type)
-    return gym.make(env_id, **kwargs)
+    check_shift(shift, "pointmaze")
+    return apply_shift(
+        gym.make(env_id, **kwargs), shift, angle=shift_angle, scale=shift_scale, kind="pointmaze"
+    )
 
 
 def flatten_pointmaze_obs(obs: dict[str, np.ndarray]) -> np.ndarray:
@@ -146,6 +159,9 @@ def make_pointmaze_env(
     seed: int | None = None,
     continuing_task: bool = True,
     reward_type: str = "sparse",
+    shift: str = "none",
+    shift_angle: float | None = None,
+    shift_scale: float | None = None,
 ):
     """Creates a TorchRL PointMaze environment with a flat float32 ``"observation"``.
 
@@ -165,9 +181,15 @@ def make_pointmaze_env(
         continuing_task (bool): if ``True`` (default, D4RL maze2d style) reaching the goal
             does not end the episode; if ``False`` the episode terminates on success.
         reward_type (str): ``"sparse"`` (default) or ``"dense"`` (``exp(-distance)``).
+        shift (str): online dynamics shift (see :func:`make_pointmaze_gym_env`); with a
+            shift the base env is a :class:`~torchrl.envs.GymWrapper` around the shifted
+            Gymnasium env. Defaults to ``"none"``.
+        shift_angle (float, optional): degrees of ``"rotation"`` (60 by default).
+        shift_scale (float, optional): factor of ``"damping"`` / ``"mass"``.
 
     Raises:
-        ValueError: unknown maze name (the message lists the valid ones) or reward type.
+        ValueError: unknown maze name (the message lists the valid ones), reward type
+            or shift.
 
     Examples:
         >>> env = make_pointmaze_env("umaze", max_episode_steps=20, seed=0)
@@ -183,13 +205,25 @@ def make_pointmaze_env(
         DoubleToFloat,
         ExcludeTransform,
         GymEnv,
+        GymWrapper,
         StepCounter,
         TransformedEnv,
     )
 
     _register()
     env_id, kwargs = _gym_kwargs(maze, max_episode_steps, continuing_task, reward_type)
-    base = GymEnv(env_id, device=device, **kwargs)
+    check_shift(shift, "pointmaze")
+    if shift == "none":
+        base = GymEnv(env_id, device=device, **kwargs)
+    else:
+        shifted = apply_shift(
+            gym.make(env_id, **kwargs),
+            shift,
+            angle=shift_angle,
+            scale=shift_scale,
+            kind="pointmaze",
+        )
+        base = GymWrapper(shifted, device=device)
     env = TransformedEnv(
         base,
         Compose(

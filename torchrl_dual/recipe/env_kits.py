@@ -6,6 +6,12 @@ evaluator returning D4RL-normalized scores, and the projection of the policy's a
 onto what the env executes. Adding an environment is adding one entry to
 :data:`ENV_KITS` and one ``recipes/config/env/<name>.yaml`` that sets ``kind``; nothing
 else in the recipe branches on the env.
+
+``env.shift`` (a :data:`~torchrl_dual.envs.SHIFTS` name, ``none`` by default) changes
+the dynamics of the online env and of the evaluation env, never of the env the offline
+data comes from (the data and its cache entry do not depend on it). With a shift the
+evaluator reports the score under the shift (``normalized_score``, what a run is judged
+on) and without it (``normalized_score_unshifted``).
 """
 
 from __future__ import annotations
@@ -36,10 +42,11 @@ from torchrl_dual.envs import (
     make_frozenlake_env,
     make_pointmaze_env,
     make_pointmaze_gym_env,
+    shift_names,
 )
 from torchrl_dual.evaluation import evaluate_episodes, frozenlake_policy_actions
 from torchrl_dual.recipe.errors import UserError
-from torchrl_dual.recipe.rules import Choice, Integer, Real, Text, key
+from torchrl_dual.recipe.rules import Choice, Either, Integer, Maybe, Real, Text, key
 from torchrl_dual.transforms import PreviousTransition
 
 Evaluator = Callable[[nn.Module], dict[str, float]]
@@ -83,6 +90,16 @@ class PointMazeSettings(EnvSettings):
     """``env/pointmaze_*.yaml``: Gymnasium-Robotics PointMaze, maze2d-style local data."""
 
     maze: str = key(Choice(tuple(POINTMAZE_IDS)), "layout")
+    shift: str = key(Choice(shift_names("pointmaze")), "online-only dynamics shift")
+    shift_angle: float = key(Real(-180, 180), "degrees of shift=rotation")
+    shift_scale: Any = key(
+        Maybe(Either((Real(0, 1000, low_open=True),), "must be a number in (0, 1000]")),
+        "factor of shift=damping / mass (null: the shift's default)",
+    )
+
+
+def _pointmaze_shift(env: DictConfig) -> dict[str, Any]:
+    return {"shift": env.shift, "shift_angle": env.shift_angle, "shift_scale": env.shift_scale}
 
 
 def _pointmaze_data(cfg: DictConfig) -> OfflineDataset:
@@ -99,19 +116,22 @@ def _pointmaze_data(cfg: DictConfig) -> OfflineDataset:
 def _pointmaze_env(cfg: DictConfig) -> EnvBase:
     env = cfg.env
     return make_pointmaze_env(
-        env.maze, max_episode_steps=env.max_episode_steps, seed=cfg.seed, device="cpu"
+        env.maze,
+        max_episode_steps=env.max_episode_steps,
+        seed=cfg.seed,
+        device="cpu",
+        **_pointmaze_shift(env),
     )
 
 
 def _pointmaze_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
     env = cfg.env
 
-    def make_gym_env():
-        return make_pointmaze_gym_env(env.maze, max_episode_steps=env.max_episode_steps)
-
-    def evaluate(policy: nn.Module) -> dict[str, float]:
-        returns = evaluate_episodes(
-            make_gym_env,
+    def returns(policy: nn.Module, shift: dict[str, Any]) -> np.ndarray:
+        return evaluate_episodes(
+            lambda: make_pointmaze_gym_env(
+                env.maze, max_episode_steps=env.max_episode_steps, **shift
+            ),
             policy,
             cfg.budget.eval_episodes,
             observation_fn=flatten_pointmaze_obs,
@@ -119,12 +139,20 @@ def _pointmaze_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
             seed=10_000 + cfg.seed,
             device=cfg.device,
         )
-        mean = float(returns.mean())
-        return {
+
+    def evaluate(policy: nn.Module) -> dict[str, float]:
+        shifted = returns(policy, _pointmaze_shift(env))
+        mean = float(shifted.mean())
+        result = {
             "return": mean,
-            "return_std": float(returns.std()),
+            "return_std": float(shifted.std()),
             "normalized_score": float(data.normalized_score(mean)),
         }
+        if env.shift != "none":
+            plain = float(returns(policy, {}).mean())
+            result["return_unshifted"] = plain
+            result["normalized_score_unshifted"] = float(data.normalized_score(plain))
+        return result
 
     return evaluate
 
@@ -138,6 +166,7 @@ class FrozenLakeSettings(EnvSettings):
     offline_success_rate: float = key(Real(0, 1, low_open=True), "intended-move probability")
     online_success_rate: float = key(Real(0, 1, low_open=True), "intended-move probability")
     epsilon: float = key(Real(0, 1), "random-action probability of the behaviour policy")
+    shift: str = key(Choice(shift_names("frozenlake")), "online-only dynamics shift")
 
 
 def _frozenlake_data(cfg: DictConfig) -> OfflineDataset:
@@ -161,6 +190,7 @@ def _frozenlake_env(cfg: DictConfig) -> EnvBase:
         success_rate=env.online_success_rate,
         seed=cfg.seed,
         max_episode_steps=env.max_episode_steps,
+        shift=env.shift,
     )
 
 
@@ -169,14 +199,26 @@ def _frozenlake_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
     env = cfg.env
     num_states = frozenlake_num_states(env.map_name)
 
-    def evaluate(policy: nn.Module) -> dict[str, float]:
-        actions = frozenlake_policy_actions(policy, num_states, cfg.device)
-        success = float(
+    def success(actions: np.ndarray, shift: str) -> float:
+        return float(
             frozenlake_success_probability(
-                actions, env.map_name, env.online_success_rate, horizon=env.max_episode_steps
+                actions,
+                env.map_name,
+                env.online_success_rate,
+                horizon=env.max_episode_steps,
+                shift=shift,
             )
         )
-        return {"return": success, "normalized_score": float(data.normalized_score(success))}
+
+    def evaluate(policy: nn.Module) -> dict[str, float]:
+        actions = frozenlake_policy_actions(policy, num_states, cfg.device)
+        shifted = success(actions, env.shift)
+        result = {"return": shifted, "normalized_score": float(data.normalized_score(shifted))}
+        if env.shift != "none":
+            plain = success(actions, "none")
+            result["return_unshifted"] = plain
+            result["normalized_score_unshifted"] = float(data.normalized_score(plain))
+        return result
 
     return evaluate
 
