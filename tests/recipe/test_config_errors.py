@@ -29,7 +29,10 @@ CASES = [
     ("critic.expectile=1.5", "critic.expectile=1.5: must lie in (0, 1)"),
     ("env=antmaze", f"env=antmaze: unknown option; choose one of {ENVS}"),
     ("budget=tiny", "budget=tiny: unknown option; choose one of default, paper, smoke"),
-    ("algo=iql", "algo=iql: unknown option; choose one of dual"),
+    ("algo=nope", "algo=nope: unknown option; choose one of dual, iql"),
+    ("algo=iql actor.temperature=-1", "actor.temperature=-1: must be a number >= 0"),
+    ("algo=iql actor.hiden=3", "unknown key 'actor.hiden'; did you mean actor.hidden?"),
+    ("algo=iql planner.horizon=4", "unknown key 'planner.horizon'"),
     (
         "budget.onlin_frames=3",
         "unknown key 'budget.onlin_frames'; did you mean budget.online_frames?",
@@ -110,6 +113,9 @@ def compose(tmp_path: Path, *overrides: str):
 def test_the_default_and_smoke_configs_are_valid(tmp_path):
     assert compose(tmp_path).budget.name == "default"
     assert compose(tmp_path, "budget=smoke", "env=frozenlake").planner.hidden == 64
+    iql = compose(tmp_path, "algo=iql", "budget=smoke")
+    assert (iql.actor.hidden, iql.online.utd_ratio, iql.critic.expectile) == (64, 0.5, 0.7)
+    assert "planner" not in iql
 
 
 @pytest.mark.parametrize(("overrides", "message"), CASES, ids=[c[0] for c in CASES])

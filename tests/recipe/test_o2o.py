@@ -104,6 +104,29 @@ def interrupted_and_resumed(tmp_path_factory, cache_dir) -> dict:
     }
 
 
+@pytest.fixture(scope="session")
+def iql_umaze_run(tmp_path_factory, cache_dir):
+    out = tmp_path_factory.mktemp("iql_umaze") / "run"
+    return out, succeeded(run_recipe(out, cache_dir, "algo=iql"))
+
+
+@pytest.fixture(scope="session")
+def iql_frozenlake_resumed(tmp_path_factory, cache_dir) -> dict:
+    """IQL on Frozen-Lake stopped after 200 online frames, then continued with resume=true."""
+    out = tmp_path_factory.mktemp("iql_frozenlake") / "run"
+    overrides = ("algo=iql", "env=frozenlake")
+    first = succeeded(run_recipe(out, cache_dir, *overrides, f"interrupt_at_frames={INTERRUPT_AT}"))
+    interrupted = checkpoint_state(out)
+    second = succeeded(run_recipe(out, cache_dir, *overrides, "resume=true"))
+    return {
+        "dir": out,
+        "first": first,
+        "second": second,
+        "interrupted": interrupted,
+        "final": checkpoint_state(out),
+    }
+
+
 def umaze_cache_entry(cache_dir: Path) -> Path:
     entries = sorted(cache_dir.glob("pointmaze-umaze-*-seed0"))
     assert len(entries) == 1, f"expected one cached U-maze data set, found {entries}"
@@ -128,6 +151,45 @@ def test_the_smoke_budget_runs_end_to_end_and_writes_scores_csv_and_plot(env_nam
     state = checkpoint_state(out)
     assert state["frames"] == ONLINE_FRAMES
     assert [h["label"] for h in state["history"]] == ["offline", "online", "online"]
+
+
+# ----------------------------------------------------------------------------- iql
+def test_iql_runs_end_to_end_on_pointmaze_with_dual_s_budget_and_critics(iql_umaze_run):
+    out, proc = iql_umaze_run
+    assert "[iql] normalized score after the offline phase:" in proc.stdout
+    assert "[iql] normalized score at the end of the online phase:" in proc.stdout
+    scalars = out / "logs" / "iql" / "scalars"
+    assert csv_steps(scalars / "eval" / "normalized_score.csv") == [0, 200, 400]
+    # budget.offline_updates = 60 updates offline, then 0.5 per frame for 400 frames
+    assert csv_steps(scalars / "offline" / "loss_actor.csv") == [1]
+    assert (out / "learning_curve.png").is_file()
+    state = checkpoint_state(out)
+    assert state["stages_done"] == ["actor_critic", "offline_eval"]
+    assert (state["frames"], state["updates"]) == (ONLINE_FRAMES, 60 + ONLINE_FRAMES // 2)
+    assert set(state) >= {"critic", "critic_optimizer", "actor_optimizer"}
+    assert not {"teacher", "ensemble"} & set(state)
+    # the same critic networks and sizes as DUAL (critic/iql.yaml at the smoke width)
+    assert state["critic"]["value_network_params.module.0.weight"].shape == (64, 6)
+    assert any(name.startswith("actor_network_params") for name in state["critic"])
+
+
+def test_iql_on_frozenlake_stores_one_hot_actions_and_resumes_where_it_stopped(
+    iql_frozenlake_resumed,
+):
+    run = iql_frozenlake_resumed
+    assert "[iql] interrupted at 200 online frames" in run["first"].stdout
+    assert "[iql] actor_critic: done in the checkpoint, skipped" in run["second"].stdout
+    assert "online @ 200 frames" not in run["second"].stdout
+    assert "[iql] normalized score at the end of the online phase:" in run["second"].stdout
+    final = run["final"]
+    assert final["frames"] == ONLINE_FRAMES
+    assert [h["frames"] for h in final["history"]] == [0, 200, 400]
+    assert final["history"][:2] == run["interrupted"]["history"]
+    assert (final["online_data"][:INTERRUPT_AT] == run["interrupted"]["online_data"]).all()
+    actions = final["online_data"]["action"]  # executed: the env kit's one-hot projection
+    assert ((actions == 0) | (actions == 1)).all() and (actions.sum(-1) == 1).all()
+    reward_csv = run["dir"] / "logs" / "iql" / "scalars" / "online" / "reward_per_step.csv"
+    assert csv_steps(reward_csv) == [100, 200, 300, 400]
 
 
 # ----------------------------------------------------------------------------- resume

@@ -6,22 +6,26 @@
 * :data:`ENV_KITS` (``env_kits``) — one entry per ``env.kind``: offline data, train env,
   evaluator, action projection;
 * :data:`ALGORITHMS` (``algorithms``) — one entry per ``algo``: its config sections,
-  critics, cross-key checks and run function (only ``dual`` today);
+  critics, cross-key checks and :class:`Learner` (``dual``, ``iql``);
 * :data:`CRITICS` (``critics``) — one entry per ``critic.name``;
 * :func:`validate_config` (``schema``) — the schema of every config group, checked
   before any data or network; errors are :class:`UserError` (``errors``), reported as
   one ``error:`` line and exit code 2;
-* :func:`run_dual` / :class:`DualRun` (``dual``, ``dual_run``) — Algorithm 1 and the
-  state of a run with checkpoint and resume.
+* :class:`O2ORun` / :func:`run_o2o` / :class:`Learner` (``o2o_run``) — the
+  algorithm-independent offline-to-online run (data, env, evaluator, replay, collector,
+  UTD updates, evaluation, checkpoint and resume) and the protocol of an algorithm;
+* :class:`DualLearner` / :func:`run_dual` / :class:`DualRun` (``dual``) — Algorithm 1;
+  :class:`IQLLearner` / :func:`run_iql` (``iql``) — the IQL baseline.
 """
 
 from torchrl_dual.recipe.algorithms import ALGORITHMS, Algorithm
 from torchrl_dual.recipe.cli import check_command_line, compose_checked, hydra_task, run
 from torchrl_dual.recipe.critics import CRITICS
-from torchrl_dual.recipe.dual import run_dual
-from torchrl_dual.recipe.dual_run import DualRun
+from torchrl_dual.recipe.dual import DualLearner, DualRun, run_dual
 from torchrl_dual.recipe.env_kits import ENV_KITS, EnvKit
 from torchrl_dual.recipe.errors import ConfigError, UserError, user_errors
+from torchrl_dual.recipe.iql import IQLLearner, run_iql
+from torchrl_dual.recipe.o2o_run import Learner, O2ORun, run_o2o
 from torchrl_dual.recipe.plots import plot_learning_curve
 from torchrl_dual.recipe.schema import validate_config
 
@@ -31,8 +35,12 @@ __all__ = [
     "ENV_KITS",
     "Algorithm",
     "ConfigError",
+    "DualLearner",
     "DualRun",
     "EnvKit",
+    "IQLLearner",
+    "Learner",
+    "O2ORun",
     "UserError",
     "check_command_line",
     "compose_checked",
@@ -40,6 +48,8 @@ __all__ = [
     "plot_learning_curve",
     "run",
     "run_dual",
+    "run_iql",
+    "run_o2o",
     "user_errors",
     "validate_config",
 ]

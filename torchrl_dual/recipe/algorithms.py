@@ -2,8 +2,9 @@
 
 An :class:`Algorithm` names the config sections it reads with their schemas, the
 critics it works with, the checks across its keys, and the function that runs it.
-``recipes/config/algo/<name>.yaml`` holds its settings. Only ``dual`` today; the
-baselines (IQL, IQL + LA, Diff-QL, ...) are further entries.
+``recipes/config/algo/<name>.yaml`` holds its settings. ``dual`` (Algorithm 1) and the
+baseline ``iql``; the other baselines (IQL + LA, Diff-QL, ...) are further entries, each
+a :class:`~torchrl_dual.recipe.Learner` and a config file.
 """
 
 from __future__ import annotations
@@ -18,9 +19,11 @@ from omegaconf import DictConfig
 from torchrl_dual.diffusion import SCHEDULES
 from torchrl_dual.diffusion.model import LATENTS
 from torchrl_dual.objectives.weighted_map_actor import WEIGHTINGS
-from torchrl_dual.recipe.dual import run_dual
+from torchrl_dual.recipe.dual import DualLearner
 from torchrl_dual.recipe.errors import ConfigError
+from torchrl_dual.recipe.iql import IQLActorSettings, IQLLearner
 from torchrl_dual.recipe.networks import TRANSITION_MODELS
+from torchrl_dual.recipe.o2o_run import Learner, O2ORun, run_o2o
 from torchrl_dual.recipe.rules import Choice, Either, Integer, PowerOfTwo, Real, key
 
 
@@ -33,13 +36,18 @@ class Algorithm:
         critics (tuple of str): the ``critic`` options it supports.
         check (callable): ``cfg -> None``, raises ``ConfigError`` on an impossible
             combination of keys (run after every key passed its own rule).
-        run (callable): ``cfg -> Any``, the whole run.
+        learner (callable): ``O2ORun -> Learner``, usually the learner class;
+            :meth:`run` runs it through :func:`~torchrl_dual.recipe.run_o2o`.
     """
 
     sections: dict[str, type]
     critics: tuple[str, ...]
     check: Callable[[DictConfig], None]
-    run: Callable[[DictConfig], Any]
+    learner: Callable[[O2ORun], Learner]
+
+    def run(self, cfg: DictConfig) -> O2ORun:
+        """The whole run (or its resumption) for a validated ``cfg``."""
+        return run_o2o(cfg, self.learner)
 
 
 # ----------------------------------------------------------------------------- DUAL
@@ -145,8 +153,21 @@ DUAL = Algorithm(
     },
     critics=("iql",),
     check=check_dual,
-    run=run_dual,
+    learner=DualLearner,
 )
 
-ALGORITHMS: dict[str, Algorithm] = {"dual": DUAL}
+
+# ----------------------------------------------------------------------------- IQL
+def check_nothing(cfg: DictConfig) -> None:
+    """No checks across keys."""
+
+
+IQL = Algorithm(
+    sections={"actor": IQLActorSettings, "online": OnlineSettings},
+    critics=("iql",),
+    check=check_nothing,
+    learner=IQLLearner,
+)
+
+ALGORITHMS: dict[str, Algorithm] = {"dual": DUAL, "iql": IQL}
 """``algo`` -> :class:`Algorithm`."""

@@ -34,7 +34,7 @@ _OTHER_CONFIG = ("config_path", "config_name", "config_dir", "experimental_rerun
 
 def run(cfg: DictConfig) -> Any:
     """Validates ``cfg`` (raising :class:`~torchrl_dual.recipe.errors.ConfigError`) and
-    runs its algorithm, e.g. :func:`~torchrl_dual.recipe.dual.run_dual`."""
+    runs its algorithm (its ``ALGORITHMS`` entry's learner through ``run_o2o``)."""
     validate_config(cfg)
     return ALGORITHMS[cfg.algo].run(cfg)
 

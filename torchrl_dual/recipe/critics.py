@@ -57,11 +57,21 @@ class _NoActor(nn.Module):
         )
 
 
-def make_iql_critic(cfg: DictConfig, obs_dim: int, action_dim: int) -> Critic:
+def make_iql_critic(
+    cfg: DictConfig,
+    obs_dim: int,
+    action_dim: int,
+    actor: ProbabilisticActor | None = None,
+    temperature: float = 1.0,
+) -> Critic:
     """IQL's expectile value network V and twin Q networks (TorchRL ``IQLLoss``).
 
     Built in a fixed order (Q MLP, V MLP, then ``IQLLoss``, which redraws the second Q
-    network's weights) so a seed gives the same critics.
+    network's weights) so a seed gives the same critics. Without ``actor`` the loss's
+    actor slot is a parameterless stand-in (DUAL trains its actor with its own loss);
+    with one (the ``iql`` baseline), ``loss.actor_loss`` is IQL's advantage-weighted
+    regression at ``temperature`` and ``loss`` holds the actor's weights, which the
+    critic's optimizer leaves alone.
     """
     c = cfg.critic
     cells = [c.hidden] * c.depth
@@ -84,13 +94,20 @@ def make_iql_critic(cfg: DictConfig, obs_dim: int, action_dim: int) -> Critic:
         MLP(in_features=obs_dim, out_features=1, num_cells=cells, activation_class=nn.ReLU),
         in_keys=["observation"],
     )
-    no_actor = ProbabilisticActor(
-        TensorDictModule(_NoActor(), in_keys=["observation"], out_keys=["loc", "scale"]),
-        in_keys=["loc", "scale"],
-        distribution_class=torch.distributions.Normal,
-    )
+    if actor is None:
+        actor = ProbabilisticActor(
+            TensorDictModule(_NoActor(), in_keys=["observation"], out_keys=["loc", "scale"]),
+            in_keys=["loc", "scale"],
+            distribution_class=torch.distributions.Normal,
+        )
     loss = IQLLoss(
-        no_actor, qvalue, value, expectile=c.expectile, num_qvalue_nets=2, loss_function="l2"
+        actor,
+        qvalue,
+        value,
+        expectile=c.expectile,
+        temperature=temperature,
+        num_qvalue_nets=2,
+        loss_function="l2",
     ).to(cfg.device)
     loss.make_value_estimator(gamma=c.discount)
     params = list(loss.qvalue_network_params.values(True, True)) + list(
@@ -100,7 +117,8 @@ def make_iql_critic(cfg: DictConfig, obs_dim: int, action_dim: int) -> Critic:
     return Critic(loss, optimizer, SoftUpdate(loss, tau=c.target_update_tau))
 
 
-CRITICS: dict[str, tuple[type, Callable[[DictConfig, int, int], Critic]]] = {
+CRITICS: dict[str, tuple[type, Callable[..., Critic]]] = {
     "iql": (IQLCriticSettings, make_iql_critic),
 }
-"""``critic.name`` -> (schema of ``critic.*``, ``(cfg, obs_dim, action_dim) -> Critic``)."""
+"""``critic.name`` -> (schema of ``critic.*``, ``(cfg, obs_dim, action_dim, actor=None,
+temperature=1.0) -> Critic``)."""

@@ -1,56 +1,167 @@
-"""Algorithm 1 of the paper (DUAL, offline then online), one call per step.
+"""DUAL's learner (Algorithm 1 of the paper) for :class:`~torchrl_dual.recipe.O2ORun`.
 
 The offline phase pre-trains the diffusion planner, distils it to one step, pre-trains
 the weighted MAP actor and the critic and fits the last-layer Laplace posterior; the
-online phase acts with the Laplace ensemble plus shift-aware noise through a TorchRL
-``Collector`` and fine-tunes on offline and online data. See docs/recipe.md.
+online phase acts with the Laplace ensemble plus shift-aware noise and fine-tunes on
+offline and online data, refitting the posterior every ``budget.laplace_refit_every``
+updates. :func:`run_dual` runs it; see docs/recipe.md.
 """
 
 from __future__ import annotations
 
+import torch
 from omegaconf import DictConfig
+from tensordict import TensorDictBase
 
-from torchrl_dual.recipe.dual_run import DualRun
+from torchrl_dual.diffusion import WindowReplayBuffer
+from torchrl_dual.objectives import progressive_distillation, train_planner
+from torchrl_dual.recipe import networks
+from torchrl_dual.recipe.critics import CRITICS
+from torchrl_dual.recipe.errors import UserError
+from torchrl_dual.recipe.o2o_run import Learner, O2ORun, run_o2o
+
+STAGES = ("planner", "distillation", "actor_critic", "laplace", "offline_eval")
 
 
-def run_dual(cfg: DictConfig) -> DualRun:
-    """Runs (or resumes) Algorithm 1 for a validated ``cfg``; returns the run's state."""
-    dual = DualRun(cfg)  # Alg. 1 line 1: data, networks, buffers (or the checkpoint)
+class DualLearner(Learner):
+    """DUAL's networks (teacher ``g_θ'``, actor ``π_θ``, transition model, IQL critics),
+    its offline stages, its update (IQL critic step, then Eq. 7) and its Laplace refits."""
 
-    # ---- Offline phase
-    dual.stage("planner", dual.pretrain_planner)  # l.3-4: L_VLB (Eq. 3)
-    dual.stage("distillation", dual.distill)  # l.5: N=32 -> 1, π_θ and p(s'|s,a)
-    dual.stage("actor_critic", dual.pretrain_actor_critic)  # l.6-8: IQL + Eq. 7
-    dual.stage("laplace", dual.fit_laplace)  # l.9: Eq. 8
-    dual.stage("offline_eval", lambda: dual.evaluate("offline"))
+    title = "DUAL"
 
-    # ---- Online phase (l.10-18)
-    budget = cfg.budget
-    next_eval = (dual.frames // budget.eval_every + 1) * budget.eval_every
-    next_save = dual.frames + budget.checkpoint_every
-    try:
-        for batch in dual.collector() if dual.frames < budget.online_frames else ():
-            stats = dual.store(batch)  # l.11-13: a_t ~ Eq. 9 + Eq. 10, env step, D_online
-            losses = dual.train_online(batch.numel())  # l.14-16: critic and actor updates
-            if dual.updates_since_refit >= budget.laplace_refit_every:
-                dual.fit_laplace()  # l.17: refit the posterior
-            dual.log({**stats, **losses}, dual.frames, "online/")
-            if dual.frames >= next_eval:
-                dual.evaluate("online")
-                next_eval += budget.eval_every
-            if dual.frames >= next_save:
-                dual.save()
-                next_save += budget.checkpoint_every
-            if cfg.interrupt_at_frames is not None and dual.frames >= cfg.interrupt_at_frames:
-                raise KeyboardInterrupt
-    except KeyboardInterrupt:
-        dual.save()
-        print(
-            f"[dual] interrupted at {dual.frames} online frames; checkpoint saved. "
-            "Continue with resume=true."
+    def __init__(self, run: O2ORun) -> None:
+        self.run = run
+        cfg = self.cfg = run.cfg
+        data = run.data
+        try:
+            self.windows = WindowReplayBuffer(
+                data.transitions, cfg.planner.horizon, cfg.planner.batch_size, device=cfg.device
+            )
+        except ValueError as err:  # no episode is long enough for a window
+            raise UserError("planner.horizon", cfg.planner.horizon, str(err)) from err
+        # ---- networks: teacher g_θ', actor π_θ and its transition model, critics
+        self.teacher = networks.make_planner(cfg, data)
+        self.actor = networks.make_actor(cfg, self.teacher)
+        self.transition = networks.make_transition_model(cfg, self.teacher, self.actor)
+        make_critic = CRITICS[cfg.critic.name][1]
+        self.critic = make_critic(cfg, data.obs_dim, data.action_dim)
+        self.actor_loss = networks.make_actor_loss(cfg, self.actor, self.critic)
+        self.actor_optimizer = torch.optim.Adam(self.actor_loss.parameters(), lr=cfg.actor.lr)
+        self.policy = networks.make_policy(cfg, self.actor, run.env.action_spec, self.transition)
+        self.ensemble = self.policy[0]  # LaplaceEnsembleActor: acts and holds ŝ_t's model
+        self.exploration_policy = self.policy  # Eq. 9 + Eq. 10
+        self.evaluation_policy = self.ensemble  # the MAP mean under DETERMINISTIC
+        self.updates_since_refit = 0
+
+    # ------------------------------------------------------------------ the protocol
+    def modules(self) -> dict:
+        """Each weight once: the frozen transition model is inside the ensemble, a shared
+        one is the actor's own planner."""
+        return {
+            "teacher": self.teacher,
+            "ensemble": self.ensemble,  # actor, σ̄, Laplace posterior, frozen ŝ_t model
+            "critic": self.critic.loss,
+            "critic_optimizer": self.critic.optimizer,
+            "actor_optimizer": self.actor_optimizer,
+        }
+
+    def state_dict(self) -> dict:
+        return {"updates_since_refit": self.updates_since_refit}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.updates_since_refit = state["updates_since_refit"]
+
+    def offline_stages(self) -> list:
+        return [
+            ("planner", self.pretrain_planner),  # l.3-4: L_VLB (Eq. 3)
+            ("distillation", self.distill),  # l.5: N=32 -> 1, π_θ and p(s'|s,a)
+            ("actor_critic", self.run.pretrain_updates),  # l.6-8: IQL + Eq. 7
+            ("laplace", self.fit_laplace),  # l.9: Eq. 8
+        ]
+
+    def update(self, batch: TensorDictBase) -> dict:
+        """One critic (IQL) and one actor (Eq. 7) gradient step, Alg. 1 lines 7-8 / 15-16."""
+        critic = self.critic
+        q_loss, _ = critic.loss.qvalue_loss(batch)
+        v_loss, _ = critic.loss.value_loss(batch)
+        critic.optimizer.zero_grad(set_to_none=True)
+        (q_loss + v_loss).backward()
+        critic.optimizer.step()
+        critic.target_updater.step()
+        out = self.actor_loss(batch)
+        self.actor_optimizer.zero_grad(set_to_none=True)
+        out["loss_actor"].backward()
+        self.actor_optimizer.step()
+        self.updates_since_refit += 1
+        return {
+            "loss_qvalue": q_loss.item(),
+            "loss_value": v_loss.item(),
+            **{k: v.item() for k, v in out.items()},
+        }
+
+    def after_updates(self) -> None:
+        """Alg. 1 line 17: refit the posterior once ``budget.laplace_refit_every`` updates
+        have accumulated since the last fit."""
+        if self.updates_since_refit >= self.cfg.budget.laplace_refit_every:
+            self.fit_laplace()
+
+    def batch_metrics(self, batch: TensorDictBase) -> dict:
+        return {
+            "shift_distance": float(batch["shift_distance"].mean()),
+            "epistemic_std": float(batch["epistemic_variance"].mean().sqrt()),
+        }
+
+    # ------------------------------------------------------------------ offline stages
+    def pretrain_planner(self) -> None:
+        """Alg. 1 lines 3-4: θ' ← θ' − λ_g ∇ L_VLB on D_offline (Eq. 3)."""
+        p = self.cfg.planner
+        train_planner(
+            self.teacher,
+            self.windows.sample,
+            self.cfg.budget.planner_updates,
+            lr=p.lr,
+            action_condition_prob=p.action_condition_prob,
+            logger=self.run.logger,
+            log_prefix="planner/",
+            progress=self.cfg.progress,
         )
-        return dual
-    if not dual.history or dual.history[-1]["frames"] != dual.frames:
-        dual.evaluate("online")
-    dual.finish()
-    return dual
+
+    def distill(self) -> None:
+        """Alg. 1 line 5: distil g_θ' into the one-step π_θ and p(s'|s, a; θ)."""
+        student = progressive_distillation(
+            self.teacher,
+            self.windows.sample,
+            list(self.cfg.budget.distill_updates),
+            lr=self.cfg.distillation.lr,
+            action_condition_prob=self.cfg.planner.action_condition_prob,
+            logger=self.run.logger,
+            progress=self.cfg.progress,
+        )
+        self.actor.model.load_state_dict(student.state_dict())
+        if self.transition.frozen:  # a shared transition model is actor.model itself
+            self.transition.model.load_state_dict(student.state_dict())
+
+    def fit_laplace(self) -> None:
+        """Alg. 1 lines 9 and 17: last-layer Laplace of L_π on D (Eq. 8)."""
+        with torch.no_grad():
+            # The Hessian of Eq. (7) carries the actor loss's own weights (uniform for
+            # "uniform"; "sac" has no per-sample weights, so its GGN uses uniform ones).
+            advantage = self.cfg.actor.weighting == "advantage"
+            laplace = self.ensemble.fit_laplace(
+                self.run.all_transitions(),
+                weight_fn=self.actor_loss.advantage_weights if advantage else None,
+            )
+        self.updates_since_refit = 0
+        self.run.log({"prior_precision": laplace.prior_precision}, self.run.updates, "laplace/")
+
+
+class DualRun(O2ORun):
+    """An :class:`O2ORun` of :class:`DualLearner` (``DualRun(cfg).learner``)."""
+
+    def __init__(self, cfg: DictConfig) -> None:
+        super().__init__(cfg, DualLearner)
+
+
+def run_dual(cfg: DictConfig) -> O2ORun:
+    """Runs (or resumes) Algorithm 1 for a validated ``cfg``; returns the run's state."""
+    return run_o2o(cfg, DualLearner)

@@ -1,6 +1,6 @@
 """DUAL's networks, loss and acting policy built from the config (Algorithm 1 line 1).
 
-Each ``make_*`` builds one part; :class:`~torchrl_dual.recipe.DualRun` calls them in a
+Each ``make_*`` builds one part; :class:`~torchrl_dual.recipe.DualLearner` calls them in a
 fixed order (teacher, transition-model copy, actor, critics) so a seed gives the same
 weights.
 """

@@ -20,9 +20,9 @@ from omegaconf import DictConfig
 
 from torchrl_dual.recipe.algorithms import ALGORITHMS
 from torchrl_dual.recipe.critics import CRITICS
-from torchrl_dual.recipe.dual_run import check_output_dir
 from torchrl_dual.recipe.env_kits import ENV_KITS
 from torchrl_dual.recipe.errors import ConfigError
+from torchrl_dual.recipe.o2o_run import check_output_dir
 from torchrl_dual.recipe.rules import (
     Choice,
     Flag,
@@ -51,7 +51,7 @@ RESUMABLE_LOGGERS = ("csv", "tensorboard", "wandb")  # get_logger(state_dict=...
 class RunSettings:
     """``config.yaml``'s own keys (the groups are checked by their own schemas)."""
 
-    algo: str = key(Choice(tuple(ALGORITHMS)), "the ALGORITHMS entry")
+    algo: str = key(Text(), "the ALGORITHMS entry (looked up when validate_config runs)")
     seed: int = key(Integer(0, 2**32 - 1), "seeds torch, numpy, python, data and envs")
     device: str = key(Text(), "torch device of networks and updates")
     num_threads: int = key(Integer(1), "torch.set_num_threads")

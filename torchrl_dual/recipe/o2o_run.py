@@ -1,20 +1,28 @@
-"""The state of one DUAL run and the steps of Algorithm 1 that act on it.
+"""The algorithm-independent offline-to-online run, and the :class:`Learner` it drives.
 
-:class:`DualRun` owns the data, networks, losses, optimizers, replay buffers, logger
-and counters of a run, checkpoints all of them atomically (each weight once), and
-resumes from them. :func:`~torchrl_dual.recipe.dual.run_dual` calls its methods in the
-order of Algorithm 1.
+:class:`O2ORun` owns what every offline-to-online algorithm of the recipe shares: the
+seeds, the offline data, the online env and the evaluator, the offline replay buffer
+and TorchRL's ``OfflineToOnlineReplayBuffer``, the logger, the counters, the
+collector, the update-to-data schedule, evaluation, checkpoint and resume, and the
+learning curve at the end. What is particular to one algorithm (its networks, its
+offline stages, one gradient update, the acting policies) is a :class:`Learner`;
+:func:`run_o2o` runs one learner through the offline and the online phase. Each entry
+of :data:`~torchrl_dual.recipe.ALGORITHMS` is a learner class and a config file.
 """
 
 from __future__ import annotations
 
 import random
+from abc import ABC, abstractmethod
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDictBase
+from torch import nn
 from torchrl.collectors import Collector
 from torchrl.data import (
     LazyTensorStorage,
@@ -28,21 +36,19 @@ from tqdm.auto import tqdm
 
 from torchrl_dual.checkpoint import CheckpointError, RunCheckpoint, rng_state, set_rng_state
 from torchrl_dual.data import TRANSITION_KEYS
-from torchrl_dual.diffusion import WindowReplayBuffer
-from torchrl_dual.objectives import progressive_distillation, train_planner
-from torchrl_dual.recipe import env_kits, networks
-from torchrl_dual.recipe.critics import CRITICS
+from torchrl_dual.recipe import env_kits
 from torchrl_dual.recipe.errors import ConfigError, UserError
 from torchrl_dual.recipe.plots import plot_learning_curve
 
-STAGES = ("planner", "distillation", "actor_critic", "laplace", "offline_eval")
 # Settings that may change when a run is resumed; everything else must match.
 RESUMABLE_KEYS = ("resume", "progress", "interrupt_at_frames", "num_threads", "device", "debug")
+# Part of the fingerprint: a checkpoint of another layout (e.g. written before the
+# O2ORun / Learner split) is refused with the checkpoint's "incompatible run" error.
+CHECKPOINT_LAYOUT = "o2o-learner-1"
 _COUNTERS = (
     "stages_done",
     "frames",
     "updates",
-    "updates_since_refit",
     "update_credit",
     "next_episode",
     "history",
@@ -66,14 +72,67 @@ def check_output_dir(cfg: DictConfig) -> None:
         )
 
 
-class DualRun:
-    """Everything one run of Algorithm 1 needs, with checkpoint and resume.
+class Learner(ABC):
+    """What one algorithm adds to an :class:`O2ORun`.
 
-    ``cfg`` must have passed :func:`~torchrl_dual.recipe.validate_config`.
+    A learner is built by the run (``Learner(run)``) once the run's data, env and
+    offline buffer exist, and before its replay buffer, counters and logger; it builds
+    its networks, losses and optimizers in ``__init__`` and may keep ``run`` to read
+    ``run.cfg``, ``run.data``, ``run.logger`` or ``run.updates`` later.
+
+    Attributes:
+        title (str): the algorithm's name in the plot title.
+        exploration_policy (nn.Module): what the collector runs, under
+            ``ExplorationType.RANDOM``; it writes the executed ``"action"`` (after the env
+            kit's ``action_projection``, if any).
+        evaluation_policy (nn.Module): what the evaluator runs, under
+            ``ExplorationType.DETERMINISTIC``.
     """
 
-    def __init__(self, cfg: DictConfig) -> None:
+    title: str = "?"
+    exploration_policy: nn.Module
+    evaluation_policy: nn.Module
+
+    @abstractmethod
+    def modules(self) -> dict[str, Any]:
+        """Name -> object with ``state_dict``/``load_state_dict`` (networks, losses,
+        optimizers): what the checkpoint holds, each weight once."""
+
+    @abstractmethod
+    def offline_stages(self) -> list[tuple[str, Callable[[], None]]]:
+        """The offline phase as ordered ``(name, fn)`` stages, each checkpointed when done
+        and skipped on resume; :meth:`O2ORun.pretrain_updates` is the shared
+        ``budget.offline_updates`` stage. The run appends ``offline_eval``."""
+
+    @abstractmethod
+    def update(self, batch: TensorDictBase) -> dict[str, float]:
+        """One gradient update (critic and actor) on ``batch``; returns its metrics."""
+
+    def after_updates(self) -> None:  # noqa: B027 - optional hook
+        """Called after each block of online updates (DUAL refits its Laplace posterior)."""
+
+    def batch_metrics(self, batch: TensorDictBase) -> dict[str, float]:
+        """Metrics of a collected batch beyond ``reward_per_step`` (logged under ``online/``)."""
+        return {}
+
+    def state_dict(self) -> dict[str, Any]:
+        """The learner's counters that are not in :meth:`modules` (checkpointed)."""
+        return {}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:  # noqa: B027 - optional
+        """Restores what :meth:`state_dict` returned."""
+
+
+class O2ORun:
+    """Everything one offline-to-online run needs apart from its :class:`Learner`.
+
+    ``cfg`` must have passed :func:`~torchrl_dual.recipe.validate_config`;
+    ``make_learner`` is ``run -> Learner`` (usually the learner class).
+    """
+
+    def __init__(self, cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> None:
         self.cfg = cfg
+        self.name = str(cfg.algo)
         torch.set_num_threads(cfg.num_threads)
         self.seed_everything(cfg.seed)
         self.output_dir = Path(cfg.output_dir)
@@ -82,6 +141,7 @@ class DualRun:
             for k, v in OmegaConf.to_container(cfg, resolve=True).items()
             if k not in RESUMABLE_KEYS
         }
+        fingerprint["checkpoint_layout"] = CHECKPOINT_LAYOUT
         check_output_dir(cfg)
         self.checkpoint = RunCheckpoint(self.output_dir / "checkpoint.pt", fingerprint)
         # Read a checkpoint first, so a corrupt or incompatible one fails before any work.
@@ -91,26 +151,9 @@ class DualRun:
         self.env = env_kits.make_train_env(cfg)
         env_kits.check_dims(self.env, self.data, cfg.env.name)
         self.evaluate_policy = env_kits.make_evaluator(cfg, self.data)
-        try:
-            self.windows = WindowReplayBuffer(
-                self.data.transitions,
-                cfg.planner.horizon,
-                cfg.planner.batch_size,
-                device=cfg.device,
-            )
-        except ValueError as err:  # no episode is long enough for a window
-            raise UserError("planner.horizon", cfg.planner.horizon, str(err)) from err
         self.offline_buffer = self._offline_buffer()
-        # ---- networks: teacher g_θ', actor π_θ and its transition model, critics
-        self.teacher = networks.make_planner(cfg, self.data)
-        self.actor = networks.make_actor(cfg, self.teacher)
-        self.transition = networks.make_transition_model(cfg, self.teacher, self.actor)
-        make_critic = CRITICS[cfg.critic.name][1]
-        self.critic = make_critic(cfg, self.data.obs_dim, self.data.action_dim)
-        self.actor_loss = networks.make_actor_loss(cfg, self.actor, self.critic)
-        self.actor_optimizer = torch.optim.Adam(self.actor_loss.parameters(), lr=cfg.actor.lr)
-        self.policy = networks.make_policy(cfg, self.actor, self.env.action_spec, self.transition)
-        self.ensemble = self.policy[0]  # LaplaceEnsembleActor: acts and holds ŝ_t's model
+        # ---- the algorithm's networks, losses and policies
+        self.learner = make_learner(self)
         self.replay = OfflineToOnlineReplayBuffer(
             self.offline_buffer,
             online_capacity=max(cfg.budget.online_frames, 1),
@@ -121,13 +164,12 @@ class DualRun:
         self.stages_done: list[str] = []
         self.frames = 0
         self.updates = 0
-        self.updates_since_refit = 0
         self.update_credit = 0.0
         self.next_episode = int(self.data.transitions["episode"].max()) + 1
         self.history: list[dict] = []
         logger_state = self.load(saved) if saved is not None else None
         self.logger = get_logger(
-            cfg.logger.backend, str(self.output_dir / "logs"), "dual", state_dict=logger_state
+            cfg.logger.backend, str(self.output_dir / "logs"), self.name, state_dict=logger_state
         )
 
     # ------------------------------------------------------------------ bookkeeping
@@ -136,6 +178,9 @@ class DualRun:
         random.seed(seed)
         np.random.seed(seed)
         torch.manual_seed(seed)
+
+    def say(self, text: str) -> None:
+        print(f"[{self.name}] {text}")
 
     def _offline_buffer(self) -> ReplayBuffer:
         """Uniform transitions from D_offline; a plain ``ReplayBuffer`` so its samples carry
@@ -148,23 +193,13 @@ class DualRun:
         buffer.extend(self.data.transitions)
         return buffer
 
-    def modules(self) -> dict:
-        """What the checkpoint holds, each weight once: the frozen transition model is
-        inside the ensemble, a shared one is the actor's own planner."""
-        return {
-            "teacher": self.teacher,
-            "ensemble": self.ensemble,  # actor, σ̄, Laplace posterior, frozen ŝ_t model
-            "critic": self.critic.loss,
-            "critic_optimizer": self.critic.optimizer,
-            "actor_optimizer": self.actor_optimizer,
-        }
-
     def save(self) -> None:
         """Checkpoints everything needed to continue (atomic write)."""
         online = self.replay.online_buffer
-        state = {name: module.state_dict() for name, module in self.modules().items()}
+        state = {name: module.state_dict() for name, module in self.learner.modules().items()}
         state.update({name: getattr(self, name) for name in _COUNTERS})
         state.update(
+            learner=self.learner.state_dict(),
             online_data=online[: len(online)].clone() if len(online) else None,
             rng=rng_state(),
             logger=self.logger.state_dict() if hasattr(self.logger, "state_dict") else None,
@@ -181,8 +216,9 @@ class DualRun:
         """Restores the checkpoint's ``state`` (read if not given); returns the logger's."""
         state = self._load_checkpoint() if state is None else state
         try:
-            for name, module in self.modules().items():
+            for name, module in self.learner.modules().items():
                 module.load_state_dict(state[name])
+            self.learner.load_state_dict(state["learner"])
         except (KeyError, RuntimeError, ValueError) as err:
             raise UserError(
                 "resume",
@@ -199,10 +235,10 @@ class DualRun:
         set_rng_state(state["rng"])
         return state["logger"]
 
-    def stage(self, name: str, fn) -> None:
-        """Runs one offline step of Algorithm 1 unless a resumed run already did it."""
+    def stage(self, name: str, fn: Callable[[], Any]) -> None:
+        """Runs one offline stage unless a resumed run already did it; then checkpoints."""
         if name in self.stages_done:
-            print(f"[dual] {name}: done in the checkpoint, skipped")
+            self.say(f"{name}: done in the checkpoint, skipped")
             return
         fn()
         self.stages_done.append(name)
@@ -212,59 +248,21 @@ class DualRun:
         for key, value in values.items():
             self.logger.log_scalar(f"{prefix}{key}", float(value), step=step)
 
-    # ------------------------------------------------------------------ offline phase
-    def pretrain_planner(self) -> None:
-        """Alg. 1 lines 3-4: θ' ← θ' − λ_g ∇ L_VLB on D_offline (Eq. 3)."""
-        p = self.cfg.planner
-        train_planner(
-            self.teacher,
-            self.windows.sample,
-            self.cfg.budget.planner_updates,
-            lr=p.lr,
-            action_condition_prob=p.action_condition_prob,
-            logger=self.logger,
-            log_prefix="planner/",
-            progress=self.cfg.progress,
-        )
+    def all_transitions(self, chunk: int = 8192):
+        """D_offline then D_online, in chunks on the run's device."""
+        for source in (self.data.transitions, self.replay.online_buffer):
+            for start in range(0, len(source), chunk):
+                yield source[start : start + chunk].to(self.cfg.device)
 
-    def distill(self) -> None:
-        """Alg. 1 line 5: distil g_θ' into the one-step π_θ and p(s'|s, a; θ)."""
-        student = progressive_distillation(
-            self.teacher,
-            self.windows.sample,
-            list(self.cfg.budget.distill_updates),
-            lr=self.cfg.distillation.lr,
-            action_condition_prob=self.cfg.planner.action_condition_prob,
-            logger=self.logger,
-            progress=self.cfg.progress,
-        )
-        self.actor.model.load_state_dict(student.state_dict())
-        if self.transition.frozen:  # a shared transition model is actor.model itself
-            self.transition.model.load_state_dict(student.state_dict())
-
+    # ------------------------------------------------------------------ updates
     def update(self, batch: TensorDictBase) -> dict:
-        """One critic (IQL) and one actor (Eq. 7) gradient step, Alg. 1 lines 7-8 / 15-16."""
-        critic = self.critic
-        q_loss, _ = critic.loss.qvalue_loss(batch)
-        v_loss, _ = critic.loss.value_loss(batch)
-        critic.optimizer.zero_grad(set_to_none=True)
-        (q_loss + v_loss).backward()
-        critic.optimizer.step()
-        critic.target_updater.step()
-        out = self.actor_loss(batch)
-        self.actor_optimizer.zero_grad(set_to_none=True)
-        out["loss_actor"].backward()
-        self.actor_optimizer.step()
+        """One learner update, counted."""
+        metrics = self.learner.update(batch)
         self.updates += 1
-        self.updates_since_refit += 1
-        return {
-            "loss_qvalue": q_loss.item(),
-            "loss_value": v_loss.item(),
-            **{k: v.item() for k, v in out.items()},
-        }
+        return metrics
 
-    def pretrain_actor_critic(self) -> None:
-        """Alg. 1 lines 6-8: pre-train Q_φ and π_θ on D_offline."""
+    def pretrain_updates(self) -> None:
+        """``budget.offline_updates`` updates on D_offline (DUAL: Alg. 1 lines 6-8)."""
         bar = tqdm(
             range(self.cfg.budget.offline_updates),
             desc="actor+critic",
@@ -275,45 +273,28 @@ class DualRun:
             metrics = self.update(self.offline_buffer.sample().to(self.cfg.device))
             if i % 100 == 0:
                 self.log(metrics, self.updates, "offline/")
-                bar.set_postfix(actor=f"{metrics['loss_actor']:.3f}")
-
-    def _all_transitions(self, chunk: int = 8192):
-        for source in (self.data.transitions, self.replay.online_buffer):
-            for start in range(0, len(source), chunk):
-                yield source[start : start + chunk].to(self.cfg.device)
-
-    def fit_laplace(self) -> None:
-        """Alg. 1 lines 9 and 17: last-layer Laplace of L_π on D (Eq. 8)."""
-        with torch.no_grad():
-            # The Hessian of Eq. (7) carries the actor loss's own weights (uniform for
-            # "uniform"; "sac" has no per-sample weights, so its GGN uses uniform ones).
-            advantage = self.cfg.actor.weighting == "advantage"
-            laplace = self.ensemble.fit_laplace(
-                self._all_transitions(),
-                weight_fn=self.actor_loss.advantage_weights if advantage else None,
-            )
-        self.updates_since_refit = 0
-        self.log({"prior_precision": laplace.prior_precision}, self.updates, "laplace/")
+                if "loss_actor" in metrics:
+                    bar.set_postfix(actor=f"{metrics['loss_actor']:.3f}")
 
     def evaluate(self, label: str) -> dict:
-        result = self.evaluate_policy(self.ensemble)
+        result = self.evaluate_policy(self.learner.evaluation_policy)
         result.update(frames=self.frames, label=label)
         self.history.append(result)
         self.log({k: v for k, v in result.items() if k != "label"}, self.frames, "eval/")
-        print(
-            f"[dual] {label} @ {self.frames} frames: normalized score "
+        self.say(
+            f"{label} @ {self.frames} frames: normalized score "
             f"{result['normalized_score']:.1f} (return {result['return']:.3f})"
         )
         return result
 
     # ------------------------------------------------------------------ online phase
     def collector(self) -> Collector:
-        """Alg. 1 lines 11-12: act with Eq. 9 + Eq. 10 in the online env."""
+        """Acts with the learner's exploration policy in the online env (Alg. 1 l. 11-12)."""
         remaining = self.cfg.budget.online_frames - self.frames
         self.env.set_seed(self.cfg.seed + 1 + self.frames)
         return Collector(
             self.env,
-            self.policy,
+            self.learner.exploration_policy,
             frames_per_batch=self.cfg.budget.frames_per_batch,
             total_frames=max(remaining, 0),
             exploration_type=ExplorationType.RANDOM,
@@ -322,7 +303,7 @@ class DualRun:
         )
 
     def store(self, batch: TensorDictBase) -> dict:
-        """Alg. 1 line 13: D_online ← D_online ∪ {(s_t, a_t, s_t+1, r_t)}."""
+        """D_online ← D_online ∪ {(s_t, a_t, s_t+1, r_t)} with the executed action (l. 13)."""
         batch = batch.reshape(-1)
         done = batch["next", "done"].squeeze(-1).long()
         episode = self.next_episode + torch.cumsum(done, 0) - done
@@ -334,12 +315,11 @@ class DualRun:
         self.frames += batch.numel()
         return {
             "reward_per_step": float(batch["next", "reward"].mean()),
-            "shift_distance": float(batch["shift_distance"].mean()),
-            "epistemic_std": float(batch["epistemic_variance"].mean().sqrt()),
+            **self.learner.batch_metrics(batch),
         }
 
     def train_online(self, num_frames: int) -> dict:
-        """Alg. 1 lines 14-16: UTD-ratio updates on D_offline ∪ D_online."""
+        """``online.utd_ratio`` updates per collected frame on D_offline ∪ D_online."""
         self.update_credit += self.cfg.online.utd_ratio * num_frames
         metrics: dict = {}
         while self.update_credit >= 1:
@@ -353,19 +333,58 @@ class DualRun:
         png = plot_learning_curve(
             self.history,
             self.output_dir / "learning_curve.png",
-            title=f"DUAL on {self.cfg.env.name}",
+            title=f"{self.learner.title} on {self.cfg.env.name}",
         )
         offline = next((h for h in self.history if h["label"] == "offline"), None)
         final = self.history[-1] if self.history else None
-        print("[dual] done.")
+        self.say("done.")
         if offline is not None:
-            print(
-                f"[dual] normalized score after the offline phase: {offline['normalized_score']:.1f}"
-            )
+            self.say(f"normalized score after the offline phase: {offline['normalized_score']:.1f}")
         if final is not None:
-            print(
-                f"[dual] normalized score at the end of the online phase: "
-                f"{final['normalized_score']:.1f}"
+            self.say(
+                f"normalized score at the end of the online phase: {final['normalized_score']:.1f}"
             )
-        print(f"[dual] metrics CSV: {self.output_dir / 'logs' / 'dual' / 'scalars'}")
-        print(f"[dual] learning curve: {png}")
+        self.say(f"metrics CSV: {self.output_dir / 'logs' / self.name / 'scalars'}")
+        self.say(f"learning curve: {png}")
+
+
+def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORun:
+    """Runs (or resumes) one offline-to-online run of ``make_learner``'s algorithm for a
+    validated ``cfg``: its offline stages, the offline evaluation, then the online phase
+    (collect, store, update, the learner's hook, evaluate, checkpoint); returns the run."""
+    run = O2ORun(cfg, make_learner)
+
+    # ---- Offline phase
+    for name, fn in run.learner.offline_stages():
+        run.stage(name, fn)
+    run.stage("offline_eval", lambda: run.evaluate("offline"))
+
+    # ---- Online phase
+    budget = cfg.budget
+    next_eval = (run.frames // budget.eval_every + 1) * budget.eval_every
+    next_save = run.frames + budget.checkpoint_every
+    try:
+        for batch in run.collector() if run.frames < budget.online_frames else ():
+            stats = run.store(batch)  # act with the exploration policy, store in D_online
+            losses = run.train_online(batch.numel())  # UTD-ratio updates
+            run.learner.after_updates()  # DUAL: refit the Laplace posterior when due
+            run.log({**stats, **losses}, run.frames, "online/")
+            if run.frames >= next_eval:
+                run.evaluate("online")
+                next_eval += budget.eval_every
+            if run.frames >= next_save:
+                run.save()
+                next_save += budget.checkpoint_every
+            if cfg.interrupt_at_frames is not None and run.frames >= cfg.interrupt_at_frames:
+                raise KeyboardInterrupt
+    except KeyboardInterrupt:
+        run.save()
+        run.say(
+            f"interrupted at {run.frames} online frames; checkpoint saved. "
+            "Continue with resume=true."
+        )
+        return run
+    if not run.history or run.history[-1]["frames"] != run.frames:
+        run.evaluate("online")
+    run.finish()
+    return run

@@ -1,0 +1,133 @@
+"""The ``iql`` baseline: Implicit Q-Learning (Kostrikov et al. 2022) offline, then online.
+
+TorchRL's ``IQLLoss`` trains a tanh-Gaussian MLP actor by advantage-weighted regression
+(``exp(β (Q − V))``, clipped at 100) on the same IQL critics as DUAL (the ``CRITICS``
+entry, same sizes), with CORL's settings (actor MLP 256 x 2 at the default budget, Adam
+3e-4, β = 3). It shares everything else with DUAL through
+:class:`~torchrl_dual.recipe.O2ORun`: data, ``budget.offline_updates`` offline updates,
+online frames, UTD ratio, batch size, offline fraction, replay and evaluator. Online it
+collects with the actor's samples (``ExplorationType.RANDOM``), projected by the env
+kit's ``action_projection`` (Frozen-Lake's one-hot argmax), and is evaluated with the
+deterministic action ``tanh(loc)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from omegaconf import DictConfig
+from tensordict import TensorDictBase
+from tensordict.nn import NormalParamExtractor, TensorDictModule, TensorDictSequential
+from torch import nn
+from torchrl.envs.utils import ExplorationType
+from torchrl.modules import MLP, ProbabilisticActor, TanhNormal
+
+from torchrl_dual.recipe.critics import CRITICS
+from torchrl_dual.recipe.env_kits import env_kit
+from torchrl_dual.recipe.o2o_run import Learner, O2ORun, run_o2o
+from torchrl_dual.recipe.rules import Integer, Real, key
+
+
+@dataclass
+class IQLActorSettings:
+    """``algo/iql.yaml``'s ``actor``: the tanh-Gaussian MLP actor and its AWR loss."""
+
+    hidden: int = key(Integer(1), "MLP width of the actor")
+    depth: int = key(Integer(1), "hidden layers of the actor")
+    lr: float = key(Real(0, low_open=True), "Adam learning rate")
+    temperature: float = key(Real(0), "β of exp(β (Q - V)), clipped at 100 by IQLLoss")
+
+
+def make_iql_actor(cfg: DictConfig, obs_dim: int, action_spec) -> ProbabilisticActor:
+    """``π(a|s) = TanhNormal(loc(s), scale(s))`` on the action box of ``action_spec``."""
+    a = cfg.actor
+    action_dim = action_spec.shape[-1]
+    net = nn.Sequential(
+        MLP(
+            in_features=obs_dim,
+            out_features=2 * action_dim,
+            num_cells=[a.hidden] * a.depth,
+            activation_class=nn.ReLU,
+        ),
+        NormalParamExtractor(),
+    )
+    space = action_spec.space
+    return ProbabilisticActor(
+        TensorDictModule(net, in_keys=["observation"], out_keys=["loc", "scale"]),
+        in_keys=["loc", "scale"],
+        spec=action_spec,
+        distribution_class=TanhNormal,
+        distribution_kwargs={
+            "low": space.low.to(cfg.device),
+            "high": space.high.to(cfg.device),
+        },
+        default_interaction_type=ExplorationType.RANDOM,
+    ).to(cfg.device)
+
+
+class IQLLearner(Learner):
+    """IQL: one ``budget.offline_updates`` stage offline, then the same update online."""
+
+    title = "IQL"
+
+    def __init__(self, run: O2ORun) -> None:
+        self.run = run
+        cfg = run.cfg
+        spec = run.env.action_spec
+        self.actor = make_iql_actor(cfg, run.data.obs_dim, spec)
+        make_critic = CRITICS[cfg.critic.name][1]
+        self.critic = make_critic(
+            cfg,
+            run.data.obs_dim,
+            run.data.action_dim,
+            actor=self.actor,
+            temperature=cfg.actor.temperature,
+        )
+        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor.lr)
+        projection = env_kit(cfg).action_projection
+        self.evaluation_policy = self.actor
+        self.exploration_policy = (
+            self.actor
+            if projection is None
+            else TensorDictSequential(
+                self.actor,
+                TensorDictModule(projection, in_keys=["action"], out_keys=["action"]),
+            )
+        )
+
+    def modules(self) -> dict:
+        """The IQL loss holds the actor, V, both Q and the target Q networks."""
+        return {
+            "critic": self.critic.loss,
+            "critic_optimizer": self.critic.optimizer,
+            "actor_optimizer": self.actor_optimizer,
+        }
+
+    def offline_stages(self) -> list:
+        return [("actor_critic", self.run.pretrain_updates)]
+
+    def update(self, batch: TensorDictBase) -> dict:
+        """IQL's three losses on one batch (the actor's and V's targets are the target Q
+        networks, so no gradient crosses), one step of each optimizer, soft target update."""
+        loss = self.critic.loss
+        q_loss, _ = loss.qvalue_loss(batch)
+        v_loss, _ = loss.value_loss(batch)
+        actor_loss, _ = loss.actor_loss(batch)
+        self.critic.optimizer.zero_grad(set_to_none=True)
+        self.actor_optimizer.zero_grad(set_to_none=True)
+        (q_loss + v_loss + actor_loss).backward()
+        self.critic.optimizer.step()
+        self.actor_optimizer.step()
+        self.critic.target_updater.step()
+        return {
+            "loss_qvalue": q_loss.item(),
+            "loss_value": v_loss.item(),
+            "loss_actor": actor_loss.item(),
+            "log_prob": float(batch[loss.tensor_keys.log_prob].mean()),
+        }
+
+
+def run_iql(cfg: DictConfig) -> O2ORun:
+    """Runs (or resumes) the IQL baseline for a validated ``cfg``."""
+    return run_o2o(cfg, IQLLearner)
