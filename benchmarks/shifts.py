@@ -10,7 +10,7 @@ Frozen-Lake: exact success probabilities (value iteration) of the policy optimal
 offline data's dynamics, without the shift and under ``biased_slip``, next to the policy
 optimal under the shift, and how many cells the optimal action changes in.
 
-Run (about a minute on one core)::
+Run (about 70 s on one core; the table in ``docs/recipe.md``)::
 
     OMP_NUM_THREADS=1 python benchmarks/shifts.py --episodes 50
 """
@@ -89,7 +89,10 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
         "--shifts",
-        default="rotation:60,rotation:90,damping:100,damping:150,mass:10,mass:20",
+        default=(
+            "rotation:45,rotation:60,rotation:75,rotation:90,damping:50,damping:100,"
+            "damping:150,mass:0.3,mass:3,mass:10,mass:20"
+        ),
         help="comma-separated name:value (angle in degrees for rotation, else the scale)",
     )
     parser.add_argument("--frozenlake-map", default="8x8")
