@@ -7,22 +7,16 @@ policy meets dynamics it has not seen. Every shift works on the raw Gymnasium en
 exact Frozen-Lake model (:mod:`~torchrl_dual.envs.frozenlake_mdp`) rewrites its
 transition table with the same function as the env (:func:`biased_slip_table`).
 
-============== ============ =============================================================
-name           env kind     what changes
-============== ============ =============================================================
-``none``       every kind   nothing
-``rotation``   pointmaze    the action ``(ax, ay)`` is rotated by ``angle`` degrees
-                            (counter-clockwise) before the env clips and executes it
-``damping``    pointmaze    MuJoCo ``model.dof_damping`` (the point's two slide joints)
-                            is multiplied by ``scale``
-``mass``       pointmaze    MuJoCo ``model.body_mass`` of the point is multiplied by
-                            ``scale``
-``biased_slip`` frozenlake  a slip always turns counter-clockwise of the intended move
-                            (left -> down, down -> right, right -> up, up -> left): the
-                            intended move keeps its probability ``success_rate``, the
-                            counter-clockwise neighbour gets the rest
-``biased_slip_cw`` frozenlake  the same with every slip turning clockwise
-============== ============ =============================================================
+* ``none`` (every env kind): nothing changes.
+* ``rotation`` (pointmaze): the action ``(ax, ay)`` is rotated by ``angle`` degrees
+  (counter-clockwise) before the env clips and executes it.
+* ``damping`` (pointmaze): MuJoCo ``model.dof_damping`` of the point's two slide joints
+  is multiplied by ``scale``.
+* ``mass`` (pointmaze): MuJoCo ``model.body_mass`` of the point is multiplied by ``scale``.
+* ``biased_slip`` (frozenlake): a slip always turns counter-clockwise of the intended
+  move (left -> down, down -> right, right -> up, up -> left): the intended move keeps
+  its probability ``success_rate``, the counter-clockwise neighbour gets the rest.
+* ``biased_slip_cw`` (frozenlake): the same with every slip turning clockwise.
 
 Which side matters depends on the map: on ``8x8`` the policy optimal for the offline
 data succeeds 0.934 online without a shift, 0.0 under ``biased_slip`` and 0.977 under
@@ -63,9 +57,10 @@ class RotatedAction(gym.ActionWrapper):
     """Rotates a 2-D action by ``angle`` degrees (counter-clockwise) before the env sees it.
 
     Examples:
-        >>> env = RotatedAction(gym.make("PointMaze_UMaze-v3"), 90.0)  # doctest: +SKIP
-        >>> env.action([1.0, 0.0]).round(6).tolist()  # doctest: +SKIP
-        [0.0, 1.0]
+        >>> from torchrl_dual.envs import make_pointmaze_gym_env
+        >>> env = make_pointmaze_gym_env("umaze", shift="rotation", shift_angle=90)
+        >>> isinstance(env, RotatedAction), env.action([1.0, 0.0]).round(6).tolist()
+        (True, [0.0, 1.0])
     """
 
     def __init__(self, env: gym.Env, angle: float) -> None:
