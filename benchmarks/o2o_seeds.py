@@ -1,11 +1,13 @@
 """Summarise recipe runs over seeds: normalized scores (mean ± std) and a curve PNG.
 
-    python benchmarks/o2o_seeds.py outputs/pointmaze_umaze/default/seed0 \\
-        outputs/pointmaze_umaze/default/seed1 outputs/pointmaze_umaze/default/seed2 \\
+    python benchmarks/o2o_seeds.py outputs/pointmaze_umaze/dual/default/seed0 \\
+        outputs/pointmaze_umaze/dual/default/seed1 outputs/pointmaze_umaze/dual/default/seed2 \\
         --png docs/figures/pointmaze_umaze_default.png
 
 Reads each run's ``checkpoint.pt`` (its evaluation history) and prints a markdown table
 of the offline score, the final online score and every evaluation point.
+A run directory is the recipe's ``output_dir``, by default
+``outputs/<env>/<algo>/<budget>/seed<k>``.
 """
 
 from __future__ import annotations
