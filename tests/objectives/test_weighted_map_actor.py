@@ -310,3 +310,148 @@ def test_sac_without_explicit_critic_params_keeps_gradients_out_of_q():
     loss_fn = WeightedMAPActorLoss(_mock_actor(), qvalue_network=qvalue, weighting="sac")
     loss_fn(_mock_batch())["loss_actor"].backward()
     assert all(p.grad is None for p in qvalue.parameters())
+
+
+# ----------------------------------------------------------------------------- fast path
+@pytest.fixture
+def float64():
+    previous = torch.get_default_dtype()
+    torch.set_default_dtype(torch.float64)
+    yield
+    torch.set_default_dtype(previous)
+
+
+def _planner_and_critic(weighting: str, obs_dim: int = 6, action_dim: int = 2):
+    """A zero-latent PlannerActor and the recipe's IQL critics (with a drifted target),
+    small and in the default dtype."""
+    from omegaconf import OmegaConf
+
+    from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
+    from torchrl_dual.recipe.critics import make_iql_critic
+
+    torch.manual_seed(0)
+    model = TrajectoryDiffusion(
+        TrajectoryLayout(obs_dim, action_dim, 4), num_steps=1, hidden=32, depth=2
+    )
+    model.normalizer.fit(torch.randn(64, obs_dim) * 2 + 1, torch.rand(64, action_dim) * 2 - 1)
+    actor = PlannerActor(model)
+    with torch.no_grad():
+        for p in actor.parameters():
+            p.add_(0.1 * torch.randn_like(p))
+    cfg = OmegaConf.create(
+        {
+            "device": "cpu",
+            "critic": {
+                "hidden": 32,
+                "depth": 2,
+                "lr": 3e-4,
+                "expectile": 0.7,
+                "discount": 0.99,
+                "target_update_tau": 0.005,
+            },
+        }
+    )
+    critic = make_iql_critic(cfg, obs_dim, action_dim)
+    with torch.no_grad():  # target Q != online Q, as after some soft updates
+        for p in critic.loss.target_qvalue_network_params.values(True, True):
+            p.add_(0.05 * torch.randn_like(p))
+    loss_fn = WeightedMAPActorLoss.from_iql(actor, critic.loss, weighting=weighting)
+    gen = torch.Generator().manual_seed(1)
+    done = torch.rand(64, 1, generator=gen) < 0.1
+    batch = TensorDict(
+        {
+            "observation": torch.randn(64, obs_dim, generator=gen) * 2,
+            "action": torch.rand(64, action_dim, generator=gen) * 2 - 1,
+            "next": {
+                "observation": torch.randn(64, obs_dim, generator=gen),
+                "reward": torch.rand(64, 1, generator=gen),
+                "done": done,
+                "terminated": done.clone(),
+            },
+        },
+        [64],
+    )
+    return actor, critic, loss_fn, batch
+
+
+def _assert_close(a: torch.Tensor, b: torch.Tensor, rtol: float = 1e-6) -> None:
+    a, b = a.detach(), b.detach()
+    scale = max(float(a.abs().max()), float(b.abs().max()), 1e-30)
+    assert float((a - b).abs().max()) <= rtol * scale, (a, b)
+
+
+def _actor_outputs(loss_fn, batch, fast: bool):
+    loss_fn.fast_path = fast
+    torch.manual_seed(7)  # the "sac" draw
+    out = loss_fn(batch.clone())
+    params = [p for p in loss_fn.parameters() if p.requires_grad]
+    grads = torch.autograd.grad(out["loss_actor"], params, allow_unused=True)
+    grads = [torch.zeros_like(p) if g is None else g for p, g in zip(params, grads, strict=True)]
+    return out, grads
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+@pytest.mark.parametrize("weighting", WEIGHTINGS)
+def test_fast_path_equals_the_generic_path_in_loss_and_gradients(weighting, dtype, request):
+    if dtype == "float64":
+        request.getfixturevalue("float64")
+    _, _, loss_fn, batch = _planner_and_critic(weighting)
+    generic, generic_grads = _actor_outputs(loss_fn, batch, fast=False)
+    fast, fast_grads = _actor_outputs(loss_fn, batch, fast=True)
+    rtol = 1e-6 if dtype == "float64" else 1e-4
+    for key in generic.keys():
+        _assert_close(generic[key], fast[key], rtol)
+    for g, f in zip(generic_grads, fast_grads, strict=True):
+        _assert_close(g, f, rtol)
+    assert any(float(g.abs().max()) > 0 for g in fast_grads)
+
+
+def test_fast_path_skips_the_generic_actor_and_critic_calls(float64, monkeypatch):
+    _, _, loss_fn, batch = _planner_and_critic("advantage")
+
+    def fail(*args, **kwargs):
+        raise AssertionError("the generic path ran")
+
+    monkeypatch.setattr(loss_fn, "_actor_loss_generic", fail)
+    monkeypatch.setattr(type(loss_fn.qvalue_network), "forward", fail)
+    monkeypatch.setattr(PlannerActor, "features", fail)
+    loss_fn(batch.clone())["loss_actor"].backward()
+
+
+def test_fast_path_falls_back_for_critics_that_are_not_plain_mlps(float64):
+    _, _, loss_fn, batch = _planner_and_critic("advantage")
+    loss_fn.qvalue_network.module.concat_inputs = False  # as an unknown module would
+    loss_fn._mlps.clear()
+    generic, _ = _actor_outputs(loss_fn, batch, fast=False)
+    fast, _ = _actor_outputs(loss_fn, batch, fast=True)
+    _assert_close(generic["loss_actor"], fast["loss_actor"])
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_critic_fast_losses_equal_iql_losses_and_gradients(dtype, request):
+    if dtype == "float64":
+        request.getfixturevalue("float64")
+    _, critic, _, batch = _planner_and_critic("advantage")
+    params = [p for group in critic.optimizer.param_groups for p in group["params"]]
+    results = []
+    for fast in (False, True):
+        critic.fast_path = fast
+        q_loss, v_loss = critic.losses(batch.clone())
+        results.append((q_loss, v_loss, torch.autograd.grad(q_loss + v_loss, params)))
+    (q0, v0, g0), (q1, v1, g1) = results
+    rtol = 1e-6 if dtype == "float64" else 1e-5
+    _assert_close(q0, q1, rtol)
+    _assert_close(v0, v1, rtol)
+    for a, b in zip(g0, g1, strict=True):
+        _assert_close(a, b, rtol)
+
+
+def test_fast_path_runs_the_generic_path_once_the_actor_no_longer_holds_actor_params(float64):
+    actor, _, loss_fn, batch = _planner_and_critic("uniform")
+    assert loss_fn._actor_params_shared()
+    # a buffer replaced by a new tensor: to_module would install the old one
+    actor.model.normalizer.obs_mean = actor.model.normalizer.obs_mean + 1.0
+    assert not loss_fn._actor_params_shared()
+    generic, _ = _actor_outputs(loss_fn, batch, fast=False)
+    fast, _ = _actor_outputs(loss_fn, batch, fast=True)
+    _assert_close(generic["loss_actor"], fast["loss_actor"])
