@@ -7,7 +7,7 @@ generic path: TorchRL ``IQLLoss`` losses, the twin target Q looped with ``to_mod
 the actor's window pass) against the current one (``DualLearner.update``), interleaved
 in one process, from identical copies of the weights and optimizer states.
 
-    python benchmarks/update_speed.py [--rounds 12] [--updates 20] [--threads 1] [--fused-adam]
+    python benchmarks/update_speed.py [--rounds 5] [--updates 50] [--threads 1]
     python benchmarks/update_speed.py --profile   # cProfile top list of each path
 """
 
@@ -121,31 +121,17 @@ def time_updates(fn, learner, batches) -> float:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--rounds", type=int, default=12)
-    parser.add_argument("--updates", type=int, default=20, help="updates per round and path")
+    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--updates", type=int, default=50, help="updates per round and path")
     parser.add_argument("--threads", type=int, default=1, help="torch.set_num_threads")
     parser.add_argument("--weighting", default="advantage")
     parser.add_argument("--profile", action="store_true", help="cProfile top list of each path")
     parser.add_argument("--top", type=int, default=25)
-    parser.add_argument(
-        "--fused-adam",
-        action="store_true",
-        help="what-if: both Adams of the current path fused (equal to ~1 ulp per step, not bit "
-        "for bit, so not the recipe's setting)",
-    )
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     learner = make_learner([f"actor.weighting={args.weighting}"])
     overrides = [f"actor.weighting={args.weighting}"]
     learners = {"reference": learner, "current": make_learner(overrides)}
-    for name, current in learners.items():
-        if name == "reference":  # the optimizers as they were: per-tensor Adam
-            for opt in (current.critic.optimizer, current.actor_optimizer):
-                opt.param_groups[0]["foreach"] = False
-        elif args.fused_adam:
-            for opt in (current.critic.optimizer, current.actor_optimizer):
-                opt.param_groups[0]["foreach"] = False
-                opt.param_groups[0]["fused"] = True
     fns = {"reference": reference_update, "current": current_update}
     gen = torch.Generator().manual_seed(1)
     batch_size = learner.cfg.budget.batch_size
@@ -170,7 +156,6 @@ def main(argv: list[str] | None = None) -> None:
     print(
         f"batch {batch_size}, weighting {args.weighting}, {args.threads} thread(s), "
         f"{args.rounds} rounds x {args.updates} updates"
-        + (", fused Adam" if args.fused_adam else "")
     )
     for name in fns:
         r = sorted(rates[name])

@@ -185,8 +185,7 @@ def make_iql_critic(
     params = list(loss.qvalue_network_params.values(True, True)) + list(
         loss.value_network_params.values(True, True)
     )
-    # foreach: the same update as the per-tensor loop (bit for bit), in fewer kernel calls
-    optimizer = torch.optim.Adam(params, lr=c.lr, foreach=True)
+    optimizer = torch.optim.Adam(params, lr=c.lr)
     return Critic(loss, optimizer, SoftUpdate(loss, tau=c.target_update_tau))
 
 
