@@ -2,15 +2,12 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
-import torch.nn.functional as F
 from tensordict import TensorDict, TensorDictBase, TensorDictParams
 from tensordict.nn import TensorDictModule
 from tensordict.utils import NestedKey
-from torch import nn
 from torch.distributions import Normal
 from torchrl.objectives.common import LossModule
 
@@ -18,61 +15,6 @@ from torchrl_dual._utils import read_loss_input
 from torchrl_dual.modules.actors.last_layer_actor import LastLayerActor
 
 WEIGHTINGS = ("advantage", "sac", "uniform")
-
-_LOG_SQRT_2PI = math.log(math.sqrt(2 * math.pi))
-
-
-def _stackable_mlp(network) -> tuple[nn.Sequential, tuple] | None:
-    """The ``nn.Sequential`` of ``nn.Linear`` and parameter-free layers that ``network``
-    (a ``TensorDictModule``) applies to its in_keys, or ``None``.
-
-    Either the wrapped module is itself such a sequential (one in_key), or it declares
-    ``concat_inputs = True`` and holds it as ``.mlp``: ``mlp(cat(in_keys, -1))``.
-    """
-    module = getattr(network, "module", None)
-    in_keys = getattr(network, "in_keys", None)
-    if module is None or in_keys is None or len(getattr(network, "out_keys", ())) != 1:
-        return None
-    if isinstance(module, nn.Sequential) and len(in_keys) == 1:
-        mlp, prefix = module, ("module",)
-    elif getattr(module, "concat_inputs", False) and isinstance(
-        getattr(module, "mlp", None), nn.Sequential
-    ):
-        mlp, prefix = module.mlp, ("module", "mlp")
-    else:
-        return None
-    for layer in mlp:
-        if isinstance(layer, nn.Linear):
-            continue
-        if any(True for _ in layer.parameters()) or any(True for _ in layer.buffers()):
-            return None
-    return mlp, prefix
-
-
-def stacked_mlp_forward(
-    mlp: nn.Sequential, prefix: tuple, params, x: torch.Tensor, detach: bool = False
-) -> torch.Tensor:
-    """``mlp(x)`` for ``x`` of shape ``[B, in]`` with the weights in ``params`` (a
-    TensorDict keyed as the network's own parameters); with a leading ensemble dimension
-    ``K`` on ``params`` every member runs in one batched matmul per layer and the output
-    is ``[K, B, out]``."""
-    node = params.get(prefix)
-    for name, layer in mlp.named_children():
-        if isinstance(layer, nn.Linear):
-            sub = node.get(name)
-            weight, bias = sub.get("weight"), sub.get("bias", None)
-            if detach:
-                weight = weight.detach()
-                bias = None if bias is None else bias.detach()
-            if weight.dim() == 2:
-                x = F.linear(x, weight, bias)
-            else:  # [K, out, in], x [B, in] or [K, B, in] -> [K, B, out]
-                x = torch.matmul(x, weight.transpose(-1, -2))
-                if bias is not None:
-                    x = x + bias.unsqueeze(-2)
-        else:
-            x = layer(x)
-    return x
 
 
 class WeightedMAPActorLoss(LossModule):
@@ -117,17 +59,6 @@ class WeightedMAPActorLoss(LossModule):
         max_weight (float): ``w_max``. Defaults to ``100.0``.
         entropy_coef (float): ``α`` of the ``"sac"`` variant. Defaults to ``0.2``.
         reduction (str): ``"none"`` | ``"mean"`` | ``"sum"``. Defaults to ``"mean"``.
-
-    Attribute ``fast_path`` (default ``True``) computes the same losses and gradients (to
-    float rounding, same random draws) with less overhead: critics that are plain MLPs
-    (an ``nn.Sequential`` of ``nn.Linear`` and parameter-free layers, optionally behind a
-    module with ``concat_inputs = True`` and ``.mlp``) run as one batched matmul per
-    layer over the ensemble instead of a ``to_module`` loop; the Gaussian log-density is
-    written out instead of a ``Normal``; and a zero-latent
-    :class:`~torchrl_dual.modules.PlannerActor` skips its window: the input layer on
-    ``[z, mask]`` with ``z`` zero outside ``s_0`` and ``t = 1`` equals
-    ``W_s·normalize(s) + (W_mask·mask + b + time_embedding(1))``, differentiable in the
-    same weights. ``fast_path = False`` runs the generic path.
 
     Examples:
         >>> import torch
@@ -189,22 +120,6 @@ class WeightedMAPActorLoss(LossModule):
         if weighting == "advantage" and value_network is None:
             raise ValueError("weighting='advantage' needs a value_network (V(s) of IQL).")
         self.convert_to_functional(actor, "actor")
-        # The fast path (default) computes the same values as the generic one, with fewer
-        # Python-level calls: see ``fast_path`` in the class docstring.
-        self.fast_path = True
-        # Where each entry of actor_params lives in the actor (the fast path reads the
-        # actor's own tensors, so it checks at every call that to_module would install
-        # those same tensors: parameters by identity, buffers by storage).
-        slots = {}
-        for prefix, module in actor.named_modules(remove_duplicate=False):
-            for kind in ("_parameters", "_buffers"):
-                for name in getattr(module, kind):
-                    slots[f"{prefix}.{name}" if prefix else name] = (module, kind, name)
-        keys = [
-            ".".join(k) if isinstance(k, tuple) else k for k in self.actor_params.keys(True, True)
-        ]
-        self._actor_slots = [slots.get(k) for k in keys]
-        self._mlps: dict[int, tuple | None] = {}
         # Critic modules and weights belong to the critic's loss: kept unregistered so the
         # actor's optimizer and state_dict never see them.
         self.__dict__["qvalue_network"] = qvalue_network
@@ -243,10 +158,6 @@ class WeightedMAPActorLoss(LossModule):
 
     # ------------------------------------------------------------------ critics
     def _evaluate(self, network, params, tensordict: TensorDictBase, key: NestedKey):
-        if self.fast_path and params is not None:
-            out = self._evaluate_stacked(network, params, tensordict)
-            if out is not None:
-                return out
         td = tensordict.select(*network.in_keys, strict=False)
         if params is None:
             params = TensorDict.from_module(network)
@@ -259,20 +170,6 @@ class WeightedMAPActorLoss(LossModule):
             with member.to_module(network):
                 outputs.append(network(td.clone(False)).get(key))
         return torch.stack(outputs).min(0).values
-
-    def _evaluate_stacked(self, network, params, tensordict: TensorDictBase):
-        """:meth:`_evaluate` of a plain-MLP critic in one batched pass, or ``None``."""
-        found = self._mlps.get(id(network), False)
-        if found is False:
-            found = self._mlps[id(network)] = _stackable_mlp(network)
-        if found is None or params.batch_dims > 1:
-            return None
-        inputs = [tensordict.get(k, None) for k in network.in_keys]
-        if any(x is None or x.dim() != 2 for x in inputs):
-            return None
-        x = inputs[0] if len(inputs) == 1 else torch.cat(inputs, -1)
-        out = stacked_mlp_forward(*found, params, x, detach=True)
-        return out if params.batch_dims == 0 else out.min(0).values
 
     def q_value(self, tensordict: TensorDictBase) -> torch.Tensor:
         """``min_k Q_k(s, a)`` with detached critic weights, shape ``[*B]``."""
@@ -305,92 +202,8 @@ class WeightedMAPActorLoss(LossModule):
             values.append(value)
         return values[0], values[1]
 
-    def _actor_params_shared(self) -> bool:
-        """Whether ``actor_params`` holds the actor's own tensors (so running the actor
-        without ``actor_params.to_module`` computes the same thing)."""
-        leaves = list(self.actor_params.values(True, True))
-        if len(leaves) != len(self._actor_slots):
-            return False
-        for leaf, slot in zip(leaves, self._actor_slots, strict=True):
-            if slot is None:
-                return False
-            module, kind, name = slot
-            own = getattr(module, kind).get(name)
-            if own is leaf:
-                continue
-            if (
-                kind == "_parameters"
-                or own is None
-                or own.data_ptr() != leaf.data_ptr()
-                or own.shape != leaf.shape
-                or own.stride() != leaf.stride()
-                or own.dtype != leaf.dtype
-            ):
-                return False
-        return True
-
-    def _planner_loc(self, observation: torch.Tensor) -> torch.Tensor | None:
-        """``μ(s)`` of a zero-latent ``PlannerActor`` without its window (see the class
-        docstring), or ``None`` for any other actor."""
-        from torchrl_dual.modules.actors.planner_actor import PlannerActor
-
-        actor = self.actor
-        if not (isinstance(actor, PlannerActor) and actor.latent == "zero"):
-            return None
-        actor._check_observation(observation)
-        model = actor.model
-        denoiser, layout = model.denoiser, model.layout
-        weight = denoiser.input_layer.weight
-        flat = weight.shape[1] // 2  # input = [flattened window, flattened mask]
-        mask = layout.condition_mask("s0", device=weight.device).flatten().to(weight.dtype)
-        time = denoiser.time_embedding(torch.ones(1, device=weight.device, dtype=weight.dtype))
-        const = F.linear(mask, weight[:, flat:], denoiser.input_layer.bias) + time
-        state = model.normalizer.normalize_observation(observation)
-        hidden = F.linear(state, weight[:, : layout.obs_dim]) + const
-        features = denoiser.trunk(hidden)
-        return actor.readout(actor.head_output(features), observation)
-
-    @staticmethod
-    def _log_prob(value: torch.Tensor, loc: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
-        """``Normal(loc, scale).log_prob(value)``, written out (the same operations)."""
-        scale = scale.expand_as(loc)
-        return -((value - loc) ** 2) / (2 * scale**2) - scale.log() - _LOG_SQRT_2PI
-
     def actor_loss(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, dict]:
         """Per-sample loss of Eq. (7) for the configured weighting, and diagnostics."""
-        if not (self.fast_path and self._actor_params_shared()):
-            return self._actor_loss_generic(tensordict)
-        observation, action = self._inputs(tensordict)
-        loc = self._planner_loc(observation) if observation.dim() == 2 else None
-        if loc is None:
-            loc = self.actor(observation)
-        std = self.actor.std
-        if self.weighting == "sac":
-            # Normal.rsample: loc + ε·σ with ε drawn as torch.empty(shape).normal_()
-            eps = torch.empty(loc.shape, dtype=loc.dtype, device=loc.device).normal_()
-            sample = loc + eps * std.expand_as(loc)
-            log_prob = self._log_prob(sample, loc, std).sum(-1)
-            td = tensordict.select(*self.qvalue_network.in_keys, strict=False).clone(False)
-            td.set(self.tensor_keys.action, sample)
-            loss = self.entropy_coef * log_prob - self.q_value(td)
-            weight = torch.ones_like(log_prob)
-        else:
-            log_prob = self._log_prob(action, loc, std).sum(-1)
-            if self.weighting == "advantage":
-                weight = self.advantage_weights(tensordict)
-            else:
-                weight = torch.ones_like(log_prob)
-            loss = -weight * log_prob
-        metadata = {
-            "weight_mean": weight.mean().detach(),
-            "log_prob": log_prob.mean().detach(),
-            "actor_std": std.mean().detach(),
-            "_weight": weight.detach(),
-        }
-        return loss, metadata
-
-    def _actor_loss_generic(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, dict]:
-        """:meth:`actor_loss` through ``actor_params.to_module`` and ``Normal``."""
         observation, action = self._inputs(tensordict)
         with self.actor_params.to_module(self.actor):
             loc = self.actor(observation)
