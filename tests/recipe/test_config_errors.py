@@ -82,7 +82,7 @@ CASES = [
         "actor.weighting=ranking",
         "actor.weighting=ranking: unknown option; choose one of advantage, sac, uniform",
     ),
-    ("laplace.num_samples=0", "laplace.num_samples=0: must be an integer >= 1"),
+    ("laplace.num_samples=-1", "laplace.num_samples=-1: must be an integer >= 0"),
     (
         "laplace.prior_precision=-1",
         "laplace.prior_precision=-1: must be 'evidence' or a number > 0",
@@ -116,6 +116,7 @@ def test_the_default_and_smoke_configs_are_valid(tmp_path):
     iql = compose(tmp_path, "algo=iql", "budget=smoke")
     assert (iql.actor.hidden, iql.online.utd_ratio, iql.critic.expectile) == (64, 0.5, 0.7)
     assert "planner" not in iql
+    assert compose(tmp_path, "laplace.num_samples=0").laplace.num_samples == 0  # no-UQ ablation
 
 
 @pytest.mark.parametrize(("overrides", "message"), CASES, ids=[c[0] for c in CASES])

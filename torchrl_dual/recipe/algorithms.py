@@ -88,7 +88,7 @@ class ActorSettings:
 class LaplaceSettings:
     """Last-layer Laplace ensemble (Eq. 8-9)."""
 
-    num_samples: int = key(Integer(1), "M sub-policies")
+    num_samples: int = key(Integer(0), "M sub-policies; 0 = no epistemic UQ (MAP mean, σ̄)")
     prior_precision: Any = key(
         Either(
             (Choice(("evidence",)), Real(0, low_open=True)), "must be 'evidence' or a number > 0"

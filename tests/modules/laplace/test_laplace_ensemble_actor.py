@@ -408,7 +408,7 @@ def test_missing_observation_key_and_bad_ensemble_size_are_rejected(make_model):
     with pytest.raises(KeyError, match="reads 'observation'.*holds \\['obs'\\]"):
         policy(TensorDict({"obs": torch.zeros(3, OBS)}, [3]))
     with pytest.raises(ValueError, match="num_samples"):
-        LaplaceEnsembleActor(_actor("linear_head", make_model), num_samples=0)
+        LaplaceEnsembleActor(_actor("linear_head", make_model), num_samples=-1)
 
 
 def test_custom_observation_and_output_keys(make_model):
@@ -552,3 +552,23 @@ def test_a_frozen_transition_model_on_the_actors_own_planner_is_refused(make_mod
     actor = PlannerActor(model)
     with pytest.raises(ValueError, match="frozen=False"):
         LaplaceEnsembleActor(actor, transition_model=TransitionModel(model))
+
+
+# ----------------------------------------------------------------------------- no-UQ ablation
+@pytest.mark.parametrize("kind", ACTOR_KINDS)
+def test_zero_samples_act_with_the_map_mean_and_the_aleatoric_std_only(kind, make_model):
+    actor = _actor(kind, make_model)
+    policy = LaplaceEnsembleActor(actor, num_samples=0, sample_action=False)  # no fit needed
+    td = _obs_td()
+    with set_exploration_type(ExplorationType.RANDOM), torch.no_grad():
+        out = policy(td.clone())
+        mean = actor(td["observation"])
+    assert_all_close(out["loc"], mean)
+    assert_all_close(out["scale"], actor.std.expand_as(mean))
+    assert not out["epistemic_variance"].any()
+    sampled = LaplaceEnsembleActor(actor, num_samples=0)
+    with set_exploration_type(ExplorationType.RANDOM), torch.no_grad():
+        first, second = sampled(td.clone())["action"], sampled(td.clone())["action"]
+    assert not torch.equal(first, second)  # still explores with σ̄
+    with pytest.raises(ValueError, match="num_samples"):
+        LaplaceEnsembleActor(actor, num_samples=-1)

@@ -40,7 +40,9 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
             :class:`~torchrl_dual.modules.LinearHeadActor` (which makes "IQL + LA").
 
     Keyword Args:
-        num_samples (int): ``M``. Defaults to ``5`` (paper, Appendix A).
+        num_samples (int): ``M``. Defaults to ``5`` (paper, Appendix A). ``0`` turns the
+            epistemic part off (the "no UQ" ablation): the policy acts with the MAP mean
+            and ``σ̄`` only, ``epistemic_variance`` is zero and no posterior is needed.
         prior_precision (str or float): ``"evidence"`` or a fixed value, passed to
             :class:`~torchrl_dual.modules.LastLayerLaplace`.
         action_low, action_high (float or Tensor, optional): bounds the sampled action
@@ -99,8 +101,10 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         log_prob_key: NestedKey = "action_log_prob",
     ) -> None:
         super().__init__()
-        if num_samples < 1:
-            raise ValueError(f"num_samples (M) must be >= 1, got {num_samples}.")
+        if num_samples < 0:
+            raise ValueError(
+                f"num_samples (M) must be >= 0 (0: no epistemic UQ), got {num_samples}."
+            )
         if not isinstance(actor, LastLayerActor):
             raise TypeError(
                 "LaplaceEnsembleActor needs a LastLayerActor (PlannerActor, LinearHeadActor, "
@@ -238,13 +242,18 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
             variance = aleatoric.expand_as(loc)
             action = self._clamp(loc)
         else:
-            if not bool(self.laplace.fitted):
+            if self.num_samples == 0:  # no epistemic UQ: the MAP mean, σ̄ only
+                features, context = self._encode(tensordict, observation)
+                loc = self.actor.readout(self.actor.head_output(features), context)
+                epistemic = torch.zeros_like(loc)
+            elif not bool(self.laplace.fitted):
                 raise RuntimeError(
                     "LaplaceEnsembleActor samples from the last-layer posterior: call "
                     "fit_laplace(...) on the offline data first."
                 )
-            members = self._members(*self._encode(tensordict, observation))
-            epistemic, loc = torch.var_mean(members, 0, correction=0)
+            else:
+                members = self._members(*self._encode(tensordict, observation))
+                epistemic, loc = torch.var_mean(members, 0, correction=0)
             variance = epistemic + aleatoric
             if not self.sample_action:  # the next module (ShiftAwareNoise) samples
                 loc_key, scale_key, epistemic_key, action_key = self.out_keys[:4]
