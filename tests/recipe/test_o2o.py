@@ -21,7 +21,7 @@ import torch
 
 from torchrl_dual.data import OfflineDataset, make_transitions
 from torchrl_dual.data.cache import load_cached_dataset, save_cached_dataset
-from torchrl_dual.recipe import DualRun, UserError, compose_checked, env_kits, networks
+from torchrl_dual.recipe import DualLearner, O2ORun, UserError, compose_checked, env_kits, networks
 
 REPO = Path(__file__).resolve().parents[2]
 RECIPES = REPO / "recipes"
@@ -69,6 +69,20 @@ def csv_steps(path: Path) -> list[int]:
     return [int(line.split(",")[0]) for line in path.read_text().splitlines() if line]
 
 
+def interrupt_then_resume(out: Path, cache_dir: Path, *overrides: str) -> dict:
+    """A run stopped after ``INTERRUPT_AT`` online frames, then continued with resume=true."""
+    first = succeeded(run_recipe(out, cache_dir, *overrides, f"interrupt_at_frames={INTERRUPT_AT}"))
+    interrupted = checkpoint_state(out)
+    second = succeeded(run_recipe(out, cache_dir, *overrides, "resume=true"))
+    return {
+        "dir": out,
+        "first": first,
+        "second": second,
+        "interrupted": interrupted,
+        "final": checkpoint_state(out),
+    }
+
+
 # ----------------------------------------------------------------------------- fixtures
 @pytest.fixture(scope="session")
 def cache_dir(tmp_path_factory) -> Path:
@@ -91,17 +105,7 @@ def frozenlake_run(tmp_path_factory, cache_dir):
 @pytest.fixture(scope="session")
 def interrupted_and_resumed(tmp_path_factory, cache_dir) -> dict:
     """A run stopped after 200 online frames, then continued with resume=true."""
-    out = tmp_path_factory.mktemp("resume") / "run"
-    first = succeeded(run_recipe(out, cache_dir, f"interrupt_at_frames={INTERRUPT_AT}"))
-    interrupted = checkpoint_state(out)
-    second = succeeded(run_recipe(out, cache_dir, "resume=true"))
-    return {
-        "dir": out,
-        "first": first,
-        "second": second,
-        "interrupted": interrupted,
-        "final": checkpoint_state(out),
-    }
+    return interrupt_then_resume(tmp_path_factory.mktemp("resume") / "run", cache_dir)
 
 
 @pytest.fixture(scope="session")
@@ -114,17 +118,7 @@ def iql_umaze_run(tmp_path_factory, cache_dir):
 def iql_frozenlake_resumed(tmp_path_factory, cache_dir) -> dict:
     """IQL on Frozen-Lake stopped after 200 online frames, then continued with resume=true."""
     out = tmp_path_factory.mktemp("iql_frozenlake") / "run"
-    overrides = ("algo=iql", "env=frozenlake")
-    first = succeeded(run_recipe(out, cache_dir, *overrides, f"interrupt_at_frames={INTERRUPT_AT}"))
-    interrupted = checkpoint_state(out)
-    second = succeeded(run_recipe(out, cache_dir, *overrides, "resume=true"))
-    return {
-        "dir": out,
-        "first": first,
-        "second": second,
-        "interrupted": interrupted,
-        "final": checkpoint_state(out),
-    }
+    return interrupt_then_resume(out, cache_dir, "algo=iql", "env=frozenlake")
 
 
 def umaze_cache_entry(cache_dir: Path) -> Path:
@@ -399,7 +393,7 @@ _HEAD_ALIAS = ("actor.head.", "actor.model.denoiser.head.")
 @pytest.mark.parametrize("source", ["frozen", "shared"])
 def test_the_checkpoint_holds_each_weight_once(source, smoke_cfg):
     smoke_cfg.exploration.transition_model = source
-    run = DualRun(smoke_cfg)
+    run = O2ORun(smoke_cfg, DualLearner)
     run.save()
     state = checkpoint_state(Path(smoke_cfg.output_dir))
     assert "transition" not in state  # no separate copy of the transition model

@@ -14,14 +14,14 @@
 * :class:`O2ORun` / :func:`run_o2o` / :class:`Learner` (``o2o_run``) — the
   algorithm-independent offline-to-online run (data, env, evaluator, replay, collector,
   UTD updates, evaluation, checkpoint and resume) and the protocol of an algorithm;
-* :class:`DualLearner` / :func:`run_dual` / :class:`DualRun` (``dual``) — Algorithm 1;
+* :class:`DualLearner` / :func:`run_dual` (``dual``) — Algorithm 1;
   :class:`IQLLearner` / :func:`run_iql` (``iql``) — the IQL baseline.
 """
 
 from torchrl_dual.recipe.algorithms import ALGORITHMS, Algorithm
 from torchrl_dual.recipe.cli import check_command_line, compose_checked, hydra_task, run
 from torchrl_dual.recipe.critics import CRITICS
-from torchrl_dual.recipe.dual import DualLearner, DualRun, run_dual
+from torchrl_dual.recipe.dual import DualLearner, run_dual
 from torchrl_dual.recipe.env_kits import ENV_KITS, EnvKit
 from torchrl_dual.recipe.errors import ConfigError, UserError, user_errors
 from torchrl_dual.recipe.iql import IQLLearner, run_iql
@@ -36,7 +36,6 @@ __all__ = [
     "Algorithm",
     "ConfigError",
     "DualLearner",
-    "DualRun",
     "EnvKit",
     "IQLLearner",
     "Learner",

@@ -20,8 +20,6 @@ from torchrl_dual.recipe.critics import CRITICS
 from torchrl_dual.recipe.errors import UserError
 from torchrl_dual.recipe.o2o_run import Learner, O2ORun, run_o2o
 
-STAGES = ("planner", "distillation", "actor_critic", "laplace", "offline_eval")
-
 
 class DualLearner(Learner):
     """DUAL's networks (teacher ``g_θ'``, actor ``π_θ``, transition model, IQL critics),
@@ -142,7 +140,11 @@ class DualLearner(Learner):
             self.transition.model.load_state_dict(student.state_dict())
 
     def fit_laplace(self) -> None:
-        """Alg. 1 lines 9 and 17: last-layer Laplace of L_π on D (Eq. 8)."""
+        """Alg. 1 lines 9 and 17: last-layer Laplace of L_π on D (Eq. 8); skipped in the
+        no-UQ ablation (``laplace.num_samples=0``), which never draws from the posterior."""
+        self.updates_since_refit = 0
+        if self.ensemble.num_samples == 0:
+            return
         with torch.no_grad():
             # The Hessian of Eq. (7) carries the actor loss's own weights (uniform for
             # "uniform"; "sac" has no per-sample weights, so its GGN uses uniform ones).
@@ -151,15 +153,7 @@ class DualLearner(Learner):
                 self.run.all_transitions(),
                 weight_fn=self.actor_loss.advantage_weights if advantage else None,
             )
-        self.updates_since_refit = 0
         self.run.log({"prior_precision": laplace.prior_precision}, self.run.updates, "laplace/")
-
-
-class DualRun(O2ORun):
-    """An :class:`O2ORun` of :class:`DualLearner` (``DualRun(cfg).learner``)."""
-
-    def __init__(self, cfg: DictConfig) -> None:
-        super().__init__(cfg, DualLearner)
 
 
 def run_dual(cfg: DictConfig) -> O2ORun:
