@@ -18,7 +18,8 @@
   :class:`IQLLearner` / :func:`run_iql` (``iql``) — the IQL baseline.
 """
 
-from torchrl_dual.recipe.algorithms import ALGORITHMS, Algorithm
+from torchrl_dual.recipe.algorithm import Algorithm
+from torchrl_dual.recipe.algorithms import ALGORITHMS
 from torchrl_dual.recipe.cli import check_command_line, compose_checked, hydra_task, run
 from torchrl_dual.recipe.critics import CRITICS
 from torchrl_dual.recipe.dual import DualLearner, run_dual

@@ -1,173 +1,18 @@
 """The table of algorithms the recipe runs, selected by the ``algo`` config group.
 
-An :class:`Algorithm` names the config sections it reads with their schemas, the
-critics it works with, the checks across its keys, and the function that runs it.
-``recipes/config/algo/<name>.yaml`` holds its settings. ``dual`` (Algorithm 1) and the
-baseline ``iql``; the other baselines (IQL + LA, Diff-QL, ...) are further entries, each
-a :class:`~torchrl_dual.recipe.Learner` and a config file.
+Each entry is an :class:`~torchrl_dual.recipe.Algorithm` defined next to its learner;
+``recipes/config/algo/<name>.yaml`` holds its settings. Adding an algorithm is adding a
+learner module, a config file and one line here.
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any
+from torchrl_dual.recipe.algorithm import Algorithm
+from torchrl_dual.recipe.dual_settings import DUAL
+from torchrl_dual.recipe.iql import IQL
 
-from omegaconf import DictConfig
-
-from torchrl_dual.diffusion import SCHEDULES
-from torchrl_dual.diffusion.model import LATENTS
-from torchrl_dual.objectives.weighted_map_actor import WEIGHTINGS
-from torchrl_dual.recipe.dual import DualLearner
-from torchrl_dual.recipe.errors import ConfigError
-from torchrl_dual.recipe.iql import IQLActorSettings, IQLLearner
-from torchrl_dual.recipe.networks import TRANSITION_MODELS
-from torchrl_dual.recipe.o2o_run import Learner, O2ORun, run_o2o
-from torchrl_dual.recipe.rules import Choice, Either, Integer, PowerOfTwo, Real, key
-
-
-@dataclass(frozen=True)
-class Algorithm:
-    """One entry of :data:`ALGORITHMS`.
-
-    Args:
-        sections (dict): top-level config section -> schema dataclass of its keys.
-        critics (tuple of str): the ``critic`` options it supports.
-        check (callable): ``cfg -> None``, raises ``ConfigError`` on an impossible
-            combination of keys (run after every key passed its own rule).
-        learner (callable): ``O2ORun -> Learner``, usually the learner class;
-            :meth:`run` runs it through :func:`~torchrl_dual.recipe.run_o2o`.
-    """
-
-    sections: dict[str, type]
-    critics: tuple[str, ...]
-    check: Callable[[DictConfig], None]
-    learner: Callable[[O2ORun], Learner]
-
-    def run(self, cfg: DictConfig) -> O2ORun:
-        """The whole run (or its resumption) for a validated ``cfg``."""
-        return run_o2o(cfg, self.learner)
-
-
-# ----------------------------------------------------------------------------- DUAL
-@dataclass
-class PlannerSettings:
-    """Trajectory diffusion planner ``g_θ'`` (Eq. 3)."""
-
-    horizon: int = key(Integer(1), "H: windows hold H + 1 state-action rows")
-    num_steps: int = key(PowerOfTwo(), "N: sampling steps of the teacher")
-    hidden: int = key(Integer(1), "residual-MLP denoiser width")
-    depth: int = key(Integer(1), "residual blocks")
-    schedule: str = key(Choice(SCHEDULES), "noise schedule")
-    lr: float = key(Real(0, low_open=True), "Adam learning rate")
-    batch_size: int = key(Integer(1), "windows per update")
-    action_condition_prob: float = key(Real(0, 1), "how often a_0 is given")
-
-
-@dataclass
-class DistillationSettings:
-    """Progressive distillation ``N -> 1`` (Salimans & Ho 2022)."""
-
-    lr: float = key(Real(0, low_open=True), "Adam learning rate of every round")
-
-
-@dataclass
-class ActorSettings:
-    """Weighted MAP actor (Eq. 7)."""
-
-    weighting: str = key(Choice(WEIGHTINGS), "per-sample weights of Eq. 7")
-    temperature: float = key(Real(0), "β of exp(β (Q - V))")
-    max_weight: float = key(Real(0, low_open=True), "clip of the advantage weights")
-    lr: float = key(Real(0, low_open=True), "Adam learning rate")
-    init_std: float = key(Real(0, low_open=True), "initial σ̄")
-    latent: str = key(Choice(LATENTS), "one-step planner latent")
-
-
-@dataclass
-class LaplaceSettings:
-    """Last-layer Laplace ensemble (Eq. 8-9)."""
-
-    num_samples: int = key(Integer(0), "M sub-policies; 0 = no epistemic UQ (MAP mean, σ̄)")
-    prior_precision: Any = key(
-        Either(
-            (Choice(("evidence",)), Real(0, low_open=True)), "must be 'evidence' or a number > 0"
-        ),
-        "λ of the Gaussian prior",
-    )
-
-
-@dataclass
-class ExplorationSettings:
-    """Shift-aware exploration (Eq. 10)."""
-
-    shift_weight: float = key(Real(0), "λ of the shift-aware variance")
-    transition_model: str = key(Choice(TRANSITION_MODELS), "where ŝ_t comes from")
-
-
-@dataclass
-class OnlineSettings:
-    """Algorithm 1, online phase (lines 10-18)."""
-
-    offline_fraction: float = key(
-        Real(0, 1, low_open=True, high_open=True), "share of each batch from D_offline"
-    )
-    utd_ratio: float = key(Real(0), "gradient updates per collected frame")
-    batch_size: int = key(Integer(1), "transitions per update")
-
-
-def check_dual(cfg: DictConfig) -> None:
-    """DUAL's checks across keys, each naming the key at fault and what would fit."""
-    p, budget = cfg.planner, cfg.budget
-    rounds = int(math.log2(p.num_steps))
-    if len(budget.distill_updates) != rounds:
-        raise ConfigError(
-            "budget.distill_updates",
-            list(budget.distill_updates),
-            f"must have {rounds} entries, one per halving round of planner.num_steps="
-            f"{p.num_steps} -> 1",
-        )
-    if p.horizon >= cfg.env.max_episode_steps:
-        raise ConfigError(
-            "planner.horizon",
-            p.horizon,
-            f"must be < env.max_episode_steps={cfg.env.max_episode_steps} (a window holds "
-            "horizon + 1 steps of one episode)",
-        )
-    if cfg.actor.latent == "sample" and p.schedule != "cosine":
-        raise ConfigError(
-            "actor.latent",
-            "sample",
-            f"needs planner.schedule=cosine, which ends in pure noise (got {p.schedule})",
-        )
-
-
-DUAL = Algorithm(
-    sections={
-        "planner": PlannerSettings,
-        "distillation": DistillationSettings,
-        "actor": ActorSettings,
-        "laplace": LaplaceSettings,
-        "exploration": ExplorationSettings,
-        "online": OnlineSettings,
-    },
-    critics=("iql",),
-    check=check_dual,
-    learner=DualLearner,
-)
-
-
-# ----------------------------------------------------------------------------- IQL
-def check_nothing(cfg: DictConfig) -> None:
-    """No checks across keys."""
-
-
-IQL = Algorithm(
-    sections={"actor": IQLActorSettings, "online": OnlineSettings},
-    critics=("iql",),
-    check=check_nothing,
-    learner=IQLLearner,
-)
-
-ALGORITHMS: dict[str, Algorithm] = {"dual": DUAL, "iql": IQL}
+ALGORITHMS: dict[str, Algorithm] = {
+    "dual": DUAL,
+    "iql": IQL,
+}
 """``algo`` -> :class:`Algorithm`."""

@@ -23,6 +23,7 @@ from torch import nn
 from torchrl.envs.utils import ExplorationType
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal
 
+from torchrl_dual.recipe.algorithm import Algorithm, OnlineSettings, check_nothing
 from torchrl_dual.recipe.critics import CRITICS
 from torchrl_dual.recipe.env_kits import env_kit
 from torchrl_dual.recipe.o2o_run import Learner, O2ORun, run_o2o
@@ -131,3 +132,11 @@ class IQLLearner(Learner):
 def run_iql(cfg: DictConfig) -> O2ORun:
     """Runs (or resumes) the IQL baseline for a validated ``cfg``."""
     return run_o2o(cfg, IQLLearner)
+
+
+IQL = Algorithm(
+    sections={"actor": IQLActorSettings, "online": OnlineSettings},
+    critics=("iql",),
+    check=check_nothing,
+    learner=IQLLearner,
+)

@@ -1,0 +1,55 @@
+"""An entry of the recipe's algorithm table, and the settings every algorithm shares.
+
+An :class:`Algorithm` names the config sections it reads with their schemas, the
+critics it works with, the checks across its keys, and the :class:`Learner` that runs
+it; each algorithm's module defines its entry (``DUAL`` in ``dual_settings``, ``IQL`` in
+``iql``, ...) and :data:`~torchrl_dual.recipe.ALGORITHMS` lists them by ``algo`` name.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from omegaconf import DictConfig
+
+from torchrl_dual.recipe.o2o_run import Learner, O2ORun, run_o2o
+from torchrl_dual.recipe.rules import Integer, Real, key
+
+
+@dataclass(frozen=True)
+class Algorithm:
+    """One entry of :data:`ALGORITHMS`.
+
+    Args:
+        sections (dict): top-level config section -> schema dataclass of its keys.
+        critics (tuple of str): the ``critic`` options it supports.
+        check (callable): ``cfg -> None``, raises ``ConfigError`` on an impossible
+            combination of keys (run after every key passed its own rule).
+        learner (callable): ``O2ORun -> Learner``, usually the learner class;
+            :meth:`run` runs it through :func:`~torchrl_dual.recipe.run_o2o`.
+    """
+
+    sections: dict[str, type]
+    critics: tuple[str, ...]
+    check: Callable[[DictConfig], None]
+    learner: Callable[[O2ORun], Learner]
+
+    def run(self, cfg: DictConfig) -> O2ORun:
+        """The whole run (or its resumption) for a validated ``cfg``."""
+        return run_o2o(cfg, self.learner)
+
+
+@dataclass
+class OnlineSettings:
+    """Algorithm 1, online phase (lines 10-18)."""
+
+    offline_fraction: float = key(
+        Real(0, 1, low_open=True, high_open=True), "share of each batch from D_offline"
+    )
+    utd_ratio: float = key(Real(0), "gradient updates per collected frame")
+    batch_size: int = key(Integer(1), "transitions per update")
+
+
+def check_nothing(cfg: DictConfig) -> None:
+    """No checks across keys."""
