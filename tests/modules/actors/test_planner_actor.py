@@ -257,9 +257,7 @@ def test_the_paired_pass_follows_actor_training_and_leaves_a_frozen_copy_alone(m
 
 
 # ----------------------------------------------------------------------------- options
-def test_a_multi_step_model_and_bad_options_are_rejected(make_model):
-    with pytest.raises(ValueError, match="one-step planner, got num_steps=4"):
-        PlannerActor(make_model(num_steps=4))
+def test_bad_options_are_rejected(make_model):
     with pytest.raises(ValueError, match="choose one of"):
         PlannerActor(make_model(num_steps=1), latent="mean")
     with pytest.raises(ValueError, match="init_std"):
@@ -300,3 +298,86 @@ def test_a_deep_copy_of_the_actor_takes_the_fast_path_with_its_own_weights(make_
     assert not torch.allclose(fast[0], before[0])
     assert_all_close(fast, _generic(twin, twin_shared, *inputs))
     assert_all_close(_fast(actor, shared, *inputs), before)  # the original is untouched
+
+
+# ----------------------------------------------------------------------------- N steps ("w/o distillation")
+def _fitted(model: TrajectoryDiffusion) -> TrajectoryDiffusion:
+    """Non-trivial normalizer statistics, so that a wrong offset or scale shows."""
+    model.normalizer.fit(torch.randn(256, 3) * 2.0 + 1.0, torch.randn(256, 2) * 0.5 + 0.3)
+    return model
+
+
+def test_an_n_step_mean_is_the_deterministic_n_step_planner_a0(make_model):
+    torch.manual_seed(0)
+    model = _fitted(make_model(num_steps=8))
+    actor = PlannerActor(model)
+    observation = torch.randn(6, 3) * 2.0
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        sampler_action, _ = PlannerSampler(model)(observation)
+        policy_action = PlannerPolicy(model)(TensorDict({"observation": observation}, [6]))[
+            "action"
+        ]
+    # an independent DDIM run: 8 ddim_step calls, a_0 read out and denormalised
+    layout, norm = model.layout, model.normalizer
+    cond, mask = layout.conditioned_window(norm.normalize_observation(observation))
+    z, times = cond, torch.linspace(1.0, 0.0, 9)
+    for t, s in zip(times[:-1], times[1:], strict=True):
+        z = model.ddim_step(z, t.expand(6), s.expand(6), cond, mask.expand_as(cond))
+    reference = norm.denormalize_action(z[:, 0, 3:])
+    with torch.no_grad():
+        mean = actor(observation)
+    for other in (sampler_action, policy_action, reference):
+        torch.testing.assert_close(mean, other.detach(), rtol=1e-5, atol=1e-5)
+    assert actor._fast is None  # N > 1: the plain path
+
+
+def test_an_n_step_action_is_affine_in_the_last_step_head(make_model):
+    """Eq. 8 stays exact: a perturbed head changes μ by readout_scale ⊙ (ΔW φ + Δb), with
+    φ and the offset from the chain at the MAP weights."""
+    torch.manual_seed(1)
+    actor = PlannerActor(_fitted(make_model(num_steps=8)))
+    observation = torch.randn(5, 3)
+    with torch.no_grad():
+        features, context = actor.encode(observation)
+        mean = actor.readout(actor.head_output(features), context)
+        torch.testing.assert_close(mean, actor(observation))
+        rows = actor.head_rows
+        d_weight = 0.1 * torch.randn(2, actor.head.in_features)
+        d_bias = 0.1 * torch.randn(2)
+        # the last step alone, with the head perturbed: the chain before it keeps θ*
+        moved = actor.readout(
+            torch.nn.functional.linear(
+                features, actor.head.weight[rows] + d_weight, actor.head.bias[rows] + d_bias
+            ),
+            context,
+        )
+        linear = mean - actor.readout_scale() * (features @ d_weight.T + d_bias)
+    torch.testing.assert_close(moved, linear, rtol=1e-5, atol=1e-5)
+    # readout_scale is |∂μ / ∂ head|: σ_{1/N} · action_std
+    _, sigma = actor.model.schedule(torch.tensor(1.0 / 8))
+    torch.testing.assert_close(
+        actor.readout_scale(), float(sigma) * actor.model.normalizer.action_std
+    )
+
+
+def test_an_n_step_actor_trains_through_the_whole_chain(make_model):
+    actor = PlannerActor(make_model(num_steps=4))
+    actor(torch.randn(8, 3)).pow(2).sum().backward()
+    grads = {name: p.grad for name, p in actor.model.denoiser.named_parameters()}
+    assert all(g is not None and g.abs().sum() > 0 for g in grads.values())
+
+
+def test_sampled_latents_give_distinct_members_whose_zero_latent_is_the_mean(
+    make_model, monkeypatch
+):
+    torch.manual_seed(2)
+    actor = PlannerActor(_fitted(make_model(num_steps=4)))
+    observation = torch.randn(3, 3)
+    with torch.no_grad():
+        members = actor.sample_actions(observation, 6)
+        assert members.shape == (6, 3, 2)
+        assert (members.std(0) > 1e-4).all()  # the latent changes the action
+        # the chain with z_1 = 0 through sample_actions' path is the actor's mean
+        monkeypatch.setattr(torch, "randn_like", lambda x, **_: torch.zeros_like(x))
+        zero = actor.sample_actions(observation, 2)
+        torch.testing.assert_close(zero[0], actor(observation), rtol=1e-5, atol=1e-5)
