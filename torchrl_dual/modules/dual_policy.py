@@ -13,7 +13,12 @@ from torchrl.data.tensor_specs import BoundedContinuous, Composite, TensorSpec
 from torchrl_dual.modules.actors.last_layer_actor import LastLayerActor
 from torchrl_dual.modules.exploration.shift_aware_noise import ShiftAwareNoise
 from torchrl_dual.modules.laplace.laplace_ensemble_actor import LaplaceEnsembleActor
+from torchrl_dual.modules.laplace.latent_ensemble_actor import LatentEnsembleActor
 from torchrl_dual.modules.planner.transition_model import TransitionModel
+
+UNCERTAINTIES = ("laplace", "latent")
+"""Where the ``M`` sub-policies of Eq. (9) come from: the last-layer Laplace posterior
+(DUAL) or the planner's latent ``τ^N ~ N(0, I)`` (the "w τ^N sampling" ablation)."""
 
 
 def make_dual_policy(
@@ -24,6 +29,7 @@ def make_dual_policy(
     num_samples: int = 5,
     prior_precision: str | float = "evidence",
     shift_weight: float = 0.5,
+    uncertainty: str = "laplace",
     action_projection: Callable[[Tensor], Tensor] | None = None,
     return_log_prob: bool = False,
     action_key: NestedKey = "action",
@@ -53,6 +59,11 @@ def make_dual_policy(
         num_samples (int): ``M`` posterior samples. Defaults to ``5``.
         prior_precision (str or float): ``"evidence"`` or a fixed value.
         shift_weight (float): ``λ`` of Eq. 10. Defaults to ``0.5``.
+        uncertainty (str): ``"laplace"`` (default): ``policy[0]`` is the
+            :class:`~torchrl_dual.modules.LaplaceEnsembleActor`; ``"latent"``: the
+            :class:`~torchrl_dual.modules.laplace.LatentEnsembleActor`, whose ``M``
+            sub-policies are ``M`` planner latents (no posterior to fit;
+            ``prior_precision`` is unused).
         action_projection (callable, optional): applied to the executed action (e.g. the
             one-hot argmax of a discrete env).
         return_log_prob (bool): also write ``action_log_prob``. Defaults to ``False``.
@@ -88,15 +99,19 @@ def make_dual_policy(
     low = high = None
     if isinstance(spec, BoundedContinuous):
         low, high = spec.space.low.to(device or "cpu"), spec.space.high.to(device or "cpu")
-    ensemble = LaplaceEnsembleActor(
+    if uncertainty not in UNCERTAINTIES:
+        raise ValueError(f"Unknown uncertainty {uncertainty!r}; choose one of {UNCERTAINTIES}.")
+    members = {"prior_precision": prior_precision} if uncertainty == "laplace" else {}
+    ensemble_class = LaplaceEnsembleActor if uncertainty == "laplace" else LatentEnsembleActor
+    ensemble = ensemble_class(
         actor,
         num_samples=num_samples,
-        prior_precision=prior_precision,
         action_low=low,
         action_high=high,
         sample_action=False,  # ShiftAwareNoise draws the executed action (Eq. 10)
         transition_model=transition_model,
         action_key=action_key,
+        **members,
     )
     noise = ShiftAwareNoise(
         action_spec,
