@@ -8,10 +8,11 @@ import math
 import pytest
 import torch
 from torch import nn
-from torchrl.modules import MLP
+from torchrl.modules import MLP, TanhNormal
 from toy import transition_inputs
 
 from torchrl_dual.modules import LastLayerActor, LinearHeadActor, TransitionModel
+from torchrl_dual.modules.actors.last_layer_actor import TanhSquash
 
 
 class _Affine(LastLayerActor):
@@ -83,3 +84,28 @@ def test_encode_with_transition_is_encode_and_the_transition_prediction(make_mod
     torch.testing.assert_close(features, observation)
     assert context is observation
     torch.testing.assert_close(predicted, transition.predict(previous_observation, previous_action))
+
+
+# ----------------------------------------------------------------------------- squash
+def test_tanh_squash_maps_onto_the_box_like_tanh_normal():
+    low, high = torch.tensor([0.0, -3.0]), torch.tensor([1.0, 1.0])
+    squash = TanhSquash(low, high)
+    u = torch.randn(100, 2) * 3
+    torch.testing.assert_close(squash(u), low + (high - low) * (torch.tanh(u) + 1) / 2)
+    mode = TanhNormal(u, torch.ones_like(u), low=low, high=high).deterministic_sample
+    torch.testing.assert_close(squash(u), mode, atol=1e-5, rtol=0)  # up to SafeTanh's clamp
+    with pytest.raises(ValueError, match="high > low"):
+        TanhSquash(1.0, 1.0)
+
+
+def test_act_is_the_readout_then_the_squash_and_forward_uses_it():
+    actor = _Affine()
+    observation = torch.randn(5, 3)
+    head = actor.head_output(observation)
+    assert actor.squash is None and "squash" not in dict(actor.named_children())
+    torch.testing.assert_close(actor.act(head, observation), actor.readout(head, observation))
+    actor.squash = TanhSquash(-2.0, 2.0)
+    expected = 2.0 * torch.tanh(actor.readout(head, observation))
+    torch.testing.assert_close(actor.act(head, observation), expected)
+    torch.testing.assert_close(actor(observation), expected)
+    torch.testing.assert_close(actor.readout_scale(), torch.full((2,), 2.0))  # pre-squash

@@ -8,9 +8,12 @@ import torch
 from tensordict import TensorDict
 from tensordict.nn import NormalParamExtractor, TensorDictModule
 from torch import nn
+from torch.distributions import Normal
+from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal
 
 from torchrl_dual.modules import LinearHeadActor
+from torchrl_dual.modules.actors.last_layer_actor import TanhSquash
 
 
 def test_the_mean_is_the_loc_half_of_a_torchrl_mlp_actor():
@@ -48,26 +51,81 @@ def test_networks_not_ending_in_linear_are_rejected():
 
 
 # ----------------------------------------------------------------------------- from_actor
-def _iql_actor():
+def _iql_actor(distribution=TanhNormal, **distribution_kwargs):
     torch.manual_seed(0)
     net = nn.Sequential(
         MLP(in_features=3, out_features=4, num_cells=[16, 16]), NormalParamExtractor()
     )
     module = TensorDictModule(net, in_keys=["observation"], out_keys=["loc", "scale"])
-    return ProbabilisticActor(module, in_keys=["loc", "scale"], distribution_class=TanhNormal)
+    return ProbabilisticActor(
+        module,
+        in_keys=["loc", "scale"],
+        distribution_class=distribution,
+        distribution_kwargs=distribution_kwargs,
+    )
+
+
+def _deterministic_action(iql_actor, observation):
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        td = iql_actor(TensorDict({"observation": observation}, observation.shape[:1]))
+    return td["loc"], td["action"]
 
 
 def test_from_actor_shares_the_weights_of_a_torchrl_probabilistic_actor():
     iql_actor = _iql_actor()
     actor = LinearHeadActor.from_actor(iql_actor)
     observation = torch.randn(6, 3)
-    td = iql_actor(TensorDict({"observation": observation}, [6]))
+    loc, action = _deterministic_action(iql_actor, observation)
     assert actor.action_dim == 2
-    torch.testing.assert_close(actor(observation), td["loc"])
+    torch.testing.assert_close(actor.head_output(actor.features(observation)), loc)
+    torch.testing.assert_close(actor(observation), action)
     with torch.no_grad():  # training the TorchRL actor moves the wrapped one too
         iql_actor.module[0].module[0][-1].bias.add_(1.0)
-    td = iql_actor(TensorDict({"observation": observation}, [6]))
-    torch.testing.assert_close(actor(observation), td["loc"])
+    loc, action = _deterministic_action(iql_actor, observation)
+    torch.testing.assert_close(actor.head_output(actor.features(observation)), loc)
+    torch.testing.assert_close(actor(observation), action)
+
+
+# ----------------------------------------------------------------------------- squash
+def test_a_tanh_normal_actor_gets_its_box_squash_and_acts_with_its_deterministic_action():
+    low, high = torch.tensor([0.0, -2.0]), torch.tensor([1.0, 4.0])
+    iql_actor = _iql_actor(low=low, high=high)
+    actor = LinearHeadActor.from_actor(iql_actor)
+    assert isinstance(actor.squash, TanhSquash)
+    observation = torch.randn(64, 3) * 3
+    loc, action = _deterministic_action(iql_actor, observation)
+    # by hand: low + (high - low) (tanh(loc) + 1) / 2, TanhNormal's deterministic sample
+    expected = low + (high - low) * (torch.tanh(loc) + 1) / 2
+    torch.testing.assert_close(actor(observation), expected)
+    torch.testing.assert_close(actor(observation), action, atol=1e-5, rtol=0)  # SafeTanh clamp
+    assert (actor(observation) >= low).all() and (actor(observation) <= high).all()
+    assert "squash.center" in actor.state_dict()  # the box is saved with the actor
+
+
+def test_without_tanh_normal_or_with_squash_none_the_mean_stays_affine():
+    normal = LinearHeadActor.from_actor(_iql_actor(distribution=Normal))
+    assert normal.squash is None and "squash.center" not in normal.state_dict()
+    plain = LinearHeadActor.from_actor(_iql_actor(), squash=None)
+    observation = torch.randn(5, 3)
+    loc, _ = _deterministic_action(_iql_actor(), observation)
+    torch.testing.assert_close(plain(observation), loc)
+    with pytest.raises(ValueError, match="tanh_loc=True squashes loc twice"):
+        LinearHeadActor.from_actor(_iql_actor(tanh_loc=True))
+
+
+def test_gradients_of_the_squashed_mean_are_the_chain_rule_through_tanh():
+    actor = LinearHeadActor.from_actor(_iql_actor(low=-1.0, high=3.0))
+    observation = torch.randn(7, 3)
+    actor(observation).sum().backward()
+    features = actor.features(observation).detach()
+    pre = actor.head_output(features).detach()
+    # d a / d b_j = r (1 - tanh²(u_j)), r = (high - low) / 2 = 2, summed over the batch
+    expected_bias = (2.0 * (1 - torch.tanh(pre) ** 2)).sum(0)
+    torch.testing.assert_close(actor.head.bias.grad[:2], expected_bias)
+    torch.testing.assert_close(actor.head.bias.grad[2:], torch.zeros(2))  # the scale half
+    expected_weight = (2.0 * (1 - torch.tanh(pre) ** 2)).T @ features
+    torch.testing.assert_close(actor.head.weight.grad[:2], expected_weight)
+    assert actor.log_std.grad is None  # σ̄ does not enter the mean
 
 
 def test_from_actor_unwraps_modules_and_plain_networks_and_rejects_others():

@@ -11,6 +11,12 @@ and the ensemble policy (Eq. 9) all work on the split
   TorchRL ``MLP`` actor), which turns IQL into "IQL + LA";
 * :class:`~torchrl_dual.modules.DDPMLastStepActor`, TorchRL's
   multi-step ``DiffusionActor``, which turns Diff-QL into "Diff-QL w LA".
+
+An actor may also carry a fixed ``squash`` applied after the read-out, e.g.
+:class:`TanhSquash` for a TorchRL ``TanhNormal`` actor, whose action is
+``tanh(loc)`` mapped to the action box. The Laplace posterior (Eq. 8) stays over the
+affine head *before* the squash, and each ensemble member (Eq. 9) is squashed before
+the members are averaged.
 """
 
 from __future__ import annotations
@@ -25,6 +31,36 @@ if TYPE_CHECKING:
     from torchrl_dual.modules.planner.transition_model import TransitionModel
 
 
+class TanhSquash(nn.Module):
+    """``a = c + r ⊙ tanh(u)``, ``c = (high + low) / 2``, ``r = (high − low) / 2``.
+
+    The map TorchRL's ``TanhNormal(loc, scale, low, high)`` applies to its Gaussian
+    (its deterministic action is ``TanhSquash(low, high)(loc)``), used as the
+    ``squash`` of a :class:`LastLayerActor` whose head gives the pre-tanh ``loc``.
+
+    Args:
+        low, high (float or Tensor): the action box. Default to ``-1`` and ``1``.
+
+    Examples:
+        >>> import torch
+        >>> squash = TanhSquash(0.0, 1.0)
+        >>> squash(torch.tensor([0.0, 100.0, -100.0]))
+        tensor([0.5000, 1.0000, 0.0000])
+    """
+
+    def __init__(self, low: float | torch.Tensor = -1.0, high: float | torch.Tensor = 1.0) -> None:
+        super().__init__()
+        low = torch.as_tensor(low, dtype=torch.get_default_dtype())
+        high = torch.as_tensor(high, dtype=torch.get_default_dtype())
+        if not bool((high > low).all()):
+            raise ValueError(f"TanhSquash needs high > low, got low={low}, high={high}.")
+        self.register_buffer("center", (high + low) / 2)
+        self.register_buffer("half_range", (high - low) / 2)
+
+    def forward(self, pre_squash: torch.Tensor) -> torch.Tensor:
+        return torch.addcmul(self.center, self.half_range, torch.tanh(pre_squash))
+
+
 class LastLayerActor(nn.Module):
     """Base class: a Gaussian actor ``N(μ(s), σ²)`` with a linear last layer.
 
@@ -32,13 +68,30 @@ class LastLayerActor(nn.Module):
     (an ``nn.Linear``), the buffer ``head_rows`` (indices of the head outputs that form
     the action) and :meth:`readout`. The learnable per-dimension ``log_std`` (σ̄ of Eq. 7 and Eq. 9)
     lives here so that it is saved with the actor.
+
+    ``squash`` (an ``nn.Module``, e.g. :class:`TanhSquash`, or ``None``) maps the
+    read-out to the action: ``μ(s) = squash(readout(...))`` (:meth:`act`). The head,
+    :meth:`readout_scale` and the Laplace posterior fitted on them are in the
+    pre-squash space; with a squash, ``σ̄`` is the noise std of the pre-squash
+    Gaussian likelihood in the posterior (the linearisation of Eq. 8 is exact there:
+    the read-out is affine in the head) and the aleatoric std of Eq. 9 in action space.
+    :class:`~torchrl_dual.objectives.WeightedMAPActorLoss` assumes no squash (its
+    Gaussian is centred on :meth:`forward`); a squashed actor is trained by its own loss
+    (IQL's advantage-weighted regression on the ``TanhNormal`` actor whose weights
+    :meth:`LinearHeadActor.from_actor` shares).
     """
 
     head: nn.Linear
     head_rows: torch.Tensor
 
     def __init__(
-        self, action_dim: int, *, init_std: float = 0.3, min_std: float = 1e-3, max_std: float = 2.0
+        self,
+        action_dim: int,
+        *,
+        init_std: float = 0.3,
+        min_std: float = 1e-3,
+        max_std: float = 2.0,
+        squash: nn.Module | None = None,
     ) -> None:
         super().__init__()
         if not min_std <= init_std <= max_std:
@@ -48,6 +101,7 @@ class LastLayerActor(nn.Module):
         self.action_dim = action_dim
         self.log_std = nn.Parameter(torch.full((action_dim,), math.log(init_std)))
         self.min_log_std, self.max_log_std = math.log(min_std), math.log(max_std)
+        self.squash = squash  # None: a plain attribute, no state_dict entry
 
     @property
     def std(self) -> torch.Tensor:
@@ -109,7 +163,14 @@ class LastLayerActor(nn.Module):
         """The action rows of the head, ``[..., A]``."""
         return torch.nn.functional.linear(features, *self.head_parameters())
 
+    def act(self, head_rows: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
+        """:meth:`readout`, then the ``squash`` if the actor has one: the action of the
+        head outputs ``head_rows`` (``[..., A]``, or ``[M, ..., A]`` for ``M`` members)."""
+        action = self.readout(head_rows, context)
+        squash = self.squash
+        return action if squash is None else squash(action)
+
     def forward(self, observation: torch.Tensor) -> torch.Tensor:
         """The mean action ``μ(s)``."""
         features, context = self.encode(observation)
-        return self.readout(self.head_output(features), context)
+        return self.act(self.head_output(features), context)

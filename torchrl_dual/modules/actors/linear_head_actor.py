@@ -3,10 +3,16 @@
 from __future__ import annotations
 
 import torch
-from tensordict.nn import NormalParamExtractor, TensorDictModule, TensorDictSequential
+from tensordict.nn import (
+    NormalParamExtractor,
+    ProbabilisticTensorDictSequential,
+    TensorDictModule,
+    TensorDictSequential,
+)
 from torch import nn
+from torchrl.modules import TanhNormal
 
-from torchrl_dual.modules.actors.last_layer_actor import LastLayerActor
+from torchrl_dual.modules.actors.last_layer_actor import LastLayerActor, TanhSquash
 
 
 class LinearHeadActor(LastLayerActor):
@@ -20,6 +26,8 @@ class LinearHeadActor(LastLayerActor):
 
     Keyword Args:
         init_std (float): initial ``σ̄``. Defaults to ``0.3``.
+        squash (nn.Module, optional): applied to the mean, e.g. :class:`TanhSquash`
+            (:meth:`from_actor` sets it for a ``TanhNormal`` actor). Defaults to ``None``.
 
     Examples:
         >>> import torch
@@ -53,7 +61,11 @@ class LinearHeadActor(LastLayerActor):
         Unwraps ``ProbabilisticActor`` / ``TensorDictSequential`` (first module),
         ``Actor`` / ``TensorDictModule`` (``.module``) and nested ``nn.Sequential`` down to
         the layers; a trailing ``NormalParamExtractor`` is dropped and the ``loc`` half of
-        the last ``nn.Linear`` becomes ``μ(s)`` (pre-squash for a ``TanhNormal`` actor).
+        the last ``nn.Linear`` is the affine read-out. For a ``ProbabilisticActor`` with a
+        ``TanhNormal`` distribution the actor also gets ``squash=TanhSquash(low, high)``
+        (the distribution's box), so ``μ(s)`` is the ``TanhNormal``'s deterministic action
+        ``tanh(loc)`` on the box, while the Laplace posterior stays over the pre-tanh
+        ``loc`` head. Pass ``squash=None`` to keep the pre-tanh ``loc``.
 
         Examples:
             >>> import torch
@@ -65,9 +77,11 @@ class LinearHeadActor(LastLayerActor):
             ...     TensorDictModule(net, in_keys=["observation"], out_keys=["loc", "scale"]),
             ...     in_keys=["loc", "scale"], distribution_class=TanhNormal)
             >>> actor = LinearHeadActor.from_actor(iql_actor)
-            >>> actor.action_dim, actor.head is net[0][-1]
-            (2, True)
+            >>> actor.action_dim, actor.head is net[0][-1], type(actor.squash).__name__
+            (2, True, 'TanhSquash')
         """
+        if "squash" not in kwargs:
+            kwargs["squash"] = _tanh_normal_squash(actor)
         network = actor
         while isinstance(network, (TensorDictSequential, TensorDictModule)):
             network = (
@@ -93,6 +107,22 @@ class LinearHeadActor(LastLayerActor):
 
     def readout_scale(self) -> torch.Tensor:
         return torch.ones(self.action_dim, device=self.head.weight.device)
+
+
+def _tanh_normal_squash(actor: nn.Module) -> TanhSquash | None:
+    """The ``TanhSquash`` of a ``TanhNormal`` probabilistic actor's box; ``None`` otherwise."""
+    if not isinstance(actor, ProbabilisticTensorDictSequential):
+        return None
+    distribution = actor.module[-1]
+    if not issubclass(getattr(distribution, "distribution_class", object), TanhNormal):
+        return None
+    options = distribution.distribution_kwargs
+    if options.get("tanh_loc", False):
+        raise ValueError(
+            "LinearHeadActor.from_actor: a TanhNormal with tanh_loc=True squashes loc twice; "
+            "build the actor with tanh_loc=False (the default)."
+        )
+    return TanhSquash(options.get("low", -1.0), options.get("high", 1.0))
 
 
 def _flatten_sequential(module: nn.Module) -> list[nn.Module]:

@@ -26,7 +26,11 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
     ``μ(s) = (1/M) Σ_m (τ_{a_0})_m``,  ``σ²(s) = (1/M) Σ_m [(μ(s) − (τ_{a_0})_m)² + σ̄²]``.
 
     The trunk ``φ(s)`` runs once; the ``M`` sampled heads are applied as one batched
-    contraction ``[*B, d] × [M, A, d] → [M, *B, A]``: no loop over members. Posterior
+    contraction ``[*B, d] × [M, A, d] → [M, *B, A]``: no loop over members. An actor
+    with a ``squash`` (e.g. a ``TanhNormal`` actor wrapped by
+    :meth:`~torchrl_dual.modules.LinearHeadActor.from_actor`) squashes each member's
+    read-out, ``(τ_{a_0})_m = squash(readout(θ_m))``, before the mean and the variance
+    are taken; the posterior itself is over the pre-squash head. Posterior
     samples are kept as deviations ``θ_m − θ*`` and added to the actor's *current* head,
     so between two refits the ensemble stays centred on the policy being trained.
 
@@ -160,8 +164,9 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         Streams the trunk features of every batch into the Gram matrix ``G`` with the
         actor-loss weights ``w_i`` (``weight_fn(batch)``, e.g.
         ``WeightedMAPActorLoss.advantage_weights``; uniform when omitted), then fits
-        ``P = G / σ_head² + λI`` around the current head. Feed the whole data set: the
-        posterior of Eq. (8) is over the summed loss.
+        ``P = G / σ_head² + λI`` around the current head, with
+        ``σ_head = σ̄ / |readout_scale|`` (in the pre-squash space of a squashed actor).
+        Feed the whole data set: the posterior of Eq. (8) is over the summed loss.
         """
         self.laplace.reset()
         for batch in batches:
@@ -212,7 +217,7 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
             weight, bias = self._member_head_cache.get()
         heads = torch.nn.functional.linear(features, weight, bias)
         heads = heads.unflatten(-1, (self.num_samples, -1)).movedim(-2, 0)
-        return self.actor.readout(heads, context)
+        return self.actor.act(heads, context)  # read-out, then the actor's squash if any
 
     def _encode(self, tensordict: TensorDictBase, observation: torch.Tensor):
         """Trunk pass; with a transition model it also writes ``ŝ_t`` (same pass)."""
@@ -244,7 +249,7 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         else:
             if self.num_samples == 0:  # no epistemic UQ: the MAP mean, σ̄ only
                 features, context = self._encode(tensordict, observation)
-                loc = self.actor.readout(self.actor.head_output(features), context)
+                loc = self.actor.act(self.actor.head_output(features), context)
                 epistemic = torch.zeros_like(loc)
             elif not bool(self.laplace.fitted):
                 raise RuntimeError(
