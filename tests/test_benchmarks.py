@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -32,3 +35,163 @@ def test_latency_benchmark_times_every_candidate_and_writes_json(tmp_path):
     }
     assert all(value > 0 for value in medians.values())
     assert "goal (restructuring issue #8)" in proc.stdout
+
+
+# ---------------------------------------------------------------- learning suite
+# benchmarks/learning.py (grid, resume) and benchmarks/learning_report.py (statistics,
+# the generated section of docs/results.md); the scripts' directory is not a package.
+sys.path.insert(0, str(REPO / "benchmarks"))
+import learning  # noqa: E402
+import learning_report as lr  # noqa: E402
+
+HAND_WRITTEN = "# Learning results\n\nIntro written by hand.\n\n## Older runs\n\nkept as is.\n"
+
+
+def _student_t_cdf(q: float, dof: int, steps: int = 20000) -> float:
+    """P(T <= q) by Simpson's rule on the Student-t density (independent of the table)."""
+    norm = math.gamma((dof + 1) / 2) / (math.sqrt(dof * math.pi) * math.gamma(dof / 2))
+    h = q / steps
+    f = [norm * (1 + (i * h) ** 2 / dof) ** (-(dof + 1) / 2) for i in range(steps + 1)]
+    return 0.5 + h / 3 * (f[0] + f[-1] + 4 * sum(f[1:-1:2]) + 2 * sum(f[2:-1:2]))
+
+
+def test_t_quantiles_are_the_975_quantiles_of_student_t():
+    for dof in (*range(1, 31), 31, 45, 60, 120):
+        assert _student_t_cdf(lr.t_quantile_975(dof), dof) == pytest.approx(0.975, abs=2e-5), dof
+    # hand-computed: n = 4, values 1..4: mean 2.5, sd sqrt(5/3), t(0.975, 3) = 3.1824
+    mean, half = lr.t_interval([1.0, 2.0, 3.0, 4.0])
+    assert mean == 2.5
+    assert half == pytest.approx(3.1824 * math.sqrt(5 / 3) / 2, rel=1e-12)
+    assert math.isnan(lr.t_interval([7.0])[1])
+
+
+def test_separation_marker_needs_non_overlapping_intervals():
+    assert lr.separation((10.0, 1.0), (7.0, 1.5)) == "▲"  # 9 > 8.5
+    assert lr.separation((5.0, 1.0), (7.0, 0.5)) == "▼"  # 6 < 6.5
+    assert lr.separation((10.0, 2.0), (7.0, 1.5)) == "≈"  # 8 <= 8.5
+    assert lr.separation((10.0, math.nan), (7.0, 1.0)) == "?"
+
+
+def _result(variant, seed, scores, offline_s=100.0, wall_s=300.0, cell="umaze"):
+    """A compact result with evaluations at 0, 50, 100 online frames."""
+    summary = {
+        "algo": variant, "env": "pointmaze_umaze", "seed": seed, "budget": "smoke",
+        "history": [
+            {"label": "offline" if f == 0 else "online", "frames": f, "normalized_score": s,
+             "return": 0.0}
+            for f, s in zip((0, 50, 100), scores, strict=True)
+        ],
+        "offline_seconds": offline_s, "wall_seconds": wall_s,
+    }  # fmt: skip
+    meta = {"commit": "abc", "date": "today", "machine": "test box"}
+    return lr.compact_result(summary, variant=variant, cell=cell, overrides=[], meta=meta)
+
+
+def test_auc_is_the_trapezoid_mean_including_the_offline_point():
+    curve = [
+        {"frames": 0, "normalized_score": 0.0},
+        {"frames": 100, "normalized_score": 10.0},
+        {"frames": 300, "normalized_score": 10.0},
+    ]
+    assert lr.online_auc(curve) == pytest.approx((100 * 5 + 200 * 10) / 300)
+    result = _result("dual", 0, [0.0, 10.0, 30.0])
+    assert result["auc"] == pytest.approx((50 * 5 + 50 * 20) / 100)
+    assert (result["offline_score"], result["final_score"]) == (0.0, 30.0)
+
+
+def test_score_at_wall_time_interpolates_on_the_run_time_axis():
+    # evaluations at 0/50/100 frames; offline 100 s, online 200 s -> at 100 s, 200 s, 300 s
+    result = _result("dual", 0, [0.0, 10.0, 30.0], offline_s=100.0, wall_s=300.0)
+    assert lr.wall_times(result) == [100.0, 200.0, 300.0]
+    assert lr.score_at_time(result, 50.0) is None  # still in the offline phase
+    assert lr.score_at_time(result, 150.0) == pytest.approx(5.0)
+    assert lr.score_at_time(result, 250.0) == pytest.approx(20.0)
+    assert lr.score_at_time(result, 999.0) == 30.0  # held after the end
+    iql = [_result("iql", s, [0.0, 5.0, 8.0], offline_s=20.0, wall_s=200.0) for s in (0, 1)]
+    dual = [_result("dual", s, [0.0, 10.0, 30.0]) for s in (0, 1)]
+    table = lr.equal_compute_table({"umaze": {"dual": dual, "iql": iql}}, ["umaze"])
+    # T1 = T2 = IQL's 200 s: DUAL at 10 (its 50-frame point), IQL at its final 8
+    assert "| umaze | 30.0 ± 0.0 | 8.0 ± 0.0 | 3.3 | 10.0 ± 0.0 | 8.0 ± 0.0 | 3.3 |" in table
+
+
+def _write_fake_results(root: Path) -> None:
+    for seed, (d, i) in enumerate([(30.0, 5.0), (32.0, 6.0), (34.0, 4.0)]):
+        for variant, final in (("dual", d), ("iql", i)):
+            path = root / "smoke" / "umaze" / variant / f"seed{seed}.json"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(json.dumps(_result(variant, seed, [0.0, final / 2, final])))
+
+
+def test_report_keeps_hand_written_text_and_is_idempotent(tmp_path, capsys):
+    _write_fake_results(tmp_path / "results")
+    docs, latency = tmp_path / "results.md", tmp_path / "latency.json"
+    docs.write_text(HAND_WRITTEN)
+    latency.write_text(json.dumps({"dual_m5": 0.9, "mlp_actor": 0.1}))
+    argv = [
+        *("--budget", "smoke", "--report-only", "--latency-json", str(latency)),
+        *("--results", str(tmp_path / "results"), "--docs", str(docs)),
+        *("--figures", str(tmp_path / "figures")),
+    ]
+    assert learning.main(argv) == 0
+    first = docs.read_text()
+    assert first.startswith("# Learning results\n\n" + lr.BEGIN)
+    assert first.endswith(lr.END + "\n\nIntro written by hand.\n\n## Older runs\n\nkept as is.\n")
+    assert "| `iql` | 3 | 0.0 ± 0.0 | 5.0 ± 2.5 | 2.5 ± 1.2 | 5.0 | ▼ / ▼ |" in first  # t(2)=4.3027
+    assert "### DUAL vs IQL at equal steps and at equal wall time" in first
+    for png in ("learning_smoke_umaze.png", "latency_vs_score_smoke.png"):
+        assert (tmp_path / "figures" / png).stat().st_size > 1000
+        assert f"(figures/{png})" in first
+    assert learning.main(argv) == 0
+    second = docs.read_text()
+    assert lr.replace_section(second, "X") == lr.replace_section(first, "X")  # same layout
+    assert second.count(lr.BEGIN) == 1 and second.split(lr.END)[1] == first.split(lr.END)[1]
+
+
+def test_resume_skips_runs_with_a_json_and_continues_checkpointed_ones(tmp_path, capsys):
+    _write_fake_results(tmp_path / "results")  # umaze dual/iql seeds 0-2 are done
+    out = tmp_path / "out"
+    (out / "smoke" / "umaze" / "dual" / "seed3").mkdir(parents=True)
+    (out / "smoke" / "umaze" / "dual" / "seed3" / "checkpoint.pt").write_bytes(b"")
+    argv = [
+        *("--budget", "smoke", "--cells", "umaze", "--variants", "dual", "iql", "dual_lambda0"),
+        *("--results", str(tmp_path / "results"), "--out", str(out), "--dry-run"),
+        "budget.online_frames=200",
+    ]
+    assert learning.main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "15 runs in the grid, 6 already done, 9 to run" in printed
+    queue = [line for line in printed.splitlines() if line.startswith("recipes/o2o.py")]
+    assert len(queue) == 9 and all(line.endswith("budget.online_frames=200") for line in queue)
+    resumed = [line for line in queue if "resume=true" in line]
+    assert len(resumed) == 1 and "umaze/dual/seed3" in resumed[0]
+    # seeds 3, 4 of dual lead their offline-sharing groups: before every dual_lambda0 run
+    first_lambda0 = next(i for i, line in enumerate(queue) if "shift_weight=0" in line)
+    assert all("algo=dual " in line and "shift_weight" not in line for line in queue[:2])
+    assert first_lambda0 >= 4  # dual seeds 3, 4 and iql seeds 3, 4 lead
+
+
+def test_learning_suite_runs_one_tiny_cell_end_to_end_and_then_nothing(tmp_path, capsys):
+    docs = tmp_path / "results.md"
+    docs.write_text(HAND_WRITTEN)
+    flags = [
+        *("--budget", "smoke", "--cells", "frozenlake8x8_slip", "--variants", "iql"),
+        *("--seeds", "0", "--jobs", "1", "--out", str(tmp_path / "out")),
+        *("--results", str(tmp_path / "results"), "--docs", str(docs)),
+        *("--figures", str(tmp_path / "figures")),
+        *("budget.offline_updates=10", "budget.online_frames=100", "budget.frames_per_batch=50"),
+        *("budget.eval_every=50", "budget.eval_episodes=1", "budget.checkpoint_every=50"),
+    ]
+    # in-process (the recipe run itself is a subprocess): saves importing torch again
+    assert learning.main(flags) == 0, capsys.readouterr()
+    printed = capsys.readouterr()
+    path = tmp_path / "results" / "smoke" / "frozenlake8x8_slip" / "iql" / "seed0.json"
+    result = json.loads(path.read_text())
+    assert (result["variant"], result["algo"], result["shift"]) == ("iql", "iql", "biased_slip")
+    assert [h["frames"] for h in result["history"]] == [0, 50, 100]
+    assert result["wall_seconds"] >= result["offline_seconds"] > 0
+    assert "frozenlake8x8_slip iql seed0: final score" in printed.out + printed.err
+    assert "### frozenlake8x8_slip" in docs.read_text()
+    stamp = path.stat().st_mtime_ns
+    assert learning.main(flags) == 0  # in-process: nothing left to run
+    assert "1 runs in the grid, 1 already done, 0 to run" in capsys.readouterr().out
+    assert path.stat().st_mtime_ns == stamp

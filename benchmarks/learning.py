@@ -1,0 +1,340 @@
+"""The learning suite: a grid of recipe runs (cells × variants × seeds) and its report.
+
+    python benchmarks/learning.py --budget default             # the whole grid, resumable
+    python benchmarks/learning.py --dry-run                     # print the queue
+    python benchmarks/learning.py --cells umaze --variants dual iql --seeds 0 1 --jobs 2
+    python benchmarks/learning.py --report-only --latency-json latency.json
+    python benchmarks/learning.py --budget smoke --seeds 0 budget.online_frames=200  # extra overrides
+
+Each run is ``python recipes/o2o.py budget=<budget> <cell overrides> <variant overrides>
+seed=<k> num_threads=1 offline_cache=<out>/offline_cache output_dir=<out>/<budget>/<cell>/
+<variant>/seed<k> <extra overrides>`` in a subprocess; its ``summary.json`` becomes a
+compact ``<results>/<budget>/<cell>/<variant>/seed<k>.json`` (committed). A run whose JSON
+exists is skipped; a run directory with a checkpoint but no summary is continued with
+``resume=true``. Runs that share their offline phase (same env, seed and algorithm, only
+online keys differ) are queued so that the first of each group starts before the others.
+At the end the section between the ``learning-suite`` markers of ``docs/results.md`` and
+its PNGs under ``docs/figures/`` are regenerated (``learning_report.py``,
+``learning_plots.py``). Exit code 1 if any run failed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shlex
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+
+from learning_plots import latency_points, plot_cell_curves, plot_latency_vs_score
+from learning_report import compact_result, load_results, render_section, replace_section
+from tqdm.auto import tqdm
+
+REPO = Path(__file__).resolve().parents[1]
+
+VARIANTS: dict[str, tuple[str, ...]] = {
+    "dual": ("algo=dual",),
+    "iql": ("algo=iql",),
+    "iql_la": ("algo=iql_la",),
+    "diffql": ("algo=diffql",),
+    "diffql_la": ("algo=diffql_la",),
+    "dual_no_uq": ("algo=dual", "laplace.num_samples=0"),
+    "dual_lambda0": ("algo=dual", "exploration.shift_weight=0"),
+}
+"""Variant name -> recipe overrides."""
+
+SHIFT_VARIANTS = ("dual", "iql", "dual_lambda0")
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One environment setting of the grid: its overrides, variants and seed count."""
+
+    overrides: tuple[str, ...]
+    variants: tuple[str, ...]
+    seeds: int
+    about: str
+
+
+CELLS: dict[str, Cell] = {
+    "umaze": Cell(("env=pointmaze_umaze",), tuple(VARIANTS), 5, "PointMaze U-maze"),
+    "umaze_rotation": Cell(
+        ("env=pointmaze_umaze", "env.shift=rotation"), SHIFT_VARIANTS, 3,
+        "U-maze, online actions rotated by `env.shift_angle` (60°)",
+    ),
+    "umaze_damping": Cell(
+        ("env=pointmaze_umaze", "env.shift=damping"), SHIFT_VARIANTS, 3,
+        "U-maze, online damping × 150",
+    ),
+    "umaze_mass": Cell(
+        ("env=pointmaze_umaze", "env.shift=mass"), SHIFT_VARIANTS, 3, "U-maze, online mass × 20"
+    ),
+    "medium": Cell(("env=pointmaze_medium",), SHIFT_VARIANTS, 3, "PointMaze Medium"),
+    "frozenlake8x8_slip": Cell(
+        ("env=frozenlake", "env.map_name=8x8", "env.shift=biased_slip"), SHIFT_VARIANTS, 3,
+        "Frozen-Lake 8x8, slips biased counter-clockwise online",
+    ),
+}  # fmt: skip
+"""Cell name -> :class:`Cell` (the issue's grid)."""
+
+# Overrides that only the online phase reads: runs differing only in these share the
+# offline phase (torchrl_dual.recipe.offline_cache.ONLINE_KEYS).
+ONLINE_ONLY = ("env.shift=", "laplace.num_samples=", "exploration.shift_weight=")
+
+
+@dataclass(frozen=True)
+class Run:
+    cell: str
+    variant: str
+    seed: int
+    overrides: tuple[str, ...]  # cell + variant overrides
+
+    def name(self) -> str:
+        return f"{self.cell}/{self.variant}/seed{self.seed}"
+
+    def sharing_key(self) -> tuple:
+        """Equal for runs that compute the same offline phase."""
+        return (tuple(o for o in self.overrides if not o.startswith(ONLINE_ONLY)), self.seed)
+
+
+def build_queue(cells: list[str], variants: list[str] | None, seeds: list[int] | None):
+    """The grid's runs (leaders of each offline-sharing group first) and skip notes."""
+    from torchrl_dual.recipe import ALGORITHMS
+
+    runs, notes = [], []
+    for cell_name in cells:
+        cell = CELLS[cell_name]
+        for variant in cell.variants:
+            if variants is not None and variant not in variants:
+                continue
+            algo = VARIANTS[variant][0].split("=", 1)[1]
+            if algo not in ALGORITHMS:
+                notes.append(f"skipped {cell_name}/{variant}: algo={algo} is not in ALGORITHMS")
+                continue
+            for seed in range(cell.seeds):
+                if seeds is None or seed in seeds:
+                    runs.append(Run(cell_name, variant, seed, cell.overrides + VARIANTS[variant]))
+    return order_for_sharing(runs), notes
+
+
+def order_for_sharing(runs: list[Run]) -> list[Run]:
+    """The first run of each offline-sharing group, then the others (stable order), so
+    that no run waits on the offline-cache lock while its group's first has not started."""
+    seen: set[tuple] = set()
+    leaders, followers = [], []
+    for run in runs:
+        (followers if run.sharing_key() in seen else leaders).append(run)
+        seen.add(run.sharing_key())
+    return leaders + followers
+
+
+def machine() -> str:
+    import torch
+    import torchrl
+
+    return (
+        f"{platform.platform()}, {os.cpu_count()} CPUs, torch {torch.__version__}, "
+        f"torchrl {torchrl.__version__}"
+    )
+
+
+def git_commit() -> str:
+    proc = subprocess.run(
+        ["git", "rev-parse", "--short=12", "HEAD"], cwd=REPO, capture_output=True, text=True
+    )
+    return proc.stdout.strip() or "?"
+
+
+class Suite:
+    """Runs the queue and writes one compact JSON per finished run."""
+
+    def __init__(self, args: argparse.Namespace, extra: list[str]) -> None:
+        self.args, self.extra = args, extra
+        self.meta: dict[str, str] = {}
+
+    def run_meta(self) -> dict[str, str]:
+        """Commit, machine (read once, when needed) and date recorded in a run's JSON."""
+        if not self.meta:
+            self.meta = {"commit": git_commit(), "machine": machine()}
+        return {**self.meta, "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")}
+
+    def run_dir(self, run: Run) -> Path:
+        return self.args.out / self.args.budget / run.cell / run.variant / f"seed{run.seed}"
+
+    def result_path(self, run: Run) -> Path:
+        return (
+            self.args.results / self.args.budget / run.cell / run.variant / f"seed{run.seed}.json"
+        )
+
+    def command(self, run: Run) -> list[str]:
+        run_dir = self.run_dir(run)
+        resume = (run_dir / "checkpoint.pt").exists()
+        return [
+            sys.executable,
+            "recipes/o2o.py",
+            f"budget={self.args.budget}",
+            *run.overrides,
+            f"seed={run.seed}",
+            "num_threads=1",
+            "progress=false",
+            f"offline_cache={self.args.out / 'offline_cache'}",
+            f"output_dir={run_dir}",
+            *(["resume=true"] if resume else []),
+            *self.extra,
+        ]
+
+    def execute(self, run: Run) -> tuple[dict | None, str, float]:
+        """Runs (or continues) one recipe run; (result, error text, minutes)."""
+        run_dir = self.run_dir(run)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        start = time.monotonic()
+        if not (run_dir / "summary.json").exists():  # else: finished, only the JSON is missing
+            env = {**os.environ, "OMP_NUM_THREADS": "1", "HYDRA_FULL_ERROR": "0"}
+            with open(run_dir / "stdout.txt", "w") as out, open(run_dir / "stderr.txt", "w") as err:
+                proc = subprocess.run(self.command(run), cwd=REPO, env=env, stdout=out, stderr=err)
+            if proc.returncode != 0 or not (run_dir / "summary.json").exists():
+                tail = (run_dir / "stderr.txt").read_text()[-2000:]
+                return None, f"exit {proc.returncode}, no summary.json; stderr tail:\n{tail}", 0.0
+        summary = json.loads((run_dir / "summary.json").read_text())
+        overrides = [*run.overrides, *self.extra]
+        result = compact_result(
+            summary, variant=run.variant, cell=run.cell, overrides=overrides, meta=self.run_meta()
+        )
+        path = self.result_path(run)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(result, indent=1) + "\n")
+        return result, "", (time.monotonic() - start) / 60
+
+    def run_all(self, runs: list[Run]) -> list[str]:
+        """Runs the queue with ``--jobs`` processes; returns the failed runs' names."""
+        failed = []
+        with ThreadPoolExecutor(max_workers=max(self.args.jobs, 1)) as pool:
+            futures = {pool.submit(self.execute, run): run for run in runs}
+            bar = tqdm(total=len(runs), desc="learning suite", unit="run")
+            for future in as_completed(futures):
+                run = futures[future]
+                result, error, minutes = future.result()
+                if result is None:
+                    failed.append(run.name())
+                    tqdm.write(f"FAILED {run.name()}: {error}")
+                else:
+                    tqdm.write(
+                        f"{run.cell} {run.variant} seed{run.seed}: final score "
+                        f"{result['final_score']:.1f}, {minutes:.1f} min"
+                    )
+                bar.update()
+            bar.close()
+        return failed
+
+
+def report(args: argparse.Namespace, command: str) -> None:
+    """Regenerates the marker section of ``--docs`` and its PNGs from ``--results``."""
+    cells = load_results(args.results / args.budget)
+    figures: dict[str, str] = {}
+    for cell, variants in cells.items():
+        png = args.figures / f"learning_{args.budget}_{cell}.png"
+        plot_cell_curves(variants, png, title=f"{cell}, budget {args.budget}")
+        figures[cell] = os.path.relpath(png, args.docs.parent)
+    if args.latency_json and "umaze" in cells:
+        points = latency_points(cells["umaze"], json.loads(args.latency_json.read_text()))
+        if points:
+            png = args.figures / f"latency_vs_score_{args.budget}.png"
+            plot_latency_vs_score(points, png, title=f"U-maze, budget {args.budget}")
+            figures["latency"] = os.path.relpath(png, args.docs.parent)
+    section = render_section(
+        cells,
+        budget=args.budget,
+        header=header_text(args.budget),
+        cell_about={name: cell.about for name, cell in CELLS.items()},
+        variant_order=list(VARIANTS),
+        figures=figures,
+        command=command,
+        results_dir=os.path.relpath(args.results / args.budget, Path.cwd()),
+        date=datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        machine=machine(),
+    )
+    text = args.docs.read_text() if args.docs.exists() else "# Learning results\n"
+    args.docs.write_text(replace_section(text, section))
+    print(f"report: {args.docs} ({len(figures)} figures under {args.figures})")
+
+
+def header_text(budget: str) -> str:
+    rows = "\n".join(
+        f"| {name} | {cell.about} | `{' '.join(cell.overrides)}` | "
+        f"{', '.join(f'`{v}`' for v in cell.variants)} | {cell.seeds} |"
+        for name, cell in CELLS.items()
+    )
+    variants = "; ".join(f"`{v}` = `{' '.join(o)}`" for v, o in VARIANTS.items())
+    return (
+        "`benchmarks/learning.py` runs every cell × variant × seed below as one recipe run "
+        f"(`python recipes/o2o.py budget={budget} <cell> <variant> seed=<k> num_threads=1`), "
+        "one process per core, resumable, and regenerates this section:\n\n"
+        "```bash\npython benchmarks/learning.py --budget default            # the grid\n"
+        "python benchmarks/learning.py --budget default --report-only \\\n"
+        "    --latency-json latency.json   # from: python benchmarks/latency.py --json latency.json\n```\n\n"
+        "| cell | what | overrides | variants | seeds |\n|---|---|---|---|---|\n"
+        f"{rows}\n\nVariants: {variants}. A variant whose `algo` is not in "
+        "`torchrl_dual.recipe.ALGORITHMS` is skipped with a note. Runs that differ only in "
+        "online keys (the shifts, `laplace.num_samples`, `exploration.shift_weight`) share "
+        "one offline phase (`offline_cache=`), trained once per env and seed. One run of "
+        "the `default` budget takes roughly 10–15 min on one core (the measured wall "
+        "minutes are in the tables)."
+    )
+
+
+def split_argv(argv: list[str]) -> tuple[list[str], list[str]]:
+    """(script flags, ``key=value`` recipe overrides)."""
+    extra = [a for a in argv if "=" in a and not a.startswith("-")]
+    return [a for a in argv if a not in extra], extra
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    flags, extra = split_argv(argv)
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--budget", default="default")
+    parser.add_argument("--cells", nargs="+", choices=list(CELLS), default=list(CELLS))
+    parser.add_argument("--variants", nargs="+", choices=list(VARIANTS))
+    parser.add_argument("--seeds", nargs="+", type=int)
+    parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--out", type=Path, default=Path("outputs/suite"), help="run dirs")
+    parser.add_argument("--results", type=Path, default=Path("benchmarks/results"))
+    parser.add_argument("--docs", type=Path, default=Path("docs/results.md"))
+    parser.add_argument("--figures", type=Path, default=Path("docs/figures"))
+    parser.add_argument("--latency-json", type=Path, help="from benchmarks/latency.py --json")
+    parser.add_argument("--report-only", action="store_true")
+    parser.add_argument("--dry-run", action="store_true", help="print the queue and stop")
+    args = parser.parse_args(flags)
+    for name in ("out", "results", "docs", "figures"):
+        setattr(args, name, (Path.cwd() / getattr(args, name)).resolve())
+    command = "python benchmarks/learning.py " + shlex.join(argv)
+    failed: list[str] = []
+    if not args.report_only:
+        suite = Suite(args, extra)
+        runs, notes = build_queue(args.cells, args.variants, args.seeds)
+        for note in notes:
+            print(note)
+        todo = [run for run in runs if not suite.result_path(run).exists()]
+        print(
+            f"{len(runs)} runs in the grid, {len(runs) - len(todo)} already done, {len(todo)} to run"
+        )
+        if args.dry_run:
+            for run in todo:
+                print(shlex.join(suite.command(run)[1:]))
+            return 0
+        failed = suite.run_all(todo)
+    report(args, command.strip())
+    if failed:
+        print(f"{len(failed)} runs failed: {', '.join(failed)}", file=sys.stderr)
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,99 @@
+"""PNGs of the learning suite: learning curves per cell and action latency vs score.
+
+Both read the compact per-run results of ``benchmarks/learning.py`` (see
+``benchmarks/learning_report.py``); matplotlib runs with the Agg backend.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+from learning_report import t_interval
+
+# Variant -> candidate of ``benchmarks/latency.py --json`` that times its acting policy;
+# a variant whose own name is a key of the latency JSON uses that entry instead.
+LATENCY_CANDIDATE = {"dual": "dual_m5", "dual_lambda0": "dual_m5", "iql": "mlp_actor"}
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def curve_band(results: Sequence[dict]) -> tuple[list[int], list[float], list[float]]:
+    """Frames evaluated in every run, the mean score there and the 95 % t half-width (0
+    with one run)."""
+    common = set.intersection(*({h["frames"] for h in r["history"]} for r in results))
+    frames = sorted(common)
+    means, halves = [], []
+    for f in frames:
+        scores = [
+            next(h["normalized_score"] for h in r["history"] if h["frames"] == f) for r in results
+        ]
+        mean, half = t_interval(scores)
+        means.append(mean)
+        halves.append(0.0 if math.isnan(half) else half)
+    return frames, means, halves
+
+
+def plot_cell_curves(variants: dict[str, list[dict]], path: Path, *, title: str) -> Path:
+    """Mean normalized score ± 95 % t band per variant against online frames."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    for variant, results in variants.items():
+        frames, means, halves = curve_band(results)
+        ax.plot(frames, means, marker="o", markersize=3, label=f"{variant} (n={len(results)})")
+        ax.fill_between(
+            frames,
+            [m - h for m, h in zip(means, halves, strict=True)],
+            [m + h for m, h in zip(means, halves, strict=True)],
+            alpha=0.2,
+        )
+    ax.set_xlabel("online environment frames (0 = end of the offline phase)")
+    ax.set_ylabel("normalized score")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def latency_points(variants: dict[str, list[dict]], latency_ms: dict[str, float]) -> list[tuple]:
+    """(variant, candidate, latency ms, final-score mean, half-width) for each variant whose
+    acting policy has a latency entry."""
+    points = []
+    for variant, results in variants.items():
+        candidate = variant if variant in latency_ms else LATENCY_CANDIDATE.get(variant)
+        if candidate in latency_ms:
+            mean, half = t_interval([r["final_score"] for r in results])
+            points.append((variant, candidate, latency_ms[candidate], mean, half))
+    return points
+
+
+def plot_latency_vs_score(points: list[tuple], path: Path, *, title: str) -> Path:
+    """Batch-1 action latency (log x) against the final score mean ± 95 % t interval."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(5.5, 4))
+    for variant, candidate, ms, mean, half in points:
+        ax.errorbar(ms, mean, yerr=0 if math.isnan(half) else half, fmt="o", capsize=4)
+        ax.annotate(f"{variant}\n({candidate})", (ms, mean), fontsize=7, xytext=(5, 5),
+                    textcoords="offset points")  # fmt: skip
+    ax.set_xscale("log")
+    ax.set_xlabel("batch-1 action latency (ms, benchmarks/latency.py)")
+    ax.set_ylabel("final normalized score")
+    ax.set_title(title)
+    ax.grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,0 +1,295 @@
+"""Statistics and the generated report of the learning suite (``benchmarks/learning.py``).
+
+Pure functions over the compact per-run JSONs that the suite writes under
+``benchmarks/results/<budget>/<cell>/<variant>/seed<k>.json``: 95 % Student-t intervals,
+the interval-overlap marker, the area under the online curve, the score at a given
+wall-clock time, the markdown section between the ``learning-suite`` markers of
+``docs/results.md``, and its PNGs (``benchmarks/learning_plots.py``).
+
+    >>> mean, half = t_interval([1.0, 2.0, 3.0])  # sd 1, n 3: t(0.975, 2) / sqrt(3)
+    >>> round(mean, 3), round(half, 3)
+    (2.0, 2.484)
+    >>> separation((10.0, 1.0), (5.0, 1.0))
+    '▲'
+    >>> online_auc([{"frames": 0, "normalized_score": 0.0}, {"frames": 10, "normalized_score": 10.0}])
+    5.0
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import statistics
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+
+BEGIN = "<!-- learning-suite:begin -->"
+END = "<!-- learning-suite:end -->"
+
+# Two-sided 95 % quantiles t(0.975, dof) of Student's t for dof = 1..30.
+T_975 = (
+    12.7062, 4.3027, 3.1824, 2.7764, 2.5706, 2.4469, 2.3646, 2.3060, 2.2622, 2.2281,
+    2.2010, 2.1788, 2.1604, 2.1448, 2.1314, 2.1199, 2.1098, 2.1009, 2.0930, 2.0860,
+    2.0796, 2.0739, 2.0687, 2.0639, 2.0595, 2.0555, 2.0518, 2.0484, 2.0452, 2.0423,
+)  # fmt: skip
+
+
+def t_quantile_975(dof: int) -> float:
+    """t(0.975, dof): the table for dof <= 30, else the Cornish-Fisher expansion around
+    z = 1.95996 (error < 1e-4 for dof > 30)."""
+    if dof < 1:
+        raise ValueError(f"dof must be >= 1, got {dof}")
+    if dof <= len(T_975):
+        return T_975[dof - 1]
+    z = 1.959964
+    return z + (z**3 + z) / (4 * dof) + (5 * z**5 + 16 * z**3 + 3 * z) / (96 * dof**2)
+
+
+def t_interval(values: Sequence[float]) -> tuple[float, float]:
+    """(mean, half-width of the 95 % Student-t interval, n - 1 dof); half-width nan if n < 2."""
+    mean = statistics.fmean(values)
+    if len(values) < 2:
+        return mean, math.nan
+    return mean, t_quantile_975(len(values) - 1) * statistics.stdev(values) / math.sqrt(len(values))
+
+
+def separation(a: tuple[float, float], b: tuple[float, float]) -> str:
+    """``'▲'`` if interval ``a`` (mean, half) lies above ``b``, ``'▼'`` below, ``'≈'`` if
+    they overlap, ``'?'`` without an interval. Non-overlap of two 95 % intervals is a
+    conservative test: it implies a significant difference, not conversely."""
+    (ma, ha), (mb, hb) = a, b
+    if math.isnan(ha) or math.isnan(hb):
+        return "?"
+    if ma - ha > mb + hb:
+        return "▲"
+    if ma + ha < mb - hb:
+        return "▼"
+    return "≈"
+
+
+def online_auc(history: Sequence[dict]) -> float:
+    """Trapezoid mean of the normalized score over online frames, from the offline point
+    (frames 0) to the last evaluation: area / last frame (the score itself if one point)."""
+    frames = [float(h["frames"]) for h in history]
+    scores = [float(h["normalized_score"]) for h in history]
+    if len(frames) == 1 or frames[-1] <= frames[0]:
+        return scores[-1]
+    area = sum(
+        (frames[i + 1] - frames[i]) * (scores[i + 1] + scores[i]) / 2
+        for i in range(len(frames) - 1)
+    )
+    return area / (frames[-1] - frames[0])
+
+
+def wall_times(result: dict) -> list[float]:
+    """Wall-clock second of each history point: ``offline_seconds`` + (frames / last
+    frame) x ``online_seconds`` (the online phase taken as linear in frames)."""
+    last = max(float(result["history"][-1]["frames"]), 1.0)
+    online = result["wall_seconds"] - result["offline_seconds"]
+    return [result["offline_seconds"] + h["frames"] / last * online for h in result["history"]]
+
+
+def score_at_time(result: dict, seconds: float) -> float | None:
+    """Normalized score at ``seconds`` of wall-clock time, linear between evaluations;
+    ``None`` while the offline phase is still running, the final score after the end."""
+    times = wall_times(result)
+    scores = [h["normalized_score"] for h in result["history"]]
+    if seconds < times[0]:
+        return None
+    for i in range(len(times) - 1):
+        if seconds <= times[i + 1]:
+            span = times[i + 1] - times[i]
+            w = (seconds - times[i]) / span if span > 0 else 1.0
+            return scores[i] + w * (scores[i + 1] - scores[i])
+    return scores[-1]
+
+
+def compact_result(summary: dict, *, variant: str, cell: str, overrides: list[str], meta: dict):
+    """The committed JSON of one run, from the recipe's ``summary.json``."""
+    keep = ("label", "frames", "normalized_score", "return", "normalized_score_unshifted")
+    history = [{k: h[k] for k in keep if k in h} for h in summary["history"]]
+    online = [h for h in history if h["label"] == "online"]
+    offline = next((h for h in history if h["label"] == "offline"), history[0])
+    return {
+        "variant": variant,
+        "cell": cell,
+        "seed": summary["seed"],
+        "budget": summary["budget"],
+        "algo": summary["algo"],
+        "env": summary["env"],
+        "shift": summary.get("shift", "none"),
+        "overrides": overrides,
+        "history": history,
+        "offline_score": offline["normalized_score"],
+        "final_score": (online or history)[-1]["normalized_score"],
+        "auc": online_auc([offline, *online]),
+        "offline_seconds": summary["offline_seconds"],
+        "online_seconds": summary["wall_seconds"] - summary["offline_seconds"],
+        "wall_seconds": summary["wall_seconds"],
+        "stage_seconds": summary.get("stage_seconds", {}),
+        "shared_offline": summary.get("shared_offline", False),
+        **meta,
+    }
+
+
+def load_results(root: Path) -> dict[str, dict[str, list[dict]]]:
+    """``root/<cell>/<variant>/seed*.json`` -> {cell: {variant: [result, ...]}} (by seed)."""
+    out: dict[str, dict[str, list[dict]]] = {}
+    for path in sorted(Path(root).glob("*/*/seed*.json")):
+        result = json.loads(path.read_text())
+        out.setdefault(path.parent.parent.name, {}).setdefault(path.parent.name, []).append(result)
+    for variants in out.values():
+        for results in variants.values():
+            results.sort(key=lambda r: r["seed"])
+    return out
+
+
+def fmt(interval: tuple[float, float]) -> str:
+    mean, half = interval
+    return f"{mean:.1f}" if math.isnan(half) else f"{mean:.1f} ± {half:.1f}"
+
+
+def cell_table(variants: dict[str, list[dict]], order: Sequence[str]) -> str:
+    """Markdown table of one cell: mean ± 95 % t half-width per variant, and which
+    variants separate from ``dual`` (final score / AUC)."""
+    lines = [
+        "| variant | n | offline score | final online score | AUC (online) | wall min "
+        "| vs dual: final / AUC |",
+        "|---|---:|---|---|---|---:|---|",
+    ]
+    stats = {
+        v: {k: t_interval([r[k] for r in rs]) for k in ("offline_score", "final_score", "auc")}
+        for v, rs in variants.items()
+    }
+    for v in sorted(variants, key=lambda v: order.index(v) if v in order else len(order)):
+        rs, s = variants[v], stats[v]
+        if v == "dual" or "dual" not in stats:
+            marker = "—"
+        else:
+            marker = " / ".join(separation(s[k], stats["dual"][k]) for k in ("final_score", "auc"))
+        wall = statistics.fmean(r["wall_seconds"] for r in rs) / 60
+        lines.append(
+            f"| `{v}` | {len(rs)} | {fmt(s['offline_score'])} | {fmt(s['final_score'])} "
+            f"| {fmt(s['auc'])} | {wall:.1f} | {marker} |"
+        )
+    return "\n".join(lines)
+
+
+def _at_time(results: list[dict], seconds: float) -> str:
+    scores = [score_at_time(r, seconds) for r in results]
+    done = [s for s in scores if s is not None]
+    if not done:
+        return "offline"
+    text = fmt(t_interval(done))
+    return text if len(done) == len(scores) else f"{text} ({len(scores) - len(done)} offline)"
+
+
+def equal_compute_table(cells: dict[str, dict[str, list[dict]]], order: Sequence[str]) -> str:
+    """DUAL vs IQL per cell: final scores (equal steps) and scores at equal wall time."""
+    lines = [
+        "| cell | final dual | final iql | T₁ (min) | dual at T₁ | iql at T₁ "
+        "| T₂ (min) | dual at T₂ | iql at T₂ |",
+        "|---|---|---|---:|---|---|---:|---|---|",
+    ]
+    for cell in sorted(cells, key=lambda c: order.index(c) if c in order else len(order)):
+        dual, iql = cells[cell].get("dual"), cells[cell].get("iql")
+        if not dual or not iql:
+            continue
+        wall = {
+            k: statistics.fmean(r["wall_seconds"] for r in rs)
+            for k, rs in (("d", dual), ("i", iql))
+        }
+        t1, t2 = min(wall.values()), wall["i"]
+        lines.append(
+            f"| {cell} | {fmt(t_interval([r['final_score'] for r in dual]))} "
+            f"| {fmt(t_interval([r['final_score'] for r in iql]))} | {t1 / 60:.1f} "
+            f"| {_at_time(dual, t1)} | {_at_time(iql, t1)} | {t2 / 60:.1f} "
+            f"| {_at_time(dual, t2)} | {_at_time(iql, t2)} |"
+        )
+    return "\n".join(lines)
+
+
+def _unique(results: Iterable[dict], key: str) -> list[str]:
+    return sorted({json.dumps(r.get(key), sort_keys=True) for r in results})
+
+
+def render_section(
+    cells: dict[str, dict[str, list[dict]]],
+    *,
+    budget: str,
+    header: str,
+    cell_about: dict[str, str],
+    variant_order: Sequence[str],
+    figures: dict[str, str],
+    command: str,
+    results_dir: str,
+    date: str,
+    machine: str,
+) -> str:
+    """The markdown between the markers: ``header`` (what the cells are, how to run),
+    one table per cell (in the order of ``cell_about``: name -> title), the
+    equal-compute comparison and the figures (``figures``: cell or ``"latency"`` -> path
+    relative to the docs file)."""
+    cell_order = list(cell_about)
+    everything = [r for variants in cells.values() for rs in variants.values() for r in rs]
+    commits = ", ".join(json.loads(c) or "?" for c in _unique(everything, "commit"))
+    machines = "; ".join(json.loads(m) or "?" for m in _unique(everything, "machine"))
+    parts = [
+        BEGIN,
+        f"## Learning suite, budget `{budget}`",
+        f"_Generated by `{command}` on {date} ({machine}) from the JSONs under "
+        f"`{results_dir}`; everything between the markers is rewritten._",
+        header,
+        f"Runs on: {machines or '—'}. Commits: {commits or '—'}.",
+        "Each entry is the mean over seeds ± the half-width of the 95 % Student-t interval "
+        "(n − 1 degrees of freedom). *Offline score*: after the offline phase (0 online "
+        "frames); *final*: at the last online evaluation; *AUC*: the trapezoid mean of the "
+        "normalized score over online frames, from the offline point to the end; *wall min*: "
+        "mean minutes of offline + online phase (a shared offline phase counts in full). "
+        "*vs dual*: ▲ / ▼ when the variant's interval lies entirely above / below DUAL's, "
+        "≈ when they overlap, ? with fewer than 2 seeds. Non-overlap of two 95 % intervals "
+        "is a conservative test: for two intervals of equal width it needs a difference of "
+        "about 2.8 standard errors of the difference (p ≈ 0.006 in the normal "
+        "approximation), so overlapping intervals can still differ significantly.",
+    ]
+    if not cells:
+        parts.append("No results yet.")
+    for cell in sorted(cells, key=lambda c: cell_order.index(c) if c in cell_order else 99):
+        parts.append(f"### {cell}: {cell_about[cell]}" if cell in cell_about else f"### {cell}")
+        parts.append(cell_table(cells[cell], variant_order))
+        if cell in figures:
+            parts.append(f"![learning curves, {cell}]({figures[cell]})")
+    table = equal_compute_table(cells, cell_order)
+    if table.count("\n") > 1:
+        parts += [
+            "### DUAL vs IQL at equal steps and at equal wall time",
+            "*Equal steps* compares the final scores after the same number of online "
+            "frames and updates. *Equal wall time* compares the scores each algorithm has "
+            "reached after the same wall-clock time: a run's evaluations are placed on a "
+            "time axis at offline_seconds + (frames / final frames) × online_seconds "
+            "(the online phase taken as linear in frames, evaluation time included), "
+            "the score is interpolated linearly between them and held after the run "
+            'ends; before its offline phase ends a run has no score ("offline"). Both '
+            "are read at T₁ = the smaller of the two mean total wall times and at T₂ = "
+            "IQL's mean total wall time (the same when IQL is the faster one).",
+            table,
+        ]
+    if "latency" in figures:
+        parts += [
+            "### Action latency vs final score",
+            f"![latency vs final score]({figures['latency']})",
+        ]
+    parts.append(END)
+    return "\n\n".join(parts)
+
+
+def replace_section(text: str, section: str) -> str:
+    """``text`` with the marker section replaced by ``section`` (which carries the
+    markers); inserted after the first ``# `` title line when the markers are missing."""
+    if BEGIN in text and END in text:
+        head, rest = text.split(BEGIN, 1)
+        return head + section + rest.split(END, 1)[1]
+    lines = text.splitlines(keepends=True)
+    at = next((i + 1 for i, line in enumerate(lines) if line.startswith("# ")), 0)
+    head, rest = "".join(lines[:at]), "".join(lines[at:]).lstrip("\n")
+    return head + ("\n" if at else "") + section + "\n\n" + rest
