@@ -8,11 +8,14 @@ learner module, a config file and one line here.
 from __future__ import annotations
 
 from torchrl_dual.recipe.algorithm import Algorithm
+from torchrl_dual.recipe.diffql import DIFFQL, DIFFQL_LA
 from torchrl_dual.recipe.dual_settings import DUAL
 from torchrl_dual.recipe.iql import IQL
 
 ALGORITHMS: dict[str, Algorithm] = {
     "dual": DUAL,
     "iql": IQL,
+    "diffql": DIFFQL,
+    "diffql_la": DIFFQL_LA,
 }
 """``algo`` -> :class:`Algorithm`."""

@@ -1,0 +1,271 @@
+"""The Diff-QL baselines ``algo=diffql`` and ``algo=diffql_la`` (``torchrl_dual/recipe/diffql.py``).
+
+End to end at a cut-down smoke budget (one run through ``recipes/o2o.py`` as a user
+starts it, two in-process runs of :func:`torchrl_dual.recipe.run`, what it calls), then the math of the
+pieces on tiny networks: the Q-term trains the actor and never the critic and does not
+depend on the critic's scale, the BC term alone decreases, and "Diff-QL w LA"'s ensemble
+spreads after a Laplace fit while its MAP mean is the actor's deterministic chain.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from omegaconf import OmegaConf
+from tensordict import TensorDict
+from torch import nn
+from torchrl.data import Bounded
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from torchrl_dual import DDPMLastStepActor, WeightedMAPActorLoss, make_dual_policy
+from torchrl_dual.recipe import check_command_line, compose_checked, run
+from torchrl_dual.recipe.critics import make_iql_critic
+from torchrl_dual.recipe.diffql import (
+    ActionBox,
+    DiffQLActorLoss,
+    DiffQLLALearner,
+    make_diffusion_actor,
+    min_q,
+)
+
+REPO = Path(__file__).resolve().parents[2]
+CONFIG_DIR = REPO / "recipes" / "config"
+# the smoke budget cut further: 10 offline updates, 100 online frames in 2 blocks of 50,
+# each followed by 10 updates (UTD 0.2) and a Laplace refit (diffql_la)
+FAST = [
+    "budget.offline_updates=10",
+    "online.utd_ratio=0.2",
+    "budget.online_frames=100",
+    "budget.frames_per_batch=50",
+    "budget.eval_every=100",
+    "budget.checkpoint_every=100",
+    "budget.eval_episodes=2",
+    "budget.laplace_refit_every=10",
+]
+POINTMAZE = ["env.max_episode_steps=50"]  # shorter reference and evaluation episodes
+
+
+def common_overrides(output_dir: Path, cache_dir: Path) -> list[str]:
+    return [
+        "budget=smoke",
+        f"output_dir={output_dir}",
+        f"data_cache_dir={cache_dir}",
+        "progress=false",
+        "num_threads=1",
+        *FAST,
+    ]
+
+
+def run_recipe(output_dir: Path, cache_dir: Path, *overrides: str) -> subprocess.CompletedProcess:
+    """``python recipes/o2o.py budget=smoke ...`` from the repo root; never raises."""
+    cmd = [sys.executable, "recipes/o2o.py", *common_overrides(output_dir, cache_dir), *overrides]
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "HYDRA_FULL_ERROR": "0"}
+    return subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
+
+
+def succeeded(proc: subprocess.CompletedProcess) -> subprocess.CompletedProcess:
+    assert proc.returncode == 0, f"exit {proc.returncode}\n{proc.stdout}\n{proc.stderr[-4000:]}"
+    return proc
+
+
+def checkpoint_state(output_dir: Path) -> dict:
+    payload = torch.load(output_dir / "checkpoint.pt", map_location="cpu", weights_only=False)
+    return payload["state"]
+
+
+@pytest.fixture(scope="module")
+def cache_dir(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("diffql_data")
+
+
+# ----------------------------------------------------------------------------- end to end
+def test_diffql_runs_end_to_end_on_pointmaze(cache_dir, tmp_path):
+    run(
+        compose_checked(
+            CONFIG_DIR, ["algo=diffql", *POINTMAZE, *common_overrides(tmp_path, cache_dir)]
+        )
+    )
+    state = checkpoint_state(tmp_path)
+    assert state["stages_done"] == ["actor_critic", "offline_eval"]
+    assert (state["frames"], state["updates"]) == (100, 10 + 20)
+    assert [h["label"] for h in state["history"]] == ["offline", "online"]
+    assert set(state) >= {"actor", "critic", "critic_optimizer", "actor_optimizer"}
+    # the score network at the smoke width, the same IQL critics without an actor copy
+    assert state["actor"]["module.score_network.0.weight"].shape == (64, 2 + 6 + 1)
+    assert not any(name.startswith("actor_network_params") for name in state["critic"])
+    scalars = tmp_path / "logs" / "diffql" / "scalars"
+    assert (scalars / "offline" / "loss_q.csv").is_file()
+
+
+def test_diffql_la_runs_end_to_end_on_frozenlake_with_one_hot_actions(cache_dir, tmp_path):
+    out = tmp_path / "run"
+    proc = succeeded(run_recipe(out, cache_dir, "algo=diffql_la", "env=frozenlake"))
+    assert "[diffql_la] normalized score at the end of the online phase:" in proc.stdout
+    state = checkpoint_state(out)
+    assert state["stages_done"] == ["actor_critic", "laplace", "offline_eval"]
+    assert "ensemble" in state and "actor" not in state  # the actor is saved once, inside
+    actions = state["online_data"]["action"]  # executed: the env kit's one-hot projection
+    assert ((actions == 0) | (actions == 1)).all() and (actions.sum(-1) == 1).all()
+
+
+def test_diffql_la_runs_on_pointmaze_and_refits_its_posterior(cache_dir, tmp_path):
+    overrides = ["algo=diffql_la", *POINTMAZE, *common_overrides(tmp_path, cache_dir)]
+    cfg = compose_checked(CONFIG_DIR, overrides)
+    result = run(cfg)
+    learner = result.learner
+    assert isinstance(learner, DiffQLLALearner)
+    # one fit offline, then one after each block of 10 online updates
+    refits = tmp_path / "logs" / "diffql_la" / "scalars" / "laplace" / "prior_precision.csv"
+    assert len(refits.read_text().splitlines()) == 3
+    epistemic = tmp_path / "logs" / "diffql_la" / "scalars" / "online" / "epistemic_std.csv"
+    assert all(float(line.split(",")[1]) > 0 for line in epistemic.read_text().splitlines())
+    assert learner.ensemble.actor.sampler is learner.actor.module  # one set of weights
+
+
+def test_a_shift_weight_for_diffql_la_exits_2_with_one_error_line(capsys):
+    argv = ["algo=diffql_la", "exploration.shift_weight=0.5"]
+    with pytest.raises(SystemExit) as stop:
+        check_command_line(CONFIG_DIR, argv=argv)
+    assert stop.value.code == 2
+    errors = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1
+    assert errors[0].startswith("error: exploration.shift_weight=0.5: must be 0 for diffql_la")
+
+
+def test_a_misspelt_diffql_key_exits_2_naming_the_right_one(capsys):
+    with pytest.raises(SystemExit) as stop:
+        check_command_line(CONFIG_DIR, argv=["algo=diffql", "actor.etaa=2"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert "error: unknown key 'actor.etaa'; did you mean actor.eta?" in err
+
+
+# ----------------------------------------------------------------------------- the math
+OBS_DIM, ACTION_DIM = 3, 2
+
+
+def tiny_cfg(eta: float = 1.0):
+    return OmegaConf.create(
+        {
+            "device": "cpu",
+            "actor": {"num_steps": 5, "hidden": 32, "depth": 2, "lr": 3e-3, "eta": eta},
+            "critic": {
+                "hidden": 32,
+                "depth": 2,
+                "lr": 3e-4,
+                "expectile": 0.7,
+                "discount": 0.99,
+                "target_update_tau": 0.005,
+            },
+        }
+    )
+
+
+def toy_batch(n: int = 128, seed: int = 0) -> TensorDict:
+    gen = torch.Generator().manual_seed(seed)
+    observation = torch.randn(n, OBS_DIM, generator=gen)
+    action = torch.tanh(observation[:, :ACTION_DIM] - 0.5 * observation[:, 2:])
+    return TensorDict(observation=observation, action=action, batch_size=[n])
+
+
+def pieces(eta: float = 1.0):
+    torch.manual_seed(0)
+    cfg = tiny_cfg(eta)
+    actor = make_diffusion_actor(cfg, OBS_DIM, ACTION_DIM)
+    critic = make_iql_critic(cfg, OBS_DIM, ACTION_DIM)
+    box = ActionBox(-torch.ones(ACTION_DIM), torch.ones(ACTION_DIM))
+    return actor, critic, DiffQLActorLoss(actor, critic, box, eta=eta)
+
+
+def critic_parameters(critic) -> list[torch.Tensor]:
+    return list(critic.loss.parameters())
+
+
+def test_the_q_term_reaches_every_actor_weight_and_no_critic_weight():
+    actor, critic, loss = pieces()
+    q_term, _ = loss.q_term(toy_batch()["observation"])
+    q_term.backward()
+    for name, p in actor.named_parameters():
+        assert p.grad is not None and p.grad.abs().sum() > 0, name
+    assert all(p.grad is None for p in critic_parameters(critic))
+
+
+def test_the_q_term_is_invariant_to_the_critic_s_scale():
+    """Wang et al.'s normalisation: ``−mean Q / mean |Q|`` has the same actor gradient
+    when every Q is multiplied by c > 0 (here the last layer of both Q networks by 7)."""
+    actor, critic, loss = pieces()
+    observation = toy_batch()["observation"]
+
+    def gradient() -> torch.Tensor:
+        actor.zero_grad()
+        torch.manual_seed(1)  # the same chain noise
+        loss.q_term(observation)[0].backward()
+        return torch.cat([p.grad.flatten() for p in actor.parameters()])
+
+    before = gradient()
+    params = critic.loss.qvalue_network_params
+    last = sorted(k for k in params.keys(True, True) if k[-1] == "weight")[-1]
+    bias = (*last[:-1], "bias")
+    with torch.no_grad():
+        params.get(last).mul_(7.0)
+        params.get(bias).mul_(7.0)
+    torch.testing.assert_close(gradient(), before, rtol=1e-4, atol=1e-6)
+
+
+def test_min_q_is_the_smaller_twin_and_differentiable_in_the_action():
+    _, critic, _ = pieces()
+    batch = toy_batch(16)
+    action = batch["action"].clone().requires_grad_(True)
+    q = min_q(critic, batch["observation"], action)
+    network = critic.loss.qvalue_network
+    twins = []
+    for member in critic.loss.qvalue_network_params.unbind(0):
+        with member.to_module(network):
+            twins.append(network(batch.clone())["state_action_value"].squeeze(-1))
+    torch.testing.assert_close(q, torch.minimum(*twins).detach())
+    q.sum().backward()
+    assert action.grad.abs().sum() > 0
+
+
+def test_the_bc_term_alone_decreases_on_a_toy_batch():
+    actor, _, loss = pieces(eta=0.0)
+    optimizer = torch.optim.Adam(actor.parameters(), lr=3e-3)
+    batch = toy_batch(256)
+    history = []
+    torch.manual_seed(2)
+    for _ in range(150):
+        bc = loss.bc_loss(batch)["loss_diffusion_bc"]
+        optimizer.zero_grad()
+        bc.backward()
+        optimizer.step()
+        history.append(bc.item())
+    first, last = sum(history[:20]) / 20, sum(history[-20:]) / 20
+    assert last < 0.6 * first, (first, last)
+
+
+def test_diffql_la_members_differ_after_a_fit_and_its_map_mean_is_the_actor_s_chain():
+    actor, critic, _ = pieces()
+    last_step = DDPMLastStepActor(actor, latent="zero", init_std=0.3)
+    weights = WeightedMAPActorLoss.from_iql(last_step, critic.loss, temperature=3.0)
+    spec = Bounded(-1.0, 1.0, shape=(ACTION_DIM,))
+    policy = make_dual_policy(last_step, spec, num_samples=5, shift_weight=0.0)
+    ensemble = policy[0]
+    ensemble.fit_laplace([toy_batch(512)], weight_fn=weights.advantage_weights)
+    observation = toy_batch(8, seed=3)["observation"]
+    with torch.no_grad():
+        members = ensemble.member_actions(observation)  # [M, B, A]
+        assert members.var(0).min() > 0
+        with set_exploration_type(ExplorationType.RANDOM):
+            out = policy(TensorDict(observation=observation, batch_size=[8]))
+        assert (out["epistemic_variance"] > 0).all()
+        with set_exploration_type(ExplorationType.DETERMINISTIC):
+            mean = ensemble(TensorDict(observation=observation, batch_size=[8]))["action"]
+            chain = actor(TensorDict(observation=observation, batch_size=[8]))["action"]
+    torch.testing.assert_close(mean, last_step(observation).clamp(-1, 1))
+    torch.testing.assert_close(mean, chain.clamp(-1, 1), rtol=1e-5, atol=1e-5)
+    assert isinstance(last_step.head, nn.Linear)

@@ -1,0 +1,367 @@
+"""The ``diffql`` and ``diffql_la`` baselines: Diff-QL (Wang et al. 2023) and "Diff-QL w LA".
+
+**Diff-QL** ("Diffusion policies as an expressive policy class for offline RL"): the
+policy is TorchRL's :class:`~torchrl.modules.DiffusionActor`, an ``N``-step DDPM over the
+action (``actor.num_steps = 5`` as in the paper) with Wang et al.'s variance-preserving
+schedule ``β_t = 1 − exp(−β_min/N − (β_max − β_min)(2t − 1)/(2N²))`` (``β_min = 0.1``,
+``β_max = 10``; TorchRL's default linear ``1e-4 … 0.02`` schedule would leave
+``ᾱ_N ≈ 0.95`` at ``N = 5``, far from noise). It is trained with
+
+``L(θ) = L_bc(θ) − η · mean Q(s, a_π) / mean |Q(s, a_π)|``,
+
+``L_bc`` TorchRL's :class:`~torchrl.objectives.DiffusionBCLoss` (ε-prediction on the
+batch actions) and ``a_π`` a sample of the actor's stochastic chain with gradients
+through all ``N`` denoising steps, clamped to the action box (Wang et al. clip it too);
+the normaliser ``mean |Q|`` is detached (Wang et al.'s). ``Q`` is ``min_k Q_k`` of the
+twin critics with their weights detached, so the Q-term trains the actor only.
+
+**Critic.** Diff-QL's own critic is a TD3-style double Q trained on the actor's actions;
+the recipe keeps its critic table instead: the SAME IQL critics as ``dual`` and ``iql``
+(``CRITICS["iql"]``, built without an actor, as :class:`~torchrl_dual.recipe.DualLearner`
+does), so every algorithm is compared on one critic. Not reproduced either: Wang et al.'s
+EMA copy of the actor, their sinusoidal time embedding (the TorchRL score network reads
+the raw step index) and their Q-softmax action selection at evaluation.
+
+**Acting.** Online, ``diffql`` collects with the actor's stochastic DDPM samples
+(``ExplorationType.RANDOM``), clamped to the action box and projected by the env kit's
+``action_projection`` (Frozen-Lake's one-hot argmax). It is evaluated deterministically:
+under ``ExplorationType.DETERMINISTIC`` TorchRL's ``DiffusionActor`` runs the chain from
+the zero latent ``x_N = 0`` without injected noise (a repeatable action, not a sample).
+
+**Diff-QL w LA** (``diffql_la``, the paper's Fig. 4(c), ``M = 5``): the same training;
+acting goes through :class:`~torchrl_dual.modules.DDPMLastStepActor` (the zero-latent
+chain with the score network's final ``nn.Linear`` as the Laplace layer), the
+:class:`~torchrl_dual.modules.LaplaceEnsembleActor` of Eq. (9) and
+:class:`~torchrl_dual.modules.ShiftAwareNoise`, assembled by
+:func:`~torchrl_dual.modules.make_dual_policy` with ``λ = 0``: Diff-QL has no transition
+model ``ŝ_t``, so ``exploration.shift_weight > 0`` is a config error. The last-layer
+posterior (Eq. 8) is fitted after the offline phase and refitted every
+``budget.laplace_refit_every`` updates on ``D_offline ∪ D_online`` with the advantage
+weights ``min(exp(β (Q − V)), w_max)`` of the IQL critics. Diff-QL trains no ``σ̄``, so
+the Gaussian width of Eq. (8-9) is the fixed ``laplace.action_std``. Its evaluation
+action (the MAP mean, deterministic) is ``diffql``'s: the same zero-latent chain.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+from omegaconf import DictConfig
+from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import TensorDictModule, TensorDictSequential
+from torch import nn
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.modules import DiffusionActor
+from torchrl.objectives import DiffusionBCLoss
+
+from torchrl_dual import DDPMLastStepActor, WeightedMAPActorLoss, make_dual_policy
+from torchrl_dual.recipe.algorithm import Algorithm, OnlineSettings, check_nothing
+from torchrl_dual.recipe.critics import CRITICS, Critic
+from torchrl_dual.recipe.env_kits import env_kit
+from torchrl_dual.recipe.errors import ConfigError
+from torchrl_dual.recipe.o2o_run import Learner, O2ORun
+from torchrl_dual.recipe.rules import Choice, Either, Integer, Real, key
+
+
+# ----------------------------------------------------------------------------- settings
+@dataclass
+class DiffQLActorSettings:
+    """``algo/diffql*.yaml``'s ``actor``: the DDPM actor and its loss."""
+
+    num_steps: int = key(Integer(1), "N: DDPM denoising steps")
+    hidden: int = key(Integer(1), "width of the score network")
+    depth: int = key(Integer(1), "hidden layers of the score network")
+    lr: float = key(Real(0, low_open=True), "Adam learning rate")
+    eta: float = key(Real(0), "η: weight of the normalised Q-term")
+    max_grad_norm: float = key(Real(0, low_open=True), "clip of the actor's gradient norm")
+
+
+@dataclass
+class DiffQLLaplaceSettings:
+    """``algo/diffql_la.yaml``'s ``laplace``: Eq. (8-9) on the last DDPM step."""
+
+    num_samples: int = key(Integer(0), "M sub-policies; 0 = no epistemic UQ (MAP mean, σ̄)")
+    prior_precision: Any = key(
+        Either(
+            (Choice(("evidence",)), Real(0, low_open=True)), "must be 'evidence' or a number > 0"
+        ),
+        "λ of the Gaussian prior",
+    )
+    temperature: float = key(Real(0), "β of the Laplace fit's weights exp(β (Q - V))")
+    max_weight: float = key(Real(0, low_open=True), "clip of those weights")
+    action_std: float = key(Real(0, 2, low_open=True), "σ̄ of Eq. 8-9 (fixed)")
+
+
+@dataclass
+class DiffQLExplorationSettings:
+    """``algo/diffql_la.yaml``'s ``exploration``: Eq. (10) without its shift term."""
+
+    shift_weight: float = key(Real(0), "λ of Eq. 10; must be 0 (no transition model)")
+
+
+def check_diffql_la(cfg: DictConfig) -> None:
+    """``exploration.shift_weight`` must be 0: Diff-QL has no transition model ``ŝ_t``."""
+    if cfg.exploration.shift_weight != 0:
+        raise ConfigError(
+            "exploration.shift_weight",
+            cfg.exploration.shift_weight,
+            "must be 0 for diffql_la: Diff-QL has no transition model for Eq. 10's "
+            "ŝ_t (DUAL's planner provides one: algo=dual)",
+        )
+
+
+# ----------------------------------------------------------------------------- networks
+def vp_betas(num_steps: int, beta_min: float = 0.1, beta_max: float = 10.0) -> torch.Tensor:
+    """Wang et al.'s variance-preserving schedule ``β_1 … β_N`` (their ``vp_beta_schedule``).
+
+    Examples:
+        >>> betas = vp_betas(5)
+        >>> [round(b, 3) for b in betas.tolist()]
+        [0.196, 0.459, 0.636, 0.755, 0.835]
+        >>> round(float(torch.prod(1 - betas)), 4)  # ᾱ_N = exp(-(β_min + β_max) / 2)
+        0.0064
+    """
+    t = torch.arange(1, num_steps + 1, dtype=torch.float64)
+    log_alpha = -beta_min / num_steps - 0.5 * (beta_max - beta_min) * (2 * t - 1) / num_steps**2
+    return (1.0 - log_alpha.exp()).float()
+
+
+def make_diffusion_actor(cfg: DictConfig, obs_dim: int, action_dim: int) -> DiffusionActor:
+    """TorchRL's ``DiffusionActor`` with a Mish MLP score network ``ε̂(x_t, s, t)`` (Wang
+    et al.'s activation) ending in ``nn.Linear`` and the VP schedule of :func:`vp_betas`."""
+    a = cfg.actor
+    layers: list[nn.Module] = []
+    width = action_dim + obs_dim + 1
+    for _ in range(a.depth):
+        layers += [nn.Linear(width, a.hidden), nn.Mish()]
+        width = a.hidden
+    layers.append(nn.Linear(width, action_dim))
+    actor = DiffusionActor(action_dim, score_network=nn.Sequential(*layers), num_steps=a.num_steps)
+    ddpm = actor.module
+    betas = vp_betas(a.num_steps)
+    with torch.no_grad():
+        ddpm.betas.copy_(betas)
+        ddpm.alphas.copy_(1.0 - betas)
+        ddpm.alphas_cumprod.copy_(torch.cumprod(1.0 - betas, 0))
+    return actor.to(cfg.device)
+
+
+class ActionBox(nn.Module):
+    """Clamps an action to the env's box ``[low, high]``."""
+
+    def __init__(self, low: torch.Tensor, high: torch.Tensor) -> None:
+        super().__init__()
+        self.register_buffer("low", low.clone())
+        self.register_buffer("high", high.clone())
+
+    def forward(self, action: torch.Tensor) -> torch.Tensor:
+        return torch.maximum(torch.minimum(action, self.high), self.low)
+
+
+def min_q(critic: Critic, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+    """``min_k Q_k(s, a)`` of the twin critics with detached weights, ``[*B]``: gradients
+    reach ``action`` (and through it the actor), never the critic."""
+    loss = critic.loss
+    network = loss.qvalue_network
+    td = TensorDict(observation=observation, action=action, batch_size=observation.shape[:-1])
+    values = []
+    for member in loss.qvalue_network_params.detach().unbind(0):
+        with member.to_module(network):
+            values.append(network(td.clone(False)).get(loss.tensor_keys.state_action_value))
+    return torch.stack(values).min(0).values.squeeze(-1)
+
+
+class DiffQLActorLoss:
+    """Diff-QL's actor loss ``L_bc + η · (−mean Q(s, a_π) / mean |Q(s, a_π)|)``.
+
+    ``L_bc`` is TorchRL's :class:`~torchrl.objectives.DiffusionBCLoss` on the batch
+    actions; ``a_π`` the actor's stochastic DDPM chain (``ExplorationType.RANDOM``),
+    differentiable through all ``N`` steps and clamped by ``box``; ``Q`` is :func:`min_q`
+    (critic weights detached) and the normaliser ``mean |Q|`` is detached, so the Q-term
+    is invariant to the critic's scale and trains the actor only. Not an ``nn.Module``:
+    it holds no weights of its own.
+    """
+
+    def __init__(
+        self, actor: DiffusionActor, critic: Critic, box: ActionBox, *, eta: float
+    ) -> None:
+        self.actor, self.critic, self.box, self.eta = actor, critic, box, eta
+        self.bc_loss = DiffusionBCLoss(actor)
+
+    def sample_actions(self, observation: torch.Tensor) -> torch.Tensor:
+        """``a_π``, differentiable with respect to the actor's weights."""
+        with set_exploration_type(ExplorationType.RANDOM):
+            return self.box(self.actor.module(observation))
+
+    def q_term(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(−mean Q(s, a_π) / mean |Q(s, a_π)|, mean Q(s, a_π))``."""
+        q = min_q(self.critic, observation, self.sample_actions(observation))
+        return -q.mean() / q.abs().mean().detach().clamp_min(1e-6), q.mean().detach()
+
+    def __call__(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+        bc = self.bc_loss(batch)["loss_diffusion_bc"]
+        q_term, q_pi = self.q_term(batch["observation"])
+        return {
+            "loss_actor": bc + self.eta * q_term,
+            "loss_bc": bc.detach(),
+            "loss_q": q_term.detach(),
+            "q_pi": q_pi,
+        }
+
+
+# ----------------------------------------------------------------------------- learners
+class DiffQLLearner(Learner):
+    """Diff-QL: one ``budget.offline_updates`` stage offline, then the same update online."""
+
+    title = "Diff-QL"
+    shared_stages = ("actor_critic",)
+
+    def __init__(self, run: O2ORun) -> None:
+        self.run = run
+        cfg = self.cfg = run.cfg
+        spec = run.env.action_spec
+        obs_dim, action_dim = run.data.obs_dim, run.data.action_dim
+        self.actor = make_diffusion_actor(cfg, obs_dim, action_dim)
+        self.critic = CRITICS[cfg.critic.name][1](cfg, obs_dim, action_dim)
+        self.box = ActionBox(spec.space.low, spec.space.high).to(cfg.device)
+        self.actor_loss = DiffQLActorLoss(self.actor, self.critic, self.box, eta=cfg.actor.eta)
+        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor.lr)
+        clamp = TensorDictModule(self.box, in_keys=["action"], out_keys=["action"])
+        self.evaluation_policy = TensorDictSequential(self.actor, clamp)
+        projection = env_kit(cfg).action_projection
+        self.exploration_policy = (
+            self.evaluation_policy
+            if projection is None
+            else TensorDictSequential(
+                self.actor,
+                clamp,
+                TensorDictModule(projection, in_keys=["action"], out_keys=["action"]),
+            )
+        )
+
+    def modules(self) -> dict:
+        return {
+            "actor": self.actor,
+            "critic": self.critic.loss,
+            "critic_optimizer": self.critic.optimizer,
+            "actor_optimizer": self.actor_optimizer,
+        }
+
+    def offline_stages(self) -> list:
+        return [("actor_critic", self.run.pretrain_updates)]
+
+    def update(self, batch: TensorDictBase) -> dict:
+        """One IQL critic step, then one actor step on ``L_bc + η · loss_q``."""
+        critic = self.critic
+        q_loss, _ = critic.loss.qvalue_loss(batch)
+        v_loss, _ = critic.loss.value_loss(batch)
+        critic.optimizer.zero_grad(set_to_none=True)
+        (q_loss + v_loss).backward()
+        critic.optimizer.step()
+        critic.target_updater.step()
+        losses = self.actor_loss(batch)
+        self.actor_optimizer.zero_grad(set_to_none=True)
+        losses["loss_actor"].backward()
+        nn.utils.clip_grad_norm_(self.actor.parameters(), self.cfg.actor.max_grad_norm)
+        self.actor_optimizer.step()
+        return {
+            "loss_qvalue": q_loss.item(),
+            "loss_value": v_loss.item(),
+            **{k: v.item() for k, v in losses.items()},
+        }
+
+
+class DiffQLLALearner(DiffQLLearner):
+    """Diff-QL w LA: Diff-QL's training, acting with the Laplace ensemble of its last
+    DDPM step (Eq. 8-9) and ``λ = 0`` noise, refitted every ``budget.laplace_refit_every``
+    updates."""
+
+    title = "Diff-QL w LA"
+
+    def __init__(self, run: O2ORun) -> None:
+        super().__init__(run)
+        cfg, la = run.cfg, run.cfg.laplace
+        self.last_step = DDPMLastStepActor(self.actor, latent="zero", init_std=la.action_std)
+        # only its advantage weights are used (Eq. 8's Hessian); Diff-QL trains the actor
+        self.weights = WeightedMAPActorLoss.from_iql(
+            self.last_step,
+            self.critic.loss,
+            weighting="advantage",
+            temperature=la.temperature,
+            max_weight=la.max_weight,
+        )
+        self.policy = make_dual_policy(
+            self.last_step,
+            run.env.action_spec,
+            num_samples=la.num_samples,
+            prior_precision=la.prior_precision,
+            shift_weight=0.0,
+            action_projection=env_kit(cfg).action_projection,
+            device=cfg.device,
+        )
+        self.ensemble = self.policy[0]
+        self.exploration_policy = self.policy  # Eq. 9 + Eq. 10 with λ = 0
+        self.evaluation_policy = self.ensemble  # the MAP mean under DETERMINISTIC
+        self.updates_since_refit = 0
+
+    def modules(self) -> dict:
+        """The ensemble holds the DDPM actor (through ``DDPMLastStepActor``) and the
+        posterior, so the actor is saved once, inside it."""
+        modules = super().modules()
+        del modules["actor"]
+        return {"ensemble": self.ensemble, **modules}
+
+    def state_dict(self) -> dict:
+        return {"updates_since_refit": self.updates_since_refit}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.updates_since_refit = state["updates_since_refit"]
+
+    def offline_stages(self) -> list:
+        return [*super().offline_stages(), ("laplace", self.fit_laplace)]
+
+    def update(self, batch: TensorDictBase) -> dict:
+        metrics = super().update(batch)
+        self.updates_since_refit += 1
+        return metrics
+
+    def after_updates(self) -> None:
+        if self.updates_since_refit >= self.cfg.budget.laplace_refit_every:
+            self.fit_laplace()
+
+    def batch_metrics(self, batch: TensorDictBase) -> dict:
+        return {"epistemic_std": float(batch["epistemic_variance"].mean().sqrt())}
+
+    def fit_laplace(self) -> None:
+        """Eq. (8) on ``D_offline ∪ D_online`` with the clipped advantage weights; skipped
+        with ``laplace.num_samples=0`` (nothing is drawn from the posterior)."""
+        self.updates_since_refit = 0
+        if self.ensemble.num_samples == 0:
+            return
+        with torch.no_grad():
+            laplace = self.ensemble.fit_laplace(
+                self.run.all_transitions(), weight_fn=self.weights.advantage_weights
+            )
+        self.run.log({"prior_precision": laplace.prior_precision}, self.run.updates, "laplace/")
+
+
+DIFFQL = Algorithm(
+    sections={"actor": DiffQLActorSettings, "online": OnlineSettings},
+    critics=("iql",),
+    check=check_nothing,
+    learner=DiffQLLearner,
+)
+
+DIFFQL_LA = Algorithm(
+    sections={
+        "actor": DiffQLActorSettings,
+        "laplace": DiffQLLaplaceSettings,
+        "exploration": DiffQLExplorationSettings,
+        "online": OnlineSettings,
+    },
+    critics=("iql",),
+    check=check_diffql_la,
+    learner=DiffQLLALearner,
+)
