@@ -11,10 +11,12 @@ from torchrl_dual.recipe.algorithm import Algorithm
 from torchrl_dual.recipe.diffql import DIFFQL, DIFFQL_LA
 from torchrl_dual.recipe.dual_settings import DUAL
 from torchrl_dual.recipe.iql import IQL
+from torchrl_dual.recipe.iql_la import IQL_LA
 
 ALGORITHMS: dict[str, Algorithm] = {
     "dual": DUAL,
     "iql": IQL,
+    "iql_la": IQL_LA,
     "diffql": DIFFQL,
     "diffql_la": DIFFQL_LA,
 }

@@ -1,0 +1,203 @@
+"""The ``iql_la`` baseline: "IQL + LA", the paper's Laplace recipe on IQL's plain actor.
+
+Everything IQL does stays as in :mod:`~torchrl_dual.recipe.iql` (the learner is a
+subclass of :class:`~torchrl_dual.recipe.IQLLearner`): the data, budget, critics, the
+tanh-Gaussian MLP actor and its advantage-weighted regression (AWR) update, offline and
+online, the replay and the evaluation. What changes is how it acts online:
+
+* **Actor.** :meth:`~torchrl_dual.modules.LinearHeadActor.from_actor` shares the IQL
+  actor's weights: the trunk ``φ(s)`` is its MLP without the last layer, the head is the
+  ``loc`` half of the last ``nn.Linear`` and the squash is ``TanhSquash(low, high)``,
+  the ``TanhNormal``'s map onto the action box.
+* **Posterior (Eq. 8).** Over the ``loc`` head, in the pre-tanh space. There IQL's loss
+  ``−w log TanhNormal(a; loc(s), scale(s))`` is a weighted Gaussian regression of
+  ``atanh(a)`` on ``loc(s) = W φ(s) + b`` (the tanh Jacobian does not depend on the
+  weights), so for a fixed ``σ̄`` the Gram matrix ``Σ_i w_i φ_i φ_iᵀ / σ̄²`` is its exact
+  Hessian in the head. The weights are IQL's AWR weights ``w = min(exp(β (Q − V)), 100)``
+  (``actor.temperature``; ``Q`` the minimum of the target twin Q networks, as
+  ``IQLLoss``), the data ``D_offline ∪ D_online``.
+* **σ̄.** IQL's ``scale(s)`` depends on the state; the posterior and Eq. 9 take one
+  ``σ̄`` per action dimension. At each fit ``σ̄_a = sqrt(mean_D scale_a(s)²)``, the
+  root-mean-square of the IQL actor's own pre-tanh std on the fit data (clamped to
+  ``[1e-3, 2]`` by :class:`~torchrl_dual.modules.LastLayerActor`): the posterior uses
+  the noise level IQL learned, and Eq. 9's aleatoric term is IQL's own exploration
+  width (in pre-tanh units, equal to the action-space width at the centre of a
+  ``[-1, 1]`` box; the homoscedastic ``σ̄`` is this baseline's one approximation).
+* **Acting (Eq. 9-10).** Each sub-policy acts ``a_m = TanhSquash(W_m φ(s) + b_m)``; the
+  ensemble's mean and variance are over these ``M`` actions (``laplace.num_samples``),
+  then :class:`~torchrl_dual.modules.ShiftAwareNoise` draws ``a ∼ N(μ, σ²)`` with
+  ``λ = 0``: the plain actor has no transition model, so there is no ``ŝ_t`` (the
+  config refuses ``exploration.shift_weight > 0``). The env kit's ``action_projection``
+  follows (Frozen-Lake's one-hot argmax).
+* **Refits.** Every ``budget.laplace_refit_every`` updates, as DUAL (Alg. 1 l. 17).
+* **Evaluation.** IQL's own deterministic action (the ``TanhNormal``'s ``tanh(loc)`` on
+  the box, the IQL actor itself), exactly as ``algo=iql``, so the two baselines are
+  scored by the same rule and differ only in how they explore. It equals the ensemble's
+  MAP mean under ``DETERMINISTIC`` up to TorchRL's ``SafeTanh`` clamp (tested).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+from omegaconf import DictConfig
+
+from torchrl_dual import LinearHeadActor, WeightedMAPActorLoss, make_dual_policy
+from torchrl_dual.recipe.algorithm import Algorithm, OnlineSettings
+from torchrl_dual.recipe.dual_settings import LaplaceSettings
+from torchrl_dual.recipe.env_kits import env_kit
+from torchrl_dual.recipe.errors import ConfigError
+from torchrl_dual.recipe.iql import IQLActorSettings, IQLLearner
+from torchrl_dual.recipe.laplace_refits import LaplaceRefits
+from torchrl_dual.recipe.o2o_run import O2ORun
+from torchrl_dual.recipe.rules import Real, key
+
+IQL_MAX_WEIGHT = 100.0
+"""TorchRL ``IQLLoss``'s clip of ``exp(β (Q − V))`` (fixed in its ``actor_loss``)."""
+
+
+_DUAL_LAPLACE = {f.name: f for f in dataclasses.fields(LaplaceSettings)}
+
+
+def _dual_laplace_key(name: str) -> Any:
+    """DUAL's ``laplace.<name>`` key: the same rule and meaning."""
+    return dataclasses.field(metadata=_DUAL_LAPLACE[name].metadata)
+
+
+@dataclass
+class IQLLALaplaceSettings:
+    """``algo/iql_la.yaml``'s ``laplace``: DUAL's keys of Eq. (8-9) that apply to a plain
+    actor (``M`` and the prior), with DUAL's rules."""
+
+    num_samples: int = _dual_laplace_key("num_samples")
+    prior_precision: Any = _dual_laplace_key("prior_precision")
+
+
+@dataclass
+class NoShiftExplorationSettings:
+    """``exploration`` of a baseline without a transition model: Eq. (10) with ``λ = 0``."""
+
+    shift_weight: float = key(Real(0), "λ of Eq. 10; must be 0 (no transition model)")
+
+
+def check_no_shift_weight(cfg: DictConfig) -> None:
+    """``exploration.shift_weight`` must be 0: the actor predicts no next state ``ŝ_t``."""
+    if cfg.exploration.shift_weight != 0:
+        raise ConfigError(
+            "exploration.shift_weight",
+            cfg.exploration.shift_weight,
+            f"must be 0 for {cfg.algo}: its actor has no transition model for Eq. 10's ŝ_t; "
+            "shift-aware exploration is DUAL's (algo=dual)",
+        )
+
+
+class _OwnState:
+    """``state_dict``/``load_state_dict`` of the ensemble without the IQL actor's weights
+    (trunk and head), which the IQL loss already saves: σ̄, the squash's box, the
+    posterior and the ``M`` draws."""
+
+    def __init__(self, ensemble: torch.nn.Module) -> None:
+        self.ensemble = ensemble
+        actor = ensemble.actor
+        self.shared = {
+            f"actor.{name}"
+            for name, value in actor.named_parameters()
+            if value is not actor.log_std
+        }
+
+    def state_dict(self) -> dict:
+        state = self.ensemble.state_dict()
+        return {name: value for name, value in state.items() if name not in self.shared}
+
+    def load_state_dict(self, state: dict) -> None:
+        missing, unexpected = self.ensemble.load_state_dict(state, strict=False)
+        if unexpected or set(missing) != self.shared:
+            raise RuntimeError(
+                f"ensemble state: missing {sorted(set(missing) - self.shared)}, "
+                f"unexpected {sorted(unexpected)}"
+            )
+
+
+class IQLLALearner(LaplaceRefits, IQLLearner):
+    """IQL + LA: IQL's learner, acting online with the Laplace ensemble of its actor,
+    refitted every ``budget.laplace_refit_every`` updates (:class:`LaplaceRefits`)."""
+
+    title = "IQL + LA"
+    shared_stages = ("actor_critic",)  # offline_cache: IQL's offline updates only
+    online_keys = ("laplace.num_samples", "laplace.prior_precision", "exploration.shift_weight")
+
+    def __init__(self, run: O2ORun) -> None:
+        super().__init__(run)
+        cfg = run.cfg
+        self.head_actor = LinearHeadActor.from_actor(self.actor)  # shared weights, tanh box
+        # only its advantage weights are used (Eq. 8's Hessian); IQLLoss trains the actor
+        self.weights = WeightedMAPActorLoss.from_iql(
+            self.head_actor,
+            self.critic.loss,
+            weighting="advantage",
+            temperature=cfg.actor.temperature,
+            max_weight=IQL_MAX_WEIGHT,
+        )
+        self.policy = make_dual_policy(
+            self.head_actor,
+            run.env.action_spec,
+            num_samples=cfg.laplace.num_samples,
+            prior_precision=cfg.laplace.prior_precision,
+            shift_weight=cfg.exploration.shift_weight,  # 0: check_no_shift_weight
+            action_projection=env_kit(cfg).action_projection,
+            device=cfg.device,
+        )
+        self.ensemble = self.policy[0]
+        self.exploration_policy = self.policy  # Eq. 9 + Eq. 10 with λ = 0
+        # evaluation_policy: IQLLearner's, the IQL actor's deterministic tanh(loc)
+
+    def modules(self) -> dict:
+        """IQL's (the loss holds the actor) and the ensemble's own state."""
+        return {**super().modules(), "ensemble": _OwnState(self.ensemble)}
+
+    def shared_modules(self) -> dict:
+        """IQL's offline phase; the ensemble (``M`` draws) is fitted after it."""
+        return super().modules()
+
+    @torch.no_grad()
+    def iql_std(self) -> torch.Tensor:
+        """``σ̄_a = sqrt(mean_D scale_a(s)²)``: the IQL actor's pre-tanh std, root mean
+        square over ``D_offline ∪ D_online``, ``[A]``."""
+        loc_scale = self.actor.module[0]  # observation -> loc, scale
+        total, count = 0.0, 0
+        for batch in self.run.all_transitions():
+            scale = loc_scale(batch.select("observation"))["scale"]
+            total, count = total + scale.square().sum(0), count + scale.shape[0]
+        return (total / count).sqrt()
+
+    def fit_laplace(self) -> None:
+        """Alg. 1 lines 9 and 17 on IQL's actor: ``σ̄`` from its std, then Eq. (8) on ``D``
+        with the AWR weights; no posterior with ``laplace.num_samples=0`` (then the
+        ensemble acts with the MAP action and ``σ̄`` only)."""
+        std = self.iql_std()
+        with torch.no_grad():
+            self.head_actor.log_std.copy_(std.log())
+        metrics = {"noise_std": float(self.head_actor.std.detach().mean())}
+        if self.ensemble.num_samples > 0:
+            with torch.no_grad():
+                laplace = self.ensemble.fit_laplace(
+                    self.run.all_transitions(), weight_fn=self.weights.advantage_weights
+                )
+            metrics["prior_precision"] = laplace.prior_precision
+        self.run.log(metrics, self.run.updates, "laplace/")
+
+
+IQL_LA = Algorithm(
+    sections={
+        "actor": IQLActorSettings,
+        "laplace": IQLLALaplaceSettings,
+        "exploration": NoShiftExplorationSettings,
+        "online": OnlineSettings,
+    },
+    critics=("iql",),
+    check=check_no_shift_weight,
+    learner=IQLLALearner,
+)
