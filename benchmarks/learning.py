@@ -218,25 +218,38 @@ class Suite:
         with ThreadPoolExecutor(max_workers=max(self.args.jobs, 1)) as pool:
             futures = {pool.submit(self.execute, run): run for run in runs}
             bar = tqdm(total=len(runs), desc="learning suite", unit="run")
-            for future in as_completed(futures):
-                run = futures[future]
-                result, error, minutes = future.result()
-                if result is None:
-                    failed.append(run.name())
-                    tqdm.write(f"FAILED {run.name()}: {error}")
-                else:
-                    tqdm.write(
-                        f"{run.cell} {run.variant} seed{run.seed}: final score "
-                        f"{result['final_score']:.1f}, {minutes:.1f} min"
-                    )
-                bar.update()
-            bar.close()
+            try:
+                for future in as_completed(futures):
+                    run = futures[future]
+                    result, error, minutes = future.result()
+                    if result is None:
+                        failed.append(run.name())
+                        tqdm.write(f"FAILED {run.name()}: {error}")
+                    else:
+                        tqdm.write(
+                            f"{run.cell} {run.variant} seed{run.seed}: final score "
+                            f"{result['final_score']:.1f}, {minutes:.1f} min"
+                        )
+                    bar.update()
+            except KeyboardInterrupt:  # the running recipes got Ctrl-C too and checkpoint
+                for future in futures:
+                    future.cancel()
+                tqdm.write("interrupted: start the suite again to continue (resume=true)")
+                raise SystemExit(130) from None
+            finally:
+                bar.close()
         return failed
 
 
 def report(args: argparse.Namespace, command: str) -> None:
     """Regenerates the marker section of ``--docs`` and its PNGs from ``--results``."""
-    cells = load_results(args.results / args.budget)
+    order = list(VARIANTS)
+    cells = {
+        cell: dict(
+            sorted(variants.items(), key=lambda kv: order.index(kv[0]) if kv[0] in order else 99)
+        )
+        for cell, variants in load_results(args.results / args.budget).items()
+    }
     figures: dict[str, str] = {}
     for cell, variants in cells.items():
         png = args.figures / f"learning_{args.budget}_{cell}.png"
@@ -332,7 +345,7 @@ def main(argv: list[str] | None = None) -> int:
         failed = suite.run_all(todo)
     report(args, command.strip())
     if failed:
-        print(f"{len(failed)} runs failed: {', '.join(failed)}", file=sys.stderr)
+        print(f"{len(failed)} runs failed: {', '.join(sorted(failed))}", file=sys.stderr)
     return 1 if failed else 0
 
 

@@ -88,6 +88,8 @@ def plot_latency_vs_score(points: list[tuple], path: Path, *, title: str) -> Pat
         ax.annotate(f"{variant}\n({candidate})", (ms, mean), fontsize=7, xytext=(5, 5),
                     textcoords="offset points")  # fmt: skip
     ax.set_xscale("log")
+    ax.xaxis.set_minor_formatter(plt.NullFormatter())
+    ax.margins(x=0.35, y=0.15)
     ax.set_xlabel("batch-1 action latency (ms, benchmarks/latency.py)")
     ax.set_ylabel("final normalized score")
     ax.set_title(title)

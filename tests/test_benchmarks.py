@@ -195,3 +195,22 @@ def test_learning_suite_runs_one_tiny_cell_end_to_end_and_then_nothing(tmp_path,
     assert learning.main(flags) == 0  # in-process: nothing left to run
     assert "1 runs in the grid, 1 already done, 0 to run" in capsys.readouterr().out
     assert path.stat().st_mtime_ns == stamp
+
+
+def test_a_failed_run_prints_its_stderr_tail_and_the_suite_exits_nonzero(
+    tmp_path, capsys, monkeypatch
+):
+    crash = "import sys; sys.stderr.write('error: boom in the recipe'); sys.exit(2)"
+    monkeypatch.setattr(learning.Suite, "command", lambda self, run: [sys.executable, "-c", crash])
+    monkeypatch.setattr(learning, "machine", lambda: "test box")
+    argv = [
+        *("--budget", "smoke", "--cells", "medium", "--variants", "iql", "--seeds", "0", "1"),
+        *("--out", str(tmp_path / "out"), "--results", str(tmp_path / "results")),
+        *("--docs", str(tmp_path / "results.md"), "--figures", str(tmp_path / "figures")),
+    ]
+    assert learning.main(argv) == 1
+    printed = capsys.readouterr()
+    assert printed.out.count("error: boom in the recipe") == 2  # both runs, both reported
+    assert "2 runs failed: medium/iql/seed0, medium/iql/seed1" in printed.err
+    assert not (tmp_path / "results" / "smoke").exists()
+    assert "No results yet." in (tmp_path / "results.md").read_text()
