@@ -26,6 +26,9 @@ class DualLearner(Learner):
     its offline stages, its update (IQL critic step, then Eq. 7) and its Laplace refits."""
 
     title = "DUAL"
+    # offline_cache: DUAL's online ablations (no UQ, λ = 0) and every shift share these
+    shared_stages = ("planner", "distillation", "actor_critic")
+    online_keys = ("laplace.num_samples", "laplace.uq", "exploration.shift_weight")
 
     def __init__(self, run: O2ORun) -> None:
         self.run = run
@@ -46,7 +49,9 @@ class DualLearner(Learner):
         self.actor_loss = networks.make_actor_loss(cfg, self.actor, self.critic)
         self.actor_optimizer = torch.optim.Adam(self.actor_loss.parameters(), lr=cfg.actor.lr)
         self.policy = networks.make_policy(cfg, self.actor, run.env.action_spec, self.transition)
-        self.ensemble = self.policy[0]  # LaplaceEnsembleActor: acts and holds ŝ_t's model
+        self.ensemble = self.policy[0]  # Eq. 9's ensemble: acts and holds ŝ_t's model
+        # the one decision point of the no-UQ and latent-UQ ablations: no posterior to fit
+        self.uses_posterior = cfg.laplace.uq == "laplace" and cfg.laplace.num_samples > 0
         self.exploration_policy = self.policy  # Eq. 9 + Eq. 10
         self.evaluation_policy = self.ensemble  # the MAP mean under DETERMINISTIC
         self.updates_since_refit = 0
@@ -62,6 +67,20 @@ class DualLearner(Learner):
             "critic_optimizer": self.critic.optimizer,
             "actor_optimizer": self.actor_optimizer,
         }
+
+    def shared_modules(self) -> dict:
+        """The shared offline phase without the ensemble's M posterior draws (their number
+        is ``laplace.num_samples``); the Laplace stage runs after it in every run."""
+        shared = {
+            "teacher": self.teacher,
+            "actor": self.actor,
+            "critic": self.critic.loss,
+            "critic_optimizer": self.critic.optimizer,
+            "actor_optimizer": self.actor_optimizer,
+        }
+        if self.transition.frozen:
+            shared["transition"] = self.transition
+        return shared
 
     def state_dict(self) -> dict:
         return {"updates_since_refit": self.updates_since_refit}
@@ -125,25 +144,32 @@ class DualLearner(Learner):
         )
 
     def distill(self) -> None:
-        """Alg. 1 line 5: distil g_θ' into the one-step π_θ and p(s'|s, a; θ)."""
+        """Alg. 1 line 5: distil g_θ' into the one-step π_θ and p(s'|s, a; θ).
+
+        Ablations: ``distillation.final_steps = N > 1`` stops the halving at N steps
+        ("w/o distillation"); ``actor.init=scratch`` keeps the actor's fresh weights
+        ("w/o planner"), the student then only serves as the transition model."""
         student = progressive_distillation(
             self.teacher,
             self.windows.sample,
             list(self.cfg.budget.distill_updates),
+            final_steps=self.cfg.distillation.final_steps,
             lr=self.cfg.distillation.lr,
             action_condition_prob=self.cfg.planner.action_condition_prob,
             logger=self.run.logger,
             progress=self.cfg.progress,
         )
-        self.actor.model.load_state_dict(student.state_dict())
+        if self.cfg.actor.init == "distilled":
+            self.actor.model.load_state_dict(student.state_dict())
         if self.transition.frozen:  # a shared transition model is actor.model itself
             self.transition.model.load_state_dict(student.state_dict())
 
     def fit_laplace(self) -> None:
         """Alg. 1 lines 9 and 17: last-layer Laplace of L_π on D (Eq. 8); skipped in the
-        no-UQ ablation (``laplace.num_samples=0``), which never draws from the posterior."""
+        no-UQ ablation (``laplace.num_samples=0``), which never draws from the posterior,
+        and in the latent-UQ one (``laplace.uq=latent``), which has none."""
         self.updates_since_refit = 0
-        if self.ensemble.num_samples == 0:
+        if not self.uses_posterior:
             return
         with torch.no_grad():
             # The Hessian of Eq. (7) carries the actor loss's own weights (uniform for

@@ -11,11 +11,12 @@ from omegaconf import DictConfig
 
 from torchrl_dual.diffusion import SCHEDULES
 from torchrl_dual.diffusion.model import LATENTS
+from torchrl_dual.modules.dual_policy import UNCERTAINTIES
 from torchrl_dual.objectives.weighted_map_actor import WEIGHTINGS
 from torchrl_dual.recipe.algorithm import Algorithm, OnlineSettings
 from torchrl_dual.recipe.dual import DualLearner
 from torchrl_dual.recipe.errors import ConfigError
-from torchrl_dual.recipe.networks import TRANSITION_MODELS
+from torchrl_dual.recipe.networks import ACTOR_INITS, TRANSITION_MODELS
 from torchrl_dual.recipe.rules import Choice, Either, Integer, PowerOfTwo, Real, key
 
 
@@ -38,6 +39,9 @@ class DistillationSettings:
     """Progressive distillation ``N -> 1`` (Salimans & Ho 2022)."""
 
     lr: float = key(Real(0, low_open=True), "Adam learning rate of every round")
+    final_steps: int = key(
+        PowerOfTwo(), "steps of the distilled actor; > 1 = the 'w/o distillation' ablation"
+    )
 
 
 @dataclass
@@ -50,6 +54,7 @@ class ActorSettings:
     lr: float = key(Real(0, low_open=True), "Adam learning rate")
     init_std: float = key(Real(0, low_open=True), "initial σ̄")
     latent: str = key(Choice(LATENTS), "one-step planner latent")
+    init: str = key(Choice(ACTOR_INITS), "distilled (DUAL) | scratch (the 'w/o planner' ablation)")
 
 
 @dataclass
@@ -57,6 +62,7 @@ class LaplaceSettings:
     """Last-layer Laplace ensemble (Eq. 8-9)."""
 
     num_samples: int = key(Integer(0), "M sub-policies; 0 = no epistemic UQ (MAP mean, σ̄)")
+    uq: str = key(Choice(UNCERTAINTIES), "laplace (Eq. 8) | latent (the 'w τ^N sampling' ablation)")
     prior_precision: Any = key(
         Either(
             (Choice(("evidence",)), Real(0, low_open=True)), "must be 'evidence' or a number > 0"
@@ -75,15 +81,23 @@ class ExplorationSettings:
 
 def check_dual(cfg: DictConfig) -> None:
     """DUAL's checks across keys, each naming the key at fault and what would fit."""
-    p, budget = cfg.planner, cfg.budget
-    rounds = int(math.log2(p.num_steps))
+    p, budget, final_steps = cfg.planner, cfg.budget, cfg.distillation.final_steps
+    if final_steps > p.num_steps:
+        raise ConfigError(
+            "distillation.final_steps",
+            final_steps,
+            f"must be <= planner.num_steps={p.num_steps} (distillation halves the steps)",
+        )
+    rounds = int(math.log2(p.num_steps // final_steps))
     if len(budget.distill_updates) != rounds:
         raise ConfigError(
             "budget.distill_updates",
             list(budget.distill_updates),
             f"must have {rounds} entries, one per halving round of planner.num_steps="
-            f"{p.num_steps} -> 1",
+            f"{p.num_steps} -> {final_steps}"
+            + ("" if final_steps == 1 else " (distillation.final_steps)"),
         )
+    check_ablations(cfg)
     if p.horizon >= cfg.env.max_episode_steps:
         raise ConfigError(
             "planner.horizon",
@@ -97,6 +111,41 @@ def check_dual(cfg: DictConfig) -> None:
             "sample",
             f"needs planner.schedule=cosine, which ends in pure noise (got {p.schedule})",
         )
+
+
+def check_ablations(cfg: DictConfig) -> None:
+    """The ablation switches' combinations (docs/recipe.md, "DUAL ablations")."""
+    if cfg.actor.init == "scratch":
+        if cfg.exploration.transition_model == "shared" and cfg.exploration.shift_weight > 0:
+            raise ConfigError(
+                "exploration.transition_model",
+                "shared",
+                "with actor.init=scratch the actor is no planner: ŝ_t needs "
+                "exploration.transition_model=frozen (the distilled planner), or "
+                "exploration.shift_weight=0",
+            )
+        if cfg.distillation.final_steps != 1:
+            raise ConfigError(
+                "actor.init",
+                "scratch",
+                "is the one-step actor without the planner prior; it needs "
+                f"distillation.final_steps=1 (got {cfg.distillation.final_steps})",
+            )
+    if cfg.laplace.uq == "latent":
+        if cfg.laplace.num_samples < 2:
+            raise ConfigError(
+                "laplace.num_samples",
+                cfg.laplace.num_samples,
+                "must be >= 2 with laplace.uq=latent (the spread over M latents is the "
+                "epistemic part; for no UQ use laplace.uq=laplace laplace.num_samples=0)",
+            )
+        if cfg.planner.schedule != "cosine":
+            raise ConfigError(
+                "laplace.uq",
+                "latent",
+                "needs planner.schedule=cosine, which ends in pure noise so that "
+                f"τ^N ~ N(0, I) (got {cfg.planner.schedule})",
+            )
 
 
 DUAL = Algorithm(

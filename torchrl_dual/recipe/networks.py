@@ -21,6 +21,9 @@ from torchrl_dual.recipe.env_kits import env_kit
 
 TRANSITION_MODELS = ("frozen", "shared")
 """Where Eq. (10)'s ``ŝ_t`` comes from (``exploration.transition_model``)."""
+ACTOR_INITS = ("distilled", "scratch")
+"""What the actor starts from (``actor.init``): the distilled planner (DUAL) or its
+architecture's fresh initialisation (the paper's "w/o planner" ablation)."""
 
 
 def make_planner(cfg: DictConfig, data: OfflineDataset) -> TrajectoryDiffusion:
@@ -34,20 +37,23 @@ def make_planner(cfg: DictConfig, data: OfflineDataset) -> TrajectoryDiffusion:
     return model.to(cfg.device)
 
 
-def one_step_like(teacher: TrajectoryDiffusion) -> TrajectoryDiffusion:
-    """An untrained copy of the teacher's architecture with ``num_steps = 1`` (for loading
-    the distilled student into)."""
+def student_like(teacher: TrajectoryDiffusion, num_steps: int = 1) -> TrajectoryDiffusion:
+    """An untrained copy of the teacher (architecture, initial weights and fitted
+    normalizer) sampled with ``num_steps`` steps, for loading the distilled student into."""
     student = copy.deepcopy(teacher)
-    student.num_steps = 1
+    student.num_steps = num_steps
     return student
 
 
 def make_actor(cfg: DictConfig, teacher: TrajectoryDiffusion) -> PlannerActor:
-    """The actor ``π_θ`` (Eq. 5, 7): a one-step planner shaped like the teacher, whose
-    weights the distillation loads."""
-    return PlannerActor(
-        one_step_like(teacher), latent=cfg.actor.latent, init_std=cfg.actor.init_std
-    )
+    """The actor ``π_θ`` (Eq. 5, 7): a planner shaped like the teacher with
+    ``distillation.final_steps`` steps (1 for DUAL), whose weights the distillation loads.
+
+    Built before any training, it holds the teacher's fresh initialisation and its
+    normalizer fitted on ``D_offline``: with ``actor.init=scratch`` that is what Eq. 7
+    starts from (the distillation then only feeds the transition model)."""
+    student = student_like(teacher, cfg.distillation.final_steps)
+    return PlannerActor(student, latent=cfg.actor.latent, init_std=cfg.actor.init_std)
 
 
 def make_transition_model(
@@ -61,7 +67,7 @@ def make_transition_model(
     only as the actor's weights.
     """
     if cfg.exploration.transition_model == "frozen":
-        return TransitionModel(one_step_like(teacher))
+        return TransitionModel(student_like(teacher, cfg.distillation.final_steps))
     return TransitionModel(actor.model, frozen=False)
 
 
@@ -80,8 +86,9 @@ def make_actor_loss(cfg: DictConfig, actor: PlannerActor, critic: Critic) -> Wei
 def make_policy(
     cfg: DictConfig, actor: PlannerActor, action_spec: TensorSpec, transition: TransitionModel
 ) -> TensorDictSequential:
-    """DUAL's acting policy: the Laplace ensemble (Eq. 9), which also answers the transition
-    model's ``ŝ_t`` in its trunk pass, then the shift-aware noise (Eq. 10)."""
+    """DUAL's acting policy: the ensemble of Eq. (9) over the Laplace posterior (or, with
+    ``laplace.uq=latent``, over planner latents), which also answers the transition
+    model's ``ŝ_t``, then the shift-aware noise (Eq. 10)."""
     return make_dual_policy(
         actor,
         action_spec,
@@ -89,6 +96,7 @@ def make_policy(
         num_samples=cfg.laplace.num_samples,
         prior_precision=cfg.laplace.prior_precision,
         shift_weight=cfg.exploration.shift_weight,
+        uncertainty=cfg.laplace.uq,
         action_projection=env_kit(cfg).action_projection,
         device=cfg.device,
     )
