@@ -23,7 +23,7 @@ from torchrl.data import Bounded
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchrl_dual import DDPMLastStepActor, WeightedMAPActorLoss, make_dual_policy
-from torchrl_dual.recipe import check_command_line, compose_checked, run
+from torchrl_dual.recipe import O2ORun, check_command_line, compose_checked, run
 from torchrl_dual.recipe.critics import make_iql_critic
 from torchrl_dual.recipe.diffql import (
     ActionBox,
@@ -108,7 +108,10 @@ def test_diffql_la_runs_end_to_end_on_frozenlake_with_one_hot_actions(cache_dir,
     assert "[diffql_la] normalized score at the end of the online phase:" in proc.stdout
     state = checkpoint_state(out)
     assert state["stages_done"] == ["actor_critic", "laplace", "offline_eval"]
-    assert "ensemble" in state and "actor" not in state  # the actor is saved once, inside
+    assert {"actor", "ensemble"} <= set(state)
+    # each weight once: the ensemble's own state is σ̄, the posterior and its draws
+    assert not any(k.startswith("actor.") and k != "actor.log_std" for k in state["ensemble"])
+    assert {"actor.log_std", "weight_deviation", "bias_deviation"} <= set(state["ensemble"])
     actions = state["online_data"]["action"]  # executed: the env kit's one-hot projection
     assert ((actions == 0) | (actions == 1)).all() and (actions.sum(-1) == 1).all()
 
@@ -125,6 +128,29 @@ def test_diffql_la_runs_on_pointmaze_and_refits_its_posterior(cache_dir, tmp_pat
     epistemic = tmp_path / "logs" / "diffql_la" / "scalars" / "online" / "epistemic_std.csv"
     assert all(float(line.split(",")[1]) > 0 for line in epistemic.read_text().splitlines())
     assert learner.ensemble.actor.sampler is learner.actor.module  # one set of weights
+    own = learner.modules()["ensemble"]
+    own.load_state_dict(own.state_dict())  # the checkpoint's round trip
+
+
+def test_diffql_la_s_sigma_bar_maximises_the_weighted_gaussian_likelihood(cache_dir, tmp_path):
+    """σ̄ after a fit maximises ``Σ_i w_i log N(a_i; μ(s_i), σ̄²)`` (Eq. 7 in σ̄ at the
+    current mean): scaling it by 0.9 or 1.1 lowers the weighted log-likelihood."""
+    overrides = ["algo=diffql_la", "env=frozenlake", *common_overrides(tmp_path, cache_dir)]
+    cfg = compose_checked(CONFIG_DIR, [*overrides, "budget.online_frames=0"])
+    learner = O2ORun(cfg, DiffQLLALearner).learner
+    learner.fit_laplace()
+    actor = learner.last_step
+    batch = next(learner.run.all_transitions())
+    weight = learner.weights.advantage_weights(batch)
+    with torch.no_grad():
+        mean = actor(batch["observation"])
+
+    def log_likelihood(std: torch.Tensor) -> float:
+        log_prob = torch.distributions.Normal(mean, std).log_prob(batch["action"]).sum(-1)
+        return float((weight * log_prob).sum())
+
+    std = actor.std.detach()
+    assert log_likelihood(std) > max(log_likelihood(0.9 * std), log_likelihood(1.1 * std))
 
 
 def test_a_shift_weight_for_diffql_la_exits_2_with_one_error_line(capsys):

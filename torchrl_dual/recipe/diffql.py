@@ -38,7 +38,8 @@ model ``ŝ_t``, so ``exploration.shift_weight > 0`` is a config error. The last-
 posterior (Eq. 8) is fitted after the offline phase and refitted every
 ``budget.laplace_refit_every`` updates on ``D_offline ∪ D_online`` with the advantage
 weights ``min(exp(β (Q − V)), w_max)`` of the IQL critics. Diff-QL trains no ``σ̄``, so
-the Gaussian width of Eq. (8-9) is the fixed ``laplace.action_std``. Its evaluation
+each fit first sets the Gaussian width ``σ̄`` of Eq. (7-9) to its maximiser given the
+mean, the weighted RMS of ``a − μ(s)`` on the same data and weights. Its evaluation
 action (the MAP mean, deterministic) is ``diffql``'s: the same zero-latent chain.
 """
 
@@ -91,7 +92,6 @@ class DiffQLLaplaceSettings:
     )
     temperature: float = key(Real(0), "β of the Laplace fit's weights exp(β (Q - V))")
     max_weight: float = key(Real(0, low_open=True), "clip of those weights")
-    action_std: float = key(Real(0, 2, low_open=True), "σ̄ of Eq. 8-9 (fixed)")
 
 
 @dataclass
@@ -273,18 +273,46 @@ class DiffQLLearner(Learner):
         }
 
 
+class _EnsembleOwnState:
+    """The ensemble's state without the DDPM actor's weights, which the checkpoint holds
+    as ``actor`` (``DDPMLastStepActor`` shares them): ``σ̄``, the posterior, the draws."""
+
+    def __init__(self, ensemble: nn.Module) -> None:
+        self.ensemble = ensemble
+
+    @staticmethod
+    def _own(name: str) -> bool:
+        return not name.startswith("actor.") or name == "actor.log_std"
+
+    def state_dict(self) -> dict:
+        return {k: v for k, v in self.ensemble.state_dict().items() if self._own(k)}
+
+    def load_state_dict(self, state: dict) -> None:
+        missing, unexpected = self.ensemble.load_state_dict(state, strict=False)
+        if unexpected or any(self._own(name) for name in missing):
+            raise RuntimeError(f"ensemble state: missing {missing}, unexpected {unexpected}")
+
+
 class DiffQLLALearner(DiffQLLearner):
     """Diff-QL w LA: Diff-QL's training, acting with the Laplace ensemble of its last
     DDPM step (Eq. 8-9) and ``λ = 0`` noise, refitted every ``budget.laplace_refit_every``
     updates."""
 
     title = "Diff-QL w LA"
+    shared_stages = ("actor_critic",)  # offline_cache: Diff-QL's offline updates only
+    online_keys = (
+        "laplace.num_samples",
+        "laplace.prior_precision",
+        "laplace.temperature",
+        "laplace.max_weight",
+        "exploration.shift_weight",
+    )
 
     def __init__(self, run: O2ORun) -> None:
         super().__init__(run)
         cfg, la = run.cfg, run.cfg.laplace
-        self.last_step = DDPMLastStepActor(self.actor, latent="zero", init_std=la.action_std)
-        # only its advantage weights are used (Eq. 8's Hessian); Diff-QL trains the actor
+        self.last_step = DDPMLastStepActor(self.actor, latent="zero")
+        # only its advantage weights are used (σ̄ and Eq. 8's Hessian); Diff-QL trains the actor
         self.weights = WeightedMAPActorLoss.from_iql(
             self.last_step,
             self.critic.loss,
@@ -297,7 +325,7 @@ class DiffQLLALearner(DiffQLLearner):
             run.env.action_spec,
             num_samples=la.num_samples,
             prior_precision=la.prior_precision,
-            shift_weight=0.0,
+            shift_weight=0.0,  # no transition model: check_diffql_la
             action_projection=env_kit(cfg).action_projection,
             device=cfg.device,
         )
@@ -307,11 +335,12 @@ class DiffQLLALearner(DiffQLLearner):
         self.updates_since_refit = 0
 
     def modules(self) -> dict:
-        """The ensemble holds the DDPM actor (through ``DDPMLastStepActor``) and the
-        posterior, so the actor is saved once, inside it."""
-        modules = super().modules()
-        del modules["actor"]
-        return {"ensemble": self.ensemble, **modules}
+        """Diff-QL's, and the ensemble's own state (the actor's weights are saved once)."""
+        return {**super().modules(), "ensemble": _EnsembleOwnState(self.ensemble)}
+
+    def shared_modules(self) -> dict:
+        """Diff-QL's offline phase; ``σ̄`` and the posterior are fitted after it."""
+        return super().modules()
 
     def state_dict(self) -> dict:
         return {"updates_since_refit": self.updates_since_refit}
@@ -334,17 +363,36 @@ class DiffQLLALearner(DiffQLLearner):
     def batch_metrics(self, batch: TensorDictBase) -> dict:
         return {"epistemic_std": float(batch["epistemic_variance"].mean().sqrt())}
 
+    @torch.no_grad()
+    def fit_action_std(self) -> torch.Tensor:
+        """``σ̄_a² = Σ_i w_i (a_i − μ(s_i))_a² / Σ_i w_i`` on ``D_offline ∪ D_online``: the
+        maximiser of Eq. (7) in ``σ̄`` at the current mean ``μ`` (the zero-latent chain)
+        with the same weights ``w_i`` as Eq. (8); Diff-QL's loss trains no ``σ̄``. ``[A]``."""
+        total, weight_sum = 0.0, 0.0
+        for batch in self.run.all_transitions():
+            weight = self.weights.advantage_weights(batch)
+            residual = batch["action"] - self.last_step(batch["observation"])
+            total = total + (weight[:, None] * residual.square()).sum(0)
+            weight_sum = weight_sum + weight.sum()
+        return (total / weight_sum).sqrt()
+
     def fit_laplace(self) -> None:
-        """Eq. (8) on ``D_offline ∪ D_online`` with the clipped advantage weights; skipped
-        with ``laplace.num_samples=0`` (nothing is drawn from the posterior)."""
+        """Alg. 1 lines 9 and 17 on the last DDPM step: ``σ̄`` (:meth:`fit_action_std`),
+        then Eq. (8) on ``D_offline ∪ D_online`` with the clipped advantage weights; no
+        posterior with ``laplace.num_samples=0`` (the MAP mean and ``σ̄`` only)."""
         self.updates_since_refit = 0
-        if self.ensemble.num_samples == 0:
-            return
+        std = self.fit_action_std()
+        actor = self.last_step
         with torch.no_grad():
-            laplace = self.ensemble.fit_laplace(
-                self.run.all_transitions(), weight_fn=self.weights.advantage_weights
-            )
-        self.run.log({"prior_precision": laplace.prior_precision}, self.run.updates, "laplace/")
+            actor.log_std.copy_(std.log().clamp(actor.min_log_std, actor.max_log_std))
+        metrics = {"action_std": float(actor.std.mean())}
+        if self.ensemble.num_samples > 0:
+            with torch.no_grad():
+                laplace = self.ensemble.fit_laplace(
+                    self.run.all_transitions(), weight_fn=self.weights.advantage_weights
+                )
+            metrics["prior_precision"] = laplace.prior_precision
+        self.run.log(metrics, self.run.updates, "laplace/")
 
 
 DIFFQL = Algorithm(
