@@ -12,7 +12,8 @@ Candidates live in :data:`BUILDERS` (name -> builder). To add one, write
 pick it up. ``dual_m5`` is DUAL's online policy (Laplace ensemble M = 5 + shift-aware
 noise; the policy query and the frozen transition model's query in one batched pass);
 ``dual_m5_shared`` uses the actor's own weights for ``ŝ_t``; ``dual_m5_two_pass`` runs
-the frozen transition model as a separate second pass. Every candidate gets the step input a collector would
+the frozen transition model as a separate second pass; ``dual_m5_n8`` is the "w/o
+distillation" ablation (an 8-step planner actor). Every candidate gets the step input a collector would
 give it mid-episode (:func:`step_input`). Timings are interleaved (round-robin over
 candidates) so that load from other processes affects every candidate alike.
 
@@ -99,11 +100,12 @@ def build_planner_n1(cfg: Config) -> TensorDictModuleBase:
     return _planner(cfg, 1)
 
 
-def _dual(cfg: Config, transition: str) -> TensorDictModuleBase:
+def _dual(cfg: Config, transition: str, num_steps: int = 1) -> TensorDictModuleBase:
     """DUAL's acting policy from the library builder (:func:`make_dual_policy`), as the
-    recipe assembles it; ``transition`` picks the source of ``ŝ_t``."""
+    recipe assembles it; ``transition`` picks the source of ``ŝ_t``, ``num_steps`` the
+    actor's (and the transition model's) sampling steps."""
     layout = TrajectoryLayout(cfg.obs_dim, cfg.action_dim, cfg.horizon)
-    model = TrajectoryDiffusion(layout, num_steps=1, hidden=cfg.hidden, depth=cfg.depth)
+    model = TrajectoryDiffusion(layout, num_steps=num_steps, hidden=cfg.hidden, depth=cfg.depth)
     actor = PlannerActor(model)
     if transition == "shared":
         transition_model = TransitionModel(model, frozen=False)
@@ -139,6 +141,13 @@ def build_dual_m5_two_pass(cfg: Config) -> TensorDictModuleBase:
     return _dual(cfg, "two_pass")
 
 
+def build_dual_m5_n8(cfg: Config) -> TensorDictModuleBase:
+    """The "w/o distillation" ablation (``distillation.final_steps=8``): ``dual_m5`` with an
+    8-step planner actor (7 DDIM steps, then the Laplace last step) and an 8-step frozen
+    transition model, on the plain path (two passes)."""
+    return _dual(cfg, "paired", num_steps=8)
+
+
 BUILDERS: dict[str, Callable[[Config], TensorDictModuleBase]] = {
     "mlp_actor": build_mlp_actor,
     "planner_n32": build_planner_n32,
@@ -146,6 +155,7 @@ BUILDERS: dict[str, Callable[[Config], TensorDictModuleBase]] = {
     "dual_m5": build_dual_m5,
     "dual_m5_shared": build_dual_m5_shared,
     "dual_m5_two_pass": build_dual_m5_two_pass,
+    "dual_m5_n8": build_dual_m5_n8,
 }
 REFERENCES = ("mlp_actor", "planner_n32")
 

@@ -32,6 +32,7 @@ def test_latency_benchmark_times_every_candidate_and_writes_json(tmp_path):
         "dual_m5",
         "dual_m5_shared",
         "dual_m5_two_pass",
+        "dual_m5_n8",
     }
     assert all(value > 0 for value in medians.values())
     assert "goal (restructuring issue #8)" in proc.stdout
