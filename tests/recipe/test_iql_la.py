@@ -126,6 +126,13 @@ def test_sigma_bar_is_the_rms_of_the_iql_actor_s_std_on_the_fit_data(frozenlake)
         scale = learner.actor.module[0](TensorDict(observation=obs, batch_size=[len(obs)]))
     rms = scale["scale"].square().mean(0).sqrt().clamp(1e-3, 2.0)
     torch.testing.assert_close(learner.head_actor.std, rms)
+    frozenlake.cfg.laplace.noise_std = 0.25  # a fixed σ̄ instead
+    try:
+        learner.fit_laplace()
+        torch.testing.assert_close(learner.head_actor.std, torch.full((4,), 0.25))
+    finally:
+        frozenlake.cfg.laplace.noise_std = "iql"
+        learner.fit_laplace()
 
 
 def test_the_evaluation_is_iql_s_deterministic_action_and_the_ensemble_s_map(frozenlake):
@@ -184,3 +191,11 @@ def test_a_misspelt_iql_la_key_exits_2_naming_the_right_one(capsys):
     assert stop.value.code == 2
     err = capsys.readouterr().err
     assert "error: unknown key 'laplace.num_sample'; did you mean laplace.num_samples?" in err
+
+
+def test_a_noise_std_out_of_range_exits_2_saying_what_is_allowed(capsys):
+    with pytest.raises(SystemExit) as stop:
+        check_command_line(CONFIG_DIR, argv=["algo=iql_la", "laplace.noise_std=3"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert "error: laplace.noise_std=3: must be 'iql' or a number in (0, 2]" in err

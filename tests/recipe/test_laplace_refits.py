@@ -1,5 +1,6 @@
 """Tests of ``LaplaceRefits`` (``torchrl_dual/recipe/laplace_refits.py``): the refit
-schedule of a learner acting with a Laplace ensemble, on a stand-in base learner."""
+schedule of a learner acting with a Laplace ensemble, on a stand-in base learner, and
+its fit (``σ̄``, then Eq. 8 with the learner's weights) on a tiny MLP ensemble."""
 
 from __future__ import annotations
 
@@ -8,7 +9,9 @@ from types import SimpleNamespace
 import pytest
 import torch
 from tensordict import TensorDict
+from torchrl.modules import MLP
 
+from torchrl_dual.modules import LaplaceEnsembleActor, LinearHeadActor
 from torchrl_dual.recipe.laplace_refits import LaplaceRefits
 from torchrl_dual.recipe.o2o_run import Learner
 
@@ -79,3 +82,52 @@ def test_the_count_is_checkpointed_with_the_base_state_and_metrics_add_epistemic
     assert (fresh.updates, fresh.updates_since_refit) == (4, 4)
     batch = TensorDict(epistemic_variance=torch.full((5, 2), 0.25), batch_size=[5])
     assert learner.batch_metrics(batch) == {"base": 2.0, "epistemic_std": 0.5}
+
+
+# ----------------------------------------------------------------------------- the fit
+class _Fitted(LaplaceRefits, _Base):
+    """The default fit on a tiny MLP ensemble, ``σ̄`` from :meth:`noise_std`."""
+
+    def __init__(self, std: torch.Tensor | None, num_samples: int = 4) -> None:
+        super().__init__(refit_every=1)
+        torch.manual_seed(0)
+        self.ensemble = LaplaceEnsembleActor(
+            LinearHeadActor(MLP(in_features=3, out_features=2, num_cells=[16]), 2),
+            num_samples=num_samples,
+        )
+        gen = torch.Generator().manual_seed(1)
+        self.data = TensorDict(observation=torch.randn(200, 3, generator=gen), batch_size=[200])
+        self.logged: dict = {}
+        self.run.all_transitions = lambda: iter([self.data[:120], self.data[120:]])
+        self.run.log = lambda values, step, prefix: self.logged.update(values)
+        self.run.updates = 7
+        self.laplace_weight_fn = lambda batch: batch["observation"][:, 0].exp()
+        self.std = std
+
+    def noise_std(self):
+        return self.std
+
+
+def test_the_fit_sets_sigma_bar_then_fits_eq_8_with_the_learner_s_weights():
+    learner = _Fitted(torch.tensor([0.2, 5.0]))
+    learner.fit_laplace()
+    actor = learner.ensemble.actor
+    torch.testing.assert_close(actor.std, torch.tensor([0.2, 2.0]))  # clamped to max_std
+    reference = LaplaceEnsembleActor(actor, num_samples=4)
+    reference.fit_laplace([learner.data], weight_fn=learner.laplace_weight_fn)
+    for name in ("G_raw", "theta_map", "noise_variance", "prior_precision"):
+        torch.testing.assert_close(
+            getattr(learner.ensemble.laplace, name), getattr(reference.laplace, name)
+        )
+    assert learner.logged.keys() == {"noise_std", "prior_precision"}
+    assert learner.logged["noise_std"] == pytest.approx(1.1)
+
+
+def test_without_a_noise_std_or_samples_the_fit_keeps_sigma_bar_and_skips_the_posterior():
+    learner = _Fitted(None)
+    learner.fit_laplace()
+    torch.testing.assert_close(learner.ensemble.actor.std, torch.full((2,), 0.3))
+    assert learner.logged.keys() == {"prior_precision"}
+    no_uq = _Fitted(torch.tensor([0.5, 0.5]), num_samples=0)
+    no_uq.fit_laplace()
+    assert not bool(no_uq.ensemble.laplace.fitted) and no_uq.logged.keys() == {"noise_std"}

@@ -17,12 +17,17 @@ online, the replay and the evaluation. What changes is how it acts online:
   (``actor.temperature``; ``Q`` the minimum of the target twin Q networks, as
   ``IQLLoss``), the data ``D_offline ∪ D_online``.
 * **σ̄.** IQL's ``scale(s)`` depends on the state; the posterior and Eq. 9 take one
-  ``σ̄`` per action dimension. At each fit ``σ̄_a = sqrt(mean_D scale_a(s)²)``, the
-  root-mean-square of the IQL actor's own pre-tanh std on the fit data (clamped to
-  ``[1e-3, 2]`` by :class:`~torchrl_dual.modules.LastLayerActor`): the posterior uses
-  the noise level IQL learned, and Eq. 9's aleatoric term is IQL's own exploration
-  width (in pre-tanh units, equal to the action-space width at the centre of a
-  ``[-1, 1]`` box; the homoscedastic ``σ̄`` is this baseline's one approximation).
+  ``σ̄`` per action dimension. By default (``laplace.noise_std=iql``) each fit sets
+  ``σ̄_a = sqrt(mean_D scale_a(s)²)``, the root-mean-square of the IQL actor's own
+  pre-tanh std on the fit data (clamped to ``[1e-3, 2]`` by
+  :class:`~torchrl_dual.modules.LastLayerActor`): the posterior uses the noise level
+  IQL learned, and Eq. 9's aleatoric term is IQL's own exploration width (in pre-tanh
+  units, equal to the action-space width at the centre of a ``[-1, 1]`` box; the
+  homoscedastic ``σ̄`` is this baseline's one approximation). IQL's pre-tanh std is
+  large where the data's actions sit on the box's faces (``atanh`` of them is large):
+  on PointMaze it measured 4.7 after 500 updates and 2.6-2.9 after 2000, so ``σ̄``
+  sits at the clamp ``2``. A number (``laplace.noise_std=0.3``, DUAL's ``init_std``) fixes ``σ̄``
+  instead.
 * **Acting (Eq. 9-10).** Each sub-policy acts ``a_m = TanhSquash(W_m φ(s) + b_m)``; the
   ensemble's mean and variance are over these ``M`` actions (``laplace.num_samples``),
   then :class:`~torchrl_dual.modules.ShiftAwareNoise` draws ``a ∼ N(μ, σ²)`` with
@@ -53,7 +58,7 @@ from torchrl_dual.recipe.errors import ConfigError
 from torchrl_dual.recipe.iql import IQLActorSettings, IQLLearner
 from torchrl_dual.recipe.laplace_refits import LaplaceRefits
 from torchrl_dual.recipe.o2o_run import O2ORun
-from torchrl_dual.recipe.rules import Real, key
+from torchrl_dual.recipe.rules import Choice, Either, Real, key
 
 IQL_MAX_WEIGHT = 100.0
 """TorchRL ``IQLLoss``'s clip of ``exp(β (Q − V))`` (fixed in its ``actor_loss``)."""
@@ -74,6 +79,12 @@ class IQLLALaplaceSettings:
 
     num_samples: int = _dual_laplace_key("num_samples")
     prior_precision: Any = _dual_laplace_key("prior_precision")
+    noise_std: Any = key(
+        Either(
+            (Choice(("iql",)), Real(0, 2, low_open=True)), "must be 'iql' or a number in (0, 2]"
+        ),
+        "σ̄: the IQL actor's RMS std at each fit, or a fixed value",
+    )
 
 
 @dataclass
@@ -123,7 +134,8 @@ class _OwnState:
 
 class IQLLALearner(LaplaceRefits, IQLLearner):
     """IQL + LA: IQL's learner, acting online with the Laplace ensemble of its actor,
-    refitted every ``budget.laplace_refit_every`` updates (:class:`LaplaceRefits`)."""
+    fitted with ``σ̄`` = :meth:`noise_std` and IQL's AWR weights every
+    ``budget.laplace_refit_every`` updates (:class:`LaplaceRefits`)."""
 
     title = "IQL + LA"
     shared_stages = ("actor_critic",)  # offline_cache: IQL's offline updates only
@@ -134,13 +146,13 @@ class IQLLALearner(LaplaceRefits, IQLLearner):
         cfg = run.cfg
         self.head_actor = LinearHeadActor.from_actor(self.actor)  # shared weights, tanh box
         # only its advantage weights are used (Eq. 8's Hessian); IQLLoss trains the actor
-        self.weights = WeightedMAPActorLoss.from_iql(
+        self.laplace_weight_fn = WeightedMAPActorLoss.from_iql(
             self.head_actor,
             self.critic.loss,
             weighting="advantage",
             temperature=cfg.actor.temperature,
             max_weight=IQL_MAX_WEIGHT,
-        )
+        ).advantage_weights
         self.policy = make_dual_policy(
             self.head_actor,
             run.env.action_spec,
@@ -163,31 +175,19 @@ class IQLLALearner(LaplaceRefits, IQLLearner):
         return super().modules()
 
     @torch.no_grad()
-    def iql_std(self) -> torch.Tensor:
-        """``σ̄_a = sqrt(mean_D scale_a(s)²)``: the IQL actor's pre-tanh std, root mean
-        square over ``D_offline ∪ D_online``, ``[A]``."""
+    def noise_std(self) -> torch.Tensor:
+        """``σ̄`` per action dimension, set before each fit: ``laplace.noise_std`` if it is
+        a number, else (``iql``) ``σ̄_a = sqrt(mean_D scale_a(s)²)``, the IQL actor's
+        pre-tanh std, root mean square over ``D_offline ∪ D_online``."""
+        fixed = self.run.cfg.laplace.noise_std
+        if fixed != "iql":
+            return torch.full_like(self.head_actor.log_std, float(fixed))
         loc_scale = self.actor.module[0]  # observation -> loc, scale
         total, count = 0.0, 0
         for batch in self.run.all_transitions():
             scale = loc_scale(batch.select("observation"))["scale"]
             total, count = total + scale.square().sum(0), count + scale.shape[0]
         return (total / count).sqrt()
-
-    def fit_laplace(self) -> None:
-        """Alg. 1 lines 9 and 17 on IQL's actor: ``σ̄`` from its std, then Eq. (8) on ``D``
-        with the AWR weights; no posterior with ``laplace.num_samples=0`` (then the
-        ensemble acts with the MAP action and ``σ̄`` only)."""
-        std = self.iql_std()
-        with torch.no_grad():
-            self.head_actor.log_std.copy_(std.log())
-        metrics = {"noise_std": float(self.head_actor.std.detach().mean())}
-        if self.ensemble.num_samples > 0:
-            with torch.no_grad():
-                laplace = self.ensemble.fit_laplace(
-                    self.run.all_transitions(), weight_fn=self.weights.advantage_weights
-                )
-            metrics["prior_precision"] = laplace.prior_precision
-        self.run.log(metrics, self.run.updates, "laplace/")
 
 
 IQL_LA = Algorithm(

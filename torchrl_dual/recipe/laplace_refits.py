@@ -1,32 +1,65 @@
-"""The refit schedule of a learner that acts with a Laplace ensemble (Alg. 1 l. 9 and 17).
+"""The Laplace fits of a learner that acts with a Laplace ensemble (Alg. 1 l. 9 and 17).
 
 :class:`LaplaceRefits` is a mixin placed before a :class:`~torchrl_dual.recipe.Learner`
 (``class IQLLALearner(LaplaceRefits, IQLLearner)``): it appends the offline ``laplace``
 stage to the base learner's stages, counts the base learner's updates, refits once
 ``budget.laplace_refit_every`` of them have accumulated, checkpoints that count and logs
-the ensemble's epistemic std of each collected batch. The learner defines only
-:meth:`LaplaceRefits.fit_laplace`, the fit itself.
+the ensemble's epistemic std of each collected batch. A fit sets ``σ̄`` (if the learner
+gives one, :meth:`~LaplaceRefits.noise_std`), then fits Eq. (8) on
+``D_offline ∪ D_online`` with the learner's per-sample weights. The learner sets
+``ensemble`` (its :class:`~torchrl_dual.modules.LaplaceEnsembleActor`) and
+``laplace_weight_fn``.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
+import torch
 from tensordict import TensorDictBase
 
+from torchrl_dual.modules import LaplaceEnsembleActor
 from torchrl_dual.recipe.o2o_run import O2ORun
 
 
 class LaplaceRefits:
     """Mixin: Eq. (8)'s posterior fitted after the base learner's offline stages and
-    refitted on ``D_offline ∪ D_online`` every ``budget.laplace_refit_every`` updates."""
+    refitted on ``D_offline ∪ D_online`` every ``budget.laplace_refit_every`` updates.
+
+    Attributes:
+        ensemble (LaplaceEnsembleActor): the acting ensemble over the learner's actor.
+        laplace_weight_fn (callable, optional): ``batch -> [B]`` weights of the actor
+            loss whose Hessian Eq. (8) takes (e.g. ``WeightedMAPActorLoss.advantage_weights``);
+            ``None``: uniform.
+    """
 
     run: O2ORun
+    ensemble: LaplaceEnsembleActor
+    laplace_weight_fn: Callable[[TensorDictBase], torch.Tensor] | None = None
     updates_since_refit: int = 0
 
+    def noise_std(self) -> torch.Tensor | None:
+        """``σ̄`` per action dimension to fit with; ``None`` keeps the actor's own (DUAL
+        learns it by Eq. 7)."""
+        return None
+
     def fit_laplace(self) -> None:
-        """(Re)fits the posterior on ``self.run.all_transitions()``."""
-        raise NotImplementedError
+        """``σ̄`` from :meth:`noise_std`, then Eq. (8) on ``run.all_transitions()``; no
+        posterior with ``num_samples=0`` (the ensemble then acts with the MAP action and
+        ``σ̄`` only). Logs ``laplace/noise_std`` and ``laplace/prior_precision``."""
+        actor, metrics = self.ensemble.actor, {}
+        std = self.noise_std()
+        with torch.no_grad():
+            if std is not None:
+                actor.log_std.copy_(std.log().clamp(actor.min_log_std, actor.max_log_std))
+                metrics["noise_std"] = float(actor.std.mean())
+            if self.ensemble.num_samples > 0:
+                laplace = self.ensemble.fit_laplace(
+                    self.run.all_transitions(), weight_fn=self.laplace_weight_fn
+                )
+                metrics["prior_precision"] = laplace.prior_precision
+        self.run.log(metrics, self.run.updates, "laplace/")
 
     def refit(self) -> None:
         """Resets the count, then :meth:`fit_laplace`."""
