@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from torchrl_dual.recipe.algorithm import Algorithm
 from torchrl_dual.recipe.diffql import DIFFQL, DIFFQL_LA
+from torchrl_dual.recipe.diffuser import DIFFUSER
 from torchrl_dual.recipe.dual_settings import DUAL
 from torchrl_dual.recipe.iql import IQL
 from torchrl_dual.recipe.iql_la import IQL_LA
@@ -19,5 +20,6 @@ ALGORITHMS: dict[str, Algorithm] = {
     "iql_la": IQL_LA,
     "diffql": DIFFQL,
     "diffql_la": DIFFQL_LA,
+    "diffuser": DIFFUSER,
 }
 """``algo`` -> :class:`Algorithm`."""
