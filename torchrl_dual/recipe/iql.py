@@ -71,6 +71,7 @@ class IQLLearner(Learner):
     """IQL: one ``budget.offline_updates`` stage offline, then the same update online."""
 
     title = "IQL"
+    shared_stages = ("actor_critic",)  # offline_cache: shared by every online shift
 
     def __init__(self, run: O2ORun) -> None:
         self.run = run

@@ -13,6 +13,7 @@ of :data:`~torchrl_dual.recipe.ALGORITHMS` is a learner class and a config file.
 from __future__ import annotations
 
 import random
+import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from pathlib import Path
@@ -38,15 +39,27 @@ from torchrl_dual.checkpoint import CheckpointError, RunCheckpoint, rng_state, s
 from torchrl_dual.data import TRANSITION_KEYS
 from torchrl_dual.recipe import env_kits
 from torchrl_dual.recipe.errors import ConfigError, UserError
+from torchrl_dual.recipe.offline_cache import run_offline_stages
 from torchrl_dual.recipe.plots import plot_learning_curve
+from torchrl_dual.recipe.run_summary import write_summary
 
 # Settings that may change when a run is resumed; everything else must match.
-RESUMABLE_KEYS = ("resume", "progress", "interrupt_at_frames", "num_threads", "device", "debug")
+RESUMABLE_KEYS = (
+    "resume",
+    "progress",
+    "interrupt_at_frames",
+    "num_threads",
+    "device",
+    "debug",
+    "offline_cache",
+)
 # Part of the fingerprint: a checkpoint of another layout (e.g. written before the
 # O2ORun / Learner split) is refused with the checkpoint's "incompatible run" error.
-CHECKPOINT_LAYOUT = "o2o-learner-1"
+CHECKPOINT_LAYOUT = "o2o-learner-2"
 _COUNTERS = (
     "stages_done",
+    "stage_seconds",
+    "shared_offline",
     "frames",
     "updates",
     "update_credit",
@@ -92,6 +105,12 @@ class Learner(ABC):
     title: str = "?"
     exploration_policy: nn.Module
     evaluation_policy: nn.Module
+    shared_stages: tuple[str, ...] = ()
+    """The leading offline stages that runs differing only in online keys may share
+    (``offline_cache``); empty: this learner never shares its offline phase."""
+    online_keys: tuple[str, ...] = ()
+    """Dotted config keys of this algorithm that its :attr:`shared_stages` do not read
+    (beyond :data:`~torchrl_dual.recipe.offline_cache.ONLINE_KEYS`)."""
 
     @abstractmethod
     def modules(self) -> dict[str, Any]:
@@ -110,6 +129,11 @@ class Learner(ABC):
 
     def after_updates(self) -> None:  # noqa: B027 - optional hook
         """Called after each block of online updates (DUAL refits its Laplace posterior)."""
+
+    def shared_modules(self) -> dict[str, Any]:
+        """What a shared offline phase hands over (defaults to :meth:`modules`); leave out
+        what depends on :attr:`online_keys` (e.g. DUAL's M posterior draws)."""
+        return self.modules()
 
     def batch_metrics(self, batch: TensorDictBase) -> dict[str, float]:
         """Metrics of a collected batch beyond ``reward_per_step`` (logged under ``online/``)."""
@@ -141,7 +165,7 @@ class O2ORun:
             for k, v in OmegaConf.to_container(cfg, resolve=True).items()
             if k not in RESUMABLE_KEYS
         }
-        fingerprint["checkpoint_layout"] = CHECKPOINT_LAYOUT
+        fingerprint["checkpoint_layout"] = self.checkpoint_layout = CHECKPOINT_LAYOUT
         check_output_dir(cfg)
         self.checkpoint = RunCheckpoint(self.output_dir / "checkpoint.pt", fingerprint)
         # Read a checkpoint first, so a corrupt or incompatible one fails before any work.
@@ -162,14 +186,20 @@ class O2ORun:
         )
         # ---- counters
         self.stages_done: list[str] = []
+        self.stage_seconds: dict[str, float] = {}
+        self.shared_offline = False
         self.frames = 0
         self.updates = 0
         self.update_credit = 0.0
         self.next_episode = int(self.data.transitions["episode"].max()) + 1
         self.history: list[dict] = []
         logger_state = self.load(saved) if saved is not None else None
+        self.make_logger(logger_state)
+
+    def make_logger(self, state: dict | None = None) -> None:
+        """The TorchRL logger under ``output_dir/logs`` (continuing ``state``, if given)."""
         self.logger = get_logger(
-            cfg.logger.backend, str(self.output_dir / "logs"), self.name, state_dict=logger_state
+            self.cfg.logger.backend, str(self.output_dir / "logs"), self.name, state_dict=state
         )
 
     # ------------------------------------------------------------------ bookkeeping
@@ -193,10 +223,12 @@ class O2ORun:
         buffer.extend(self.data.transitions)
         return buffer
 
-    def save(self) -> None:
-        """Checkpoints everything needed to continue (atomic write)."""
+    def state(self, modules: dict[str, Any] | None = None) -> dict[str, Any]:
+        """Everything needed to continue: ``modules`` (default: the learner's), counters,
+        online data, RNG and logger state."""
         online = self.replay.online_buffer
-        state = {name: module.state_dict() for name, module in self.learner.modules().items()}
+        modules = self.learner.modules() if modules is None else modules
+        state = {name: module.state_dict() for name, module in modules.items()}
         state.update({name: getattr(self, name) for name in _COUNTERS})
         state.update(
             learner=self.learner.state_dict(),
@@ -204,7 +236,11 @@ class O2ORun:
             rng=rng_state(),
             logger=self.logger.state_dict() if hasattr(self.logger, "state_dict") else None,
         )
-        self.checkpoint.save(state)
+        return state
+
+    def save(self) -> None:
+        """Checkpoints :meth:`state` (atomic write)."""
+        self.checkpoint.save(self.state())
 
     def _load_checkpoint(self) -> dict:
         try:
@@ -212,11 +248,13 @@ class O2ORun:
         except CheckpointError as err:  # corrupt, not a checkpoint, or another run's settings
             raise UserError("resume", True, str(err)) from err
 
-    def load(self, state: dict | None = None):
-        """Restores the checkpoint's ``state`` (read if not given); returns the logger's."""
+    def load(self, state: dict | None = None, modules: dict[str, Any] | None = None):
+        """Restores the checkpoint's ``state`` (read if not given) into ``modules`` (default:
+        the learner's); returns the logger's state."""
         state = self._load_checkpoint() if state is None else state
+        modules = self.learner.modules() if modules is None else modules
         try:
-            for name, module in self.learner.modules().items():
+            for name, module in modules.items():
                 module.load_state_dict(state[name])
             self.learner.load_state_dict(state["learner"])
         except (KeyError, RuntimeError, ValueError) as err:
@@ -240,7 +278,9 @@ class O2ORun:
         if name in self.stages_done:
             self.say(f"{name}: done in the checkpoint, skipped")
             return
+        start = time.perf_counter()
         fn()
+        self.stage_seconds[name] = time.perf_counter() - start
         self.stages_done.append(name)
         self.save()
 
@@ -328,8 +368,9 @@ class O2ORun:
         return metrics
 
     def finish(self) -> None:
-        """Writes the learning curve and prints where everything is."""
+        """Writes the learning curve and ``summary.json``; prints where everything is."""
         self.save()
+        write_summary(self, self.output_dir / "summary.json")
         png = plot_learning_curve(
             self.history,
             self.output_dir / "learning_curve.png",
@@ -354,15 +395,15 @@ def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORu
     (collect, store, update, the learner's hook, evaluate, checkpoint); returns the run."""
     run = O2ORun(cfg, make_learner)
 
-    # ---- Offline phase
-    for name, fn in run.learner.offline_stages():
-        run.stage(name, fn)
+    # ---- Offline phase (its shared stages possibly from offline_cache)
+    run_offline_stages(run)
     run.stage("offline_eval", lambda: run.evaluate("offline"))
 
     # ---- Online phase
     budget = cfg.budget
     next_eval = (run.frames // budget.eval_every + 1) * budget.eval_every
     next_save = run.frames + budget.checkpoint_every
+    clock = _OnlineClock(run)
     try:
         for batch in run.collector() if run.frames < budget.online_frames else ():
             stats = run.store(batch)  # act with the exploration policy, store in D_online
@@ -373,11 +414,13 @@ def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORu
                 run.evaluate("online")
                 next_eval += budget.eval_every
             if run.frames >= next_save:
+                clock.tick()
                 run.save()
                 next_save += budget.checkpoint_every
             if cfg.interrupt_at_frames is not None and run.frames >= cfg.interrupt_at_frames:
                 raise KeyboardInterrupt
     except KeyboardInterrupt:
+        clock.tick()
         run.save()
         run.say(
             f"interrupted at {run.frames} online frames; checkpoint saved. "
@@ -386,5 +429,18 @@ def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORu
         return run
     if not run.history or run.history[-1]["frames"] != run.frames:
         run.evaluate("online")
+    clock.tick()
     run.finish()
     return run
+
+
+class _OnlineClock:
+    """Adds the online phase's wall time to ``run.stage_seconds["online"]`` (across resumes)."""
+
+    def __init__(self, run: O2ORun) -> None:
+        self.run = run
+        self.before = run.stage_seconds.get("online", 0.0)
+        self.start = time.perf_counter()
+
+    def tick(self) -> None:
+        self.run.stage_seconds["online"] = self.before + time.perf_counter() - self.start

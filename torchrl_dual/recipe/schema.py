@@ -60,6 +60,7 @@ class RunSettings:
     interrupt_at_frames: Any = key(Maybe(Integer(0)), "test aid: stop after this many frames")
     progress: bool = key(Flag(), "tqdm progress bars")
     data_cache_dir: Any = key(Maybe(Text()), "where generated offline data is cached")
+    offline_cache: Any = key(Maybe(Text()), "where shared offline phases are stored")
     debug: bool = key(Flag(), "print tracebacks of user errors")
 
 
@@ -166,5 +167,6 @@ def check_machine(cfg: DictConfig) -> None:
             f"cannot resume (resume=true); use one of {', '.join(RESUMABLE_LOGGERS)}",
         )
     check_output_dir(cfg)
-    if cfg.data_cache_dir is not None and Path(cfg.data_cache_dir).is_file():
-        raise ConfigError("data_cache_dir", cfg.data_cache_dir, "is a file, not a directory")
+    for name in ("data_cache_dir", "offline_cache"):
+        if cfg[name] is not None and Path(cfg[name]).is_file():
+            raise ConfigError(name, cfg[name], "is a file, not a directory")

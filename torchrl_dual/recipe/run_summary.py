@@ -1,0 +1,53 @@
+"""``summary.json``: what a finished recipe run measured, for the learning suite.
+
+One small file per run (``benchmarks/learning.py`` collects them): the evaluation history,
+the wall time of every stage and of the online phase, whether the offline stages came from
+a shared offline phase, and the resolved config.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from omegaconf import OmegaConf
+
+if TYPE_CHECKING:
+    from torchrl_dual.recipe.o2o_run import O2ORun
+
+
+def run_summary(run: O2ORun) -> dict:
+    """The summary of ``run`` as a JSON-ready dict.
+
+    ``offline_seconds`` sums the offline stages (``offline_eval`` included; stages loaded
+    from a shared offline phase count with the time their first run spent on them), and
+    ``wall_seconds`` adds the online phase: the cost of one run on its own.
+    """
+    cfg = run.cfg
+    seconds = {name: round(float(value), 3) for name, value in run.stage_seconds.items()}
+    offline = sum(value for name, value in seconds.items() if name != "online")
+    return {
+        "algo": str(cfg.algo),
+        "env": str(cfg.env.name),
+        "seed": int(cfg.seed),
+        "budget": str(cfg.budget.name),
+        "shift": str(cfg.env.get("shift", "none")),
+        "history": run.history,
+        "stage_seconds": seconds,
+        "offline_seconds": round(offline, 3),
+        "wall_seconds": round(offline + seconds.get("online", 0.0), 3),
+        "shared_offline": bool(run.shared_offline),
+        "frames": int(run.frames),
+        "updates": int(run.updates),
+        "config": OmegaConf.to_container(cfg, resolve=True),
+    }
+
+
+def write_summary(run: O2ORun, path: Path) -> Path:
+    """Writes :func:`run_summary` to ``path`` atomically; returns ``path``."""
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(run_summary(run), indent=1, default=float))
+    os.replace(tmp, path)
+    return path
