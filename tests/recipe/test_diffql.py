@@ -179,7 +179,7 @@ def tiny_cfg(eta: float = 1.0):
     return OmegaConf.create(
         {
             "device": "cpu",
-            "actor": {"num_steps": 5, "hidden": 32, "depth": 2, "lr": 3e-3, "eta": eta},
+            "actor": {"num_steps": 5, "hidden": 32, "depth": 2, "activation": "mish", "eta": eta},
             "critic": {
                 "hidden": 32,
                 "depth": 2,
