@@ -173,6 +173,37 @@ def test_the_ensemble_state_round_trips_without_the_shared_weights(frozenlake):
         own.load_state_dict({k: v for k, v in saved.items() if k != "weight_deviation"})
 
 
+def test_a_resumed_run_restores_the_ensemble_and_acts_like_the_checkpointed_one(frozenlake):
+    out = Path(frozenlake.cfg.output_dir)
+    saved = checkpoint_state(out)
+    cache = Path(frozenlake.cfg.data_cache_dir)
+    cfg = fast_cfg(out, cache, "algo=iql_la", "env=frozenlake", "resume=true")
+    resumed = O2ORun(cfg, IQLLALearner).learner
+    for name in ("weight_deviation", "bias_deviation", "actor.log_std", "laplace.theta_map"):
+        torch.testing.assert_close(resumed.ensemble.state_dict()[name], saved["ensemble"][name])
+    assert resumed.updates_since_refit == saved["learner"]["updates_since_refit"]
+    # the trained IQL actor came back through IQL's loss, and with it the shared head
+    for name, value in frozenlake.learner.actor.state_dict().items():
+        torch.testing.assert_close(resumed.actor.state_dict()[name], value, msg=name)
+    obs = observations(frozenlake)
+    head = resumed.head_actor.head
+    assert head.weight.data_ptr() == resumed.actor.module[0].module[0][-1].weight.data_ptr()
+    with torch.no_grad():
+        pre = torch.nn.functional.linear(
+            resumed.head_actor.features(obs), *resumed.head_actor.head_parameters()
+        )
+        expected = 0.5 + 0.5 * torch.tanh(
+            pre
+            + torch.einsum(
+                "bd,mad->mba",
+                resumed.head_actor.features(obs),
+                saved["ensemble"]["weight_deviation"],
+            )
+            + saved["ensemble"]["bias_deviation"][:, None]
+        )
+        torch.testing.assert_close(resumed.ensemble.member_actions(obs), expected)
+
+
 # ----------------------------------------------------------------------------- config
 def test_a_shift_weight_for_iql_la_exits_2_naming_the_missing_transition_model(capsys):
     with pytest.raises(SystemExit) as stop:

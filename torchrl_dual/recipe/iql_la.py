@@ -139,7 +139,12 @@ class IQLLALearner(LaplaceRefits, IQLLearner):
 
     title = "IQL + LA"
     shared_stages = ("actor_critic",)  # offline_cache: IQL's offline updates only
-    online_keys = ("laplace.num_samples", "laplace.prior_precision", "exploration.shift_weight")
+    online_keys = (  # read only by the laplace stage and the online phase
+        "laplace.num_samples",
+        "laplace.prior_precision",
+        "laplace.noise_std",
+        "exploration.shift_weight",
+    )
 
     def __init__(self, run: O2ORun) -> None:
         super().__init__(run)
