@@ -4,8 +4,9 @@
 * ``distillation.final_steps=8``: "w/o distillation", the actor is the 8-step planner;
 * ``laplace.uq=latent``: "Ours w τ^N sampling", M planner latents instead of the posterior.
 
-One smoke run per switch (``recipes/o2o.py`` as a subprocess, shortened online phase),
-in-process checks of what each switch does to the networks, and the config errors.
+Smoke runs of the switches (``recipes/o2o.py`` as a subprocess, shortened budgets; two
+runs for three switches, to keep the file short), in-process checks of what each switch
+does to the networks, and the config errors.
 """
 
 from __future__ import annotations
@@ -90,11 +91,14 @@ def state(module: torch.nn.Module) -> dict[str, torch.Tensor]:
 @pytest.mark.parametrize(
     "overrides",
     [
-        pytest.param(("actor.init=scratch", TINY_DISTILLATION), id="no-planner"),
+        # two switches in one run (they combine; the in-process tests below check each)
+        pytest.param(
+            ("actor.init=scratch", "laplace.uq=latent", TINY_DISTILLATION),
+            id="no-planner+latent-uq",
+        ),
         pytest.param(
             ("distillation.final_steps=8", "budget.distill_updates=[2,2]"), id="no-distillation"
         ),
-        pytest.param(("laplace.uq=latent", TINY_DISTILLATION), id="latent-uq"),
     ],
 )
 def test_each_ablation_runs_end_to_end(overrides, tmp_path, cache_dir):
