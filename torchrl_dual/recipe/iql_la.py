@@ -75,7 +75,7 @@ def _dual_laplace_key(name: str) -> Any:
 @dataclass
 class IQLLALaplaceSettings:
     """``algo/iql_la.yaml``'s ``laplace``: DUAL's keys of Eq. (8-9) that apply to a plain
-    actor (``M`` and the prior), with DUAL's rules."""
+    actor (``M`` and the prior, with DUAL's rules) and where ``σ̄`` comes from."""
 
     num_samples: int = _dual_laplace_key("num_samples")
     prior_precision: Any = _dual_laplace_key("prior_precision")
