@@ -21,6 +21,7 @@ from toy import (
 
 from torchrl_dual.diffusion import TrajectoryDiffusion
 from torchrl_dual.modules import (
+    LaplaceEnsembleActor,
     LastLayerActor,
     PlannerActor,
     PlannerPolicy,
@@ -381,3 +382,31 @@ def test_sampled_latents_give_distinct_members_whose_zero_latent_is_the_mean(
         monkeypatch.setattr(torch, "randn_like", lambda x, **_: torch.zeros_like(x))
         zero = actor.sample_actions(observation, 2)
         torch.testing.assert_close(zero[0], actor(observation), rtol=1e-5, atol=1e-5)
+
+
+def test_laplace_members_of_an_n_step_actor_sample_the_last_step_head_only(make_model):
+    """Each member of Eq. 9 is the chain at θ* for N − 1 steps, then the last step with
+    the member's head: an independent run with a copied model gives the same actions."""
+    torch.manual_seed(3)
+    model = _fitted(make_model(num_steps=4))
+    actor = PlannerActor(model)
+    ensemble = LaplaceEnsembleActor(actor, num_samples=3)
+    ensemble.fit_laplace([TensorDict(observation=torch.randn(128, 3), batch_size=[128])])
+    assert ensemble.weight_deviation.abs().sum() > 0
+    observation = torch.randn(5, 3)
+    with torch.no_grad():
+        members = ensemble.member_actions(observation)
+        layout, norm = model.layout, model.normalizer
+        cond, mask = layout.conditioned_window(norm.normalize_observation(observation))
+        mask = mask.expand_as(cond)
+        z, times = cond, torch.linspace(1.0, 0.0, 5)
+        for t, s in zip(times[:-2], times[1:-1], strict=True):
+            z = model.ddim_step(z, t.expand(5), s.expand(5), cond, mask)
+        for m in range(3):
+            member = copy.deepcopy(model)
+            member.denoiser.head.weight[actor.head_rows] += ensemble.weight_deviation[m]
+            member.denoiser.head.bias[actor.head_rows] += ensemble.bias_deviation[m]
+            x_hat = member.predict(z, times[-2].expand(5), cond, mask)[0]
+            expected = norm.denormalize_action(x_hat[:, 0, 3:])
+            torch.testing.assert_close(members[m], expected, rtol=1e-5, atol=1e-5)
+    assert (members.std(0) > 0).all()
