@@ -83,14 +83,28 @@ def cache_dir(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("diffql_data")
 
 
+def run_in_process(algo: str, output_dir: Path, cache_dir: Path):
+    """What ``python recipes/o2o.py algo=<algo> ...`` runs, on PointMaze, in this process."""
+    overrides = [f"algo={algo}", *POINTMAZE, *common_overrides(output_dir, cache_dir)]
+    return run(compose_checked(CONFIG_DIR, overrides))
+
+
+@pytest.fixture(scope="module")
+def diffql_umaze(tmp_path_factory, cache_dir):
+    out = tmp_path_factory.mktemp("diffql_umaze")
+    return out, run_in_process("diffql", out, cache_dir)
+
+
+@pytest.fixture(scope="module")
+def diffql_la_umaze(tmp_path_factory, cache_dir):
+    out = tmp_path_factory.mktemp("diffql_la_umaze")
+    return out, run_in_process("diffql_la", out, cache_dir)
+
+
 # ----------------------------------------------------------------------------- end to end
-def test_diffql_runs_end_to_end_on_pointmaze(cache_dir, tmp_path):
-    run(
-        compose_checked(
-            CONFIG_DIR, ["algo=diffql", *POINTMAZE, *common_overrides(tmp_path, cache_dir)]
-        )
-    )
-    state = checkpoint_state(tmp_path)
+def test_diffql_runs_end_to_end_on_pointmaze(diffql_umaze):
+    out, _ = diffql_umaze
+    state = checkpoint_state(out)
     assert state["stages_done"] == ["actor_critic", "offline_eval"]
     assert (state["frames"], state["updates"]) == (100, 10 + 20)
     assert [h["label"] for h in state["history"]] == ["offline", "online"]
@@ -98,7 +112,7 @@ def test_diffql_runs_end_to_end_on_pointmaze(cache_dir, tmp_path):
     # the score network at the smoke width, the same IQL critics without an actor copy
     assert state["actor"]["module.score_network.0.weight"].shape == (64, 2 + 6 + 1)
     assert not any(name.startswith("actor_network_params") for name in state["critic"])
-    scalars = tmp_path / "logs" / "diffql" / "scalars"
+    scalars = out / "logs" / "diffql" / "scalars"
     assert (scalars / "offline" / "loss_q.csv").is_file()
 
 
@@ -116,20 +130,29 @@ def test_diffql_la_runs_end_to_end_on_frozenlake_with_one_hot_actions(cache_dir,
     assert ((actions == 0) | (actions == 1)).all() and (actions.sum(-1) == 1).all()
 
 
-def test_diffql_la_runs_on_pointmaze_and_refits_its_posterior(cache_dir, tmp_path):
-    overrides = ["algo=diffql_la", *POINTMAZE, *common_overrides(tmp_path, cache_dir)]
-    cfg = compose_checked(CONFIG_DIR, overrides)
-    result = run(cfg)
+def test_diffql_la_runs_on_pointmaze_and_refits_its_posterior(diffql_la_umaze):
+    out, result = diffql_la_umaze
     learner = result.learner
     assert isinstance(learner, DiffQLLALearner)
     # one fit offline, then one after each block of 10 online updates
-    refits = tmp_path / "logs" / "diffql_la" / "scalars" / "laplace" / "prior_precision.csv"
+    refits = out / "logs" / "diffql_la" / "scalars" / "laplace" / "prior_precision.csv"
     assert len(refits.read_text().splitlines()) == 3
-    epistemic = tmp_path / "logs" / "diffql_la" / "scalars" / "online" / "epistemic_std.csv"
+    epistemic = out / "logs" / "diffql_la" / "scalars" / "online" / "epistemic_std.csv"
     assert all(float(line.split(",")[1]) > 0 for line in epistemic.read_text().splitlines())
     assert learner.ensemble.actor.sampler is learner.actor.module  # one set of weights
     own = learner.modules()["ensemble"]
     own.load_state_dict(own.state_dict())  # the checkpoint's round trip
+
+
+def test_diffql_and_diffql_la_share_the_offline_phase_and_its_evaluation(
+    diffql_umaze, diffql_la_umaze
+):
+    """Same seed, same training: the offline phases give the same weights, and the MAP
+    mean that evaluates diffql_la is diffql's deterministic chain, so the offline
+    evaluations agree exactly."""
+    (_, plain), (_, la) = diffql_umaze, diffql_la_umaze
+    assert plain.history[0]["label"] == la.history[0]["label"] == "offline"
+    assert plain.history[0]["return"] == la.history[0]["return"]
 
 
 def test_diffql_la_s_sigma_bar_maximises_the_weighted_gaussian_likelihood(cache_dir, tmp_path):
