@@ -175,6 +175,10 @@ def _restore(run: O2ORun, cache: OfflinePhaseCache, modules: dict[str, Any]) -> 
         ) from err
     cache.copy_logs(run.output_dir / "logs")
     logger_state = run.load(snapshot, modules)
+    own = run.logger.state_dict() if hasattr(run.logger, "state_dict") else None
+    if isinstance(logger_state, dict) and isinstance(own, dict):
+        # the snapshot's logger wrote into the first run's directory: keep writing into ours
+        logger_state = {**logger_state, **{k: own[k] for k in ("log_dir", "exp_name") if k in own}}
     run.make_logger(logger_state)
     run.shared_offline = True
     run.say(f"offline stages {', '.join(run.stages_done)}: loaded from {cache.directory}")

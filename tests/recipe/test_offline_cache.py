@@ -1,0 +1,134 @@
+"""``offline_cache=``: runs that differ only in online keys share one offline phase.
+
+The promise under test: a run that loads the shared offline phase continues exactly as
+if it had computed it itself (same scores, same metric files), and a change to any key
+an offline stage reads is a different entry.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from pathlib import Path
+
+import pytest
+from recipe_runner import failed, run_recipe, succeeded
+
+from torchrl_dual.recipe import compose_checked
+from torchrl_dual.recipe.dual import DualLearner
+from torchrl_dual.recipe.offline_cache import OfflinePhaseCache, offline_key_config
+
+# DUAL's online ablations on a shifted env: everything the online phase reads differs
+FOLLOWER = ("env.shift=rotation", "laplace.num_samples=0", "exploration.shift_weight=0")
+
+
+def summary(output_dir: Path) -> dict:
+    return json.loads((output_dir / "summary.json").read_text())
+
+
+def scalars(output_dir: Path, prefix: str) -> dict[str, str]:
+    """CSV metric files under ``logs/dual/scalars/<prefix>`` by name -> content."""
+    root = output_dir / "logs" / "dual" / "scalars"
+    return {p.name: p.read_text() for p in sorted((root / prefix).glob("*.csv"))}
+
+
+@pytest.fixture(scope="module")
+def shared_runs(tmp_path_factory) -> dict:
+    """A leader that computes the offline phase, a follower that loads it, and the
+    follower's settings run without the cache as the reference."""
+    root = tmp_path_factory.mktemp("offline_cache")
+    data, cache = root / "data", root / "cache"
+    runs = {
+        "leader": (root / "leader", (f"offline_cache={cache}",)),
+        "follower": (root / "follower", (f"offline_cache={cache}", *FOLLOWER)),
+        "reference": (root / "reference", FOLLOWER),
+    }
+    procs = {name: succeeded(run_recipe(out, data, *args)) for name, (out, args) in runs.items()}
+    return {"root": root, "cache": cache, "data": data, "procs": procs} | {
+        name: out for name, (out, _) in runs.items()
+    }
+
+
+def test_a_follower_loads_the_shared_offline_phase(shared_runs):
+    assert "loaded from" not in shared_runs["procs"]["leader"].stdout
+    assert "offline stages planner, distillation, actor_critic: loaded from" in (
+        shared_runs["procs"]["follower"].stdout
+    )
+    assert not summary(shared_runs["leader"])["shared_offline"]
+    assert summary(shared_runs["follower"])["shared_offline"]
+    assert len(list(shared_runs["cache"].iterdir())) == 1  # one entry for both
+
+
+def test_loading_the_offline_phase_changes_nothing_the_run_computes(shared_runs):
+    follower, reference = summary(shared_runs["follower"]), summary(shared_runs["reference"])
+    assert follower["history"] == reference["history"]
+    for prefix in ("planner", "offline", "online", "eval"):
+        got = scalars(shared_runs["follower"], prefix)
+        assert got, prefix
+        assert got == scalars(shared_runs["reference"], prefix), prefix
+
+
+def test_the_summary_charges_the_shared_stages_at_their_first_cost(shared_runs):
+    leader, follower = summary(shared_runs["leader"]), summary(shared_runs["follower"])
+    for stage in DualLearner.shared_stages:
+        assert follower["stage_seconds"][stage] == leader["stage_seconds"][stage]
+    stages = follower["stage_seconds"]
+    assert follower["offline_seconds"] == pytest.approx(
+        sum(v for k, v in stages.items() if k != "online"), abs=1e-2
+    )
+    assert follower["wall_seconds"] == pytest.approx(
+        follower["offline_seconds"] + stages["online"], abs=1e-2
+    )
+    assert follower["shift"] == "rotation" and follower["frames"] == 400
+
+
+def test_a_corrupt_snapshot_is_named_with_the_fix(shared_runs, tmp_path):
+    (entry,) = list(shared_runs["cache"].iterdir())
+    cache = tmp_path / "cache"
+    target = cache / entry.name
+    target.mkdir(parents=True)
+    (target / "offline_phase.pt").write_bytes(b"not a checkpoint")
+    line = failed(run_recipe(tmp_path / "run", shared_runs["data"], f"offline_cache={cache}"))
+    assert line.startswith(f"error: offline_cache={cache}:")
+    assert "delete that directory to recompute it" in line
+
+
+def key(*overrides: str) -> str:
+    cfg = compose_checked(["budget=smoke", *overrides])
+    return OfflinePhaseCache("/unused", offline_key_config(cfg, DualLearner.online_keys), "x").key
+
+
+def test_online_keys_share_the_key_and_offline_keys_do_not():
+    base = key()
+    for online in (*FOLLOWER, "online.utd_ratio=1.0", "budget.online_frames=100"):
+        assert key(online) == base, online
+    for offline in ("planner.lr=0.001", "seed=1", "budget.offline_updates=7", "actor.init=scratch"):
+        assert key(offline) != base, offline
+
+
+def test_the_lock_makes_a_second_run_wait_for_the_first(tmp_path):
+    cache = OfflinePhaseCache(tmp_path, {"seed": 0}, "x")
+    order: list[str] = []
+    first_has_lock, release = threading.Event(), threading.Event()
+
+    def first() -> None:
+        with cache.lock():
+            order.append("first in")
+            first_has_lock.set()
+            release.wait(10)
+            cache.save({"w": 1}, logs_dir=None)
+            order.append("first out")
+
+    def second() -> None:
+        first_has_lock.wait(10)
+        with cache.lock():
+            order.append(f"second in, snapshot {'found' if cache.exists() else 'missing'}")
+
+    threads = [threading.Thread(target=first), threading.Thread(target=second)]
+    for thread in threads:
+        thread.start()
+    first_has_lock.wait(10)
+    release.set()
+    for thread in threads:
+        thread.join(20)
+    assert order == ["first in", "first out", "second in, snapshot found"]
