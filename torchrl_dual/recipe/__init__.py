@@ -5,8 +5,10 @@
 
 * :data:`ENV_KITS` (``env_kits``) — one entry per ``env.kind``: offline data, train env,
   evaluator, action projection;
-* :data:`ALGORITHMS` (``algorithms``) — one entry per ``algo``: its config sections,
-  critics, cross-key checks and :class:`Learner` (``dual``, ``iql``);
+* :data:`ALGORITHMS` (``algorithms``) — one entry per ``algo``: an :class:`Algorithm`
+  (``algorithm``: config sections, critics, cross-key checks, :class:`Learner`) defined
+  next to its learner: ``dual`` (``dual_settings``), ``iql``, ``iql_la``, ``diffql``,
+  ``diffql_la`` (``diffql``), ``diffuser``;
 * :data:`CRITICS` (``critics``) — one entry per ``critic.name``;
 * :func:`validate_config` (``schema``) — the schema of every config group, checked
   before any data or network; errors are :class:`UserError` (``errors``), reported as
@@ -14,8 +16,12 @@
 * :class:`O2ORun` / :func:`run_o2o` / :class:`Learner` (``o2o_run``) — the
   algorithm-independent offline-to-online run (data, env, evaluator, replay, collector,
   UTD updates, evaluation, checkpoint and resume) and the protocol of an algorithm;
+  ``offline_cache`` shares an offline phase between runs that differ only in online
+  keys; ``run_summary`` writes each finished run's ``summary.json``;
 * :class:`DualLearner` / :func:`run_dual` (``dual``) — Algorithm 1;
-  :class:`IQLLearner` / :func:`run_iql` (``iql``) — the IQL baseline.
+  :class:`IQLLearner` / :func:`run_iql` (``iql``) — the IQL baseline; the other
+  baselines in ``iql_la``, ``diffql``, ``diffuser`` (``laplace_refits``: their shared
+  Laplace refit schedule).
 """
 
 from torchrl_dual.recipe.algorithm import Algorithm
