@@ -13,7 +13,8 @@ from dataclasses import dataclass
 
 from omegaconf import DictConfig
 
-from torchrl_dual.recipe.o2o_run import Learner, O2ORun, run_o2o
+from torchrl_dual.recipe.learner import Learner
+from torchrl_dual.recipe.o2o_run import O2ORun, run_o2o
 from torchrl_dual.recipe.rules import Integer, Real, key
 
 

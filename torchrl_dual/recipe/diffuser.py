@@ -37,7 +37,8 @@ from torchrl_dual.recipe.algorithm import Algorithm, OnlineSettings
 from torchrl_dual.recipe.dual_settings import PlannerSettings
 from torchrl_dual.recipe.env_kits import env_kit
 from torchrl_dual.recipe.errors import ConfigError, UserError
-from torchrl_dual.recipe.o2o_run import Learner, O2ORun
+from torchrl_dual.recipe.learner import Learner
+from torchrl_dual.recipe.o2o_run import O2ORun
 from torchrl_dual.recipe.rules import Choice, key
 
 

@@ -18,7 +18,8 @@ from torchrl_dual.objectives import progressive_distillation, train_planner
 from torchrl_dual.recipe import networks
 from torchrl_dual.recipe.critics import CRITICS
 from torchrl_dual.recipe.errors import UserError
-from torchrl_dual.recipe.o2o_run import Learner, O2ORun, run_o2o
+from torchrl_dual.recipe.learner import Learner
+from torchrl_dual.recipe.o2o_run import O2ORun, run_o2o
 
 
 class DualLearner(Learner):

@@ -26,7 +26,8 @@ from torchrl.modules import MLP, ProbabilisticActor, TanhNormal
 from torchrl_dual.recipe.algorithm import Algorithm, OnlineSettings, check_nothing
 from torchrl_dual.recipe.critics import CRITICS
 from torchrl_dual.recipe.env_kits import env_kit
-from torchrl_dual.recipe.o2o_run import Learner, O2ORun, run_o2o
+from torchrl_dual.recipe.learner import Learner
+from torchrl_dual.recipe.o2o_run import O2ORun, run_o2o
 from torchrl_dual.recipe.rules import Integer, Real, key
 
 

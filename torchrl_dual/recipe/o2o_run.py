@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import random
 import time
-from abc import ABC, abstractmethod
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -23,7 +22,6 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDictBase
-from torch import nn
 from torchrl.collectors import Collector
 from torchrl.data import (
     LazyTensorStorage,
@@ -39,6 +37,7 @@ from torchrl_dual.checkpoint import CheckpointError, RunCheckpoint, rng_state, s
 from torchrl_dual.data import TRANSITION_KEYS
 from torchrl_dual.recipe import env_kits
 from torchrl_dual.recipe.errors import ConfigError, UserError
+from torchrl_dual.recipe.learner import Learner
 from torchrl_dual.recipe.offline_cache import run_offline_stages
 from torchrl_dual.recipe.plots import plot_learning_curve
 from torchrl_dual.recipe.run_summary import write_summary
@@ -83,68 +82,6 @@ def check_output_dir(cfg: DictConfig) -> None:
             f"{checkpoint} exists: pass resume=true to continue that run, or choose "
             "another output_dir (or delete it) to start afresh",
         )
-
-
-class Learner(ABC):
-    """What one algorithm adds to an :class:`O2ORun`.
-
-    A learner is built by the run (``Learner(run)``) once the run's data, env and
-    offline buffer exist, and before its replay buffer, counters and logger; it builds
-    its networks, losses and optimizers in ``__init__`` and may keep ``run`` to read
-    ``run.cfg``, ``run.data``, ``run.logger`` or ``run.updates`` later.
-
-    Attributes:
-        title (str): the algorithm's name in the plot title.
-        exploration_policy (nn.Module): what the collector runs, under
-            ``ExplorationType.RANDOM``; it writes the executed ``"action"`` (after the env
-            kit's ``action_projection``, if any).
-        evaluation_policy (nn.Module): what the evaluator runs, under
-            ``ExplorationType.DETERMINISTIC``.
-    """
-
-    title: str = "?"
-    exploration_policy: nn.Module
-    evaluation_policy: nn.Module
-    shared_stages: tuple[str, ...] = ()
-    """The leading offline stages that runs differing only in online keys may share
-    (``offline_cache``); empty: this learner never shares its offline phase."""
-    online_keys: tuple[str, ...] = ()
-    """Dotted config keys of this algorithm that its :attr:`shared_stages` do not read
-    (beyond :data:`~torchrl_dual.recipe.offline_cache.ONLINE_KEYS`)."""
-
-    @abstractmethod
-    def modules(self) -> dict[str, Any]:
-        """Name -> object with ``state_dict``/``load_state_dict`` (networks, losses,
-        optimizers): what the checkpoint holds, each weight once."""
-
-    @abstractmethod
-    def offline_stages(self) -> list[tuple[str, Callable[[], None]]]:
-        """The offline phase as ordered ``(name, fn)`` stages, each checkpointed when done
-        and skipped on resume; :meth:`O2ORun.pretrain_updates` is the shared
-        ``budget.offline_updates`` stage. The run appends ``offline_eval``."""
-
-    @abstractmethod
-    def update(self, batch: TensorDictBase) -> dict[str, float]:
-        """One gradient update (critic and actor) on ``batch``; returns its metrics."""
-
-    def after_updates(self) -> None:  # noqa: B027 - optional hook
-        """Called after each block of online updates (DUAL refits its Laplace posterior)."""
-
-    def shared_modules(self) -> dict[str, Any]:
-        """What a shared offline phase hands over (defaults to :meth:`modules`); leave out
-        what depends on :attr:`online_keys` (e.g. DUAL's M posterior draws)."""
-        return self.modules()
-
-    def batch_metrics(self, batch: TensorDictBase) -> dict[str, float]:
-        """Metrics of a collected batch beyond ``reward_per_step`` (logged under ``online/``)."""
-        return {}
-
-    def state_dict(self) -> dict[str, Any]:
-        """The learner's counters that are not in :meth:`modules` (checkpointed)."""
-        return {}
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:  # noqa: B027 - optional
-        """Restores what :meth:`state_dict` returned."""
 
 
 class O2ORun:
