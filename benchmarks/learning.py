@@ -47,8 +47,19 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     "diffql_la": ("algo=diffql_la",),
     "dual_no_uq": ("algo=dual", "laplace.num_samples=0"),
     "dual_lambda0": ("algo=dual", "exploration.shift_weight=0"),
+    "dual_no_planner": ("algo=dual", "actor.init=scratch"),
+    "dual_no_distillation": (
+        "algo=dual",
+        "distillation.final_steps=8",
+        "budget.distill_updates=[300,300]",
+    ),
+    "dual_latent_uq": ("algo=dual", "laplace.uq=latent"),
+    "diffuser": ("algo=diffuser",),
 }
 """Variant name -> recipe overrides."""
+
+ABLATION_VARIANTS = ("dual_no_planner", "dual_no_distillation", "dual_latent_uq", "diffuser")
+"""The paper's other ablation rows and the Diffuser baseline (beyond the issue's grid)."""
 
 SHIFT_VARIANTS = ("dual", "iql", "dual_lambda0")
 
@@ -64,7 +75,14 @@ class Cell:
 
 
 CELLS: dict[str, Cell] = {
-    "umaze": Cell(("env=pointmaze_umaze",), tuple(VARIANTS), 5, "PointMaze U-maze"),
+    "umaze": Cell(
+        ("env=pointmaze_umaze",),
+        tuple(v for v in VARIANTS if v not in ABLATION_VARIANTS), 5, "PointMaze U-maze",
+    ),
+    "umaze_ablations": Cell(
+        ("env=pointmaze_umaze",), ABLATION_VARIANTS, 3,
+        "PointMaze U-maze: w/o planner, w/o distillation (N = 8), latent UQ, Diffuser",
+    ),
     "umaze_rotation": Cell(
         ("env=pointmaze_umaze", "env.shift=rotation"), SHIFT_VARIANTS, 3,
         "U-maze, online actions rotated by `env.shift_angle` (60°)",
@@ -86,7 +104,7 @@ CELLS: dict[str, Cell] = {
 
 # Overrides that only the online phase reads: runs differing only in these share the
 # offline phase (torchrl_dual.recipe.offline_cache.ONLINE_KEYS).
-ONLINE_ONLY = ("env.shift=", "laplace.num_samples=", "exploration.shift_weight=")
+ONLINE_ONLY = ("env.shift=", "laplace.num_samples=", "laplace.uq=", "exploration.shift_weight=")
 
 
 @dataclass(frozen=True)
