@@ -13,9 +13,15 @@ pick it up. ``dual_m5`` is DUAL's online policy (Laplace ensemble M = 5 + shift-
 noise; the policy query and the frozen transition model's query in one batched pass);
 ``dual_m5_shared`` uses the actor's own weights for ``ŝ_t``; ``dual_m5_two_pass`` runs
 the frozen transition model as a separate second pass; ``dual_m5_n8`` is the "w/o
-distillation" ablation (an 8-step planner actor). Every candidate gets the step input a collector would
-give it mid-episode (:func:`step_input`). Timings are interleaved (round-robin over
-candidates) so that load from other processes affects every candidate alike.
+distillation" ablation (an 8-step planner actor); ``dual_m5_latent`` the "w τ^N sampling"
+ablation (``laplace.uq=latent``). The recipe's baselines act with their exploration
+policies, built by the recipe's own builders with the actor settings of
+``recipes/config/algo/<algo>.yaml`` and the width ``--hidden``: ``iql_actor``
+(``algo=iql``), ``iql_la_m5`` (``algo=iql_la``), ``diffql_n5`` (``algo=diffql``) and
+``diffql_la_m5`` (``algo=diffql_la``); ``algo=diffuser`` acts as ``planner_n32``. Every
+candidate gets the step input a collector would give it mid-episode (:func:`step_input`).
+Timings are interleaved (round-robin over candidates) so that load from other processes
+affects every candidate alike.
 
 Usage::
 
@@ -33,23 +39,37 @@ import statistics
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import torch
+from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDict
 from tensordict.nn import TensorDictModule, TensorDictModuleBase, TensorDictSequential
 from torchrl.data import Bounded
 from torchrl.envs.utils import ExplorationType, set_exploration_type
-from torchrl.modules import MLP, NormalParamExtractor, ProbabilisticActor, TanhNormal
+from torchrl.modules import (
+    MLP,
+    DiffusionActor,
+    NormalParamExtractor,
+    ProbabilisticActor,
+    TanhNormal,
+)
 
 from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
 from torchrl_dual.modules import (
+    DDPMLastStepActor,
     LaplaceEnsembleActor,
+    LinearHeadActor,
     PlannerActor,
     PlannerPolicy,
     ShiftAwareNoise,
     TransitionModel,
     make_dual_policy,
 )
+from torchrl_dual.recipe.diffql import ActionBox, make_diffusion_actor
+from torchrl_dual.recipe.iql import make_iql_actor
+
+ALGO_CONFIGS = Path(__file__).resolve().parents[1] / "recipes" / "config" / "algo"
 
 
 @dataclass
@@ -100,10 +120,18 @@ def build_planner_n1(cfg: Config) -> TensorDictModuleBase:
     return _planner(cfg, 1)
 
 
-def _dual(cfg: Config, transition: str, num_steps: int = 1) -> TensorDictModuleBase:
+def _fit_data(cfg: Config) -> list[TensorDict]:
+    """Random states to fit a Laplace posterior on (its values do not change the cost)."""
+    return [TensorDict({"observation": torch.randn(512, cfg.obs_dim)}, [512])]
+
+
+def _dual(
+    cfg: Config, transition: str, num_steps: int = 1, uncertainty: str = "laplace"
+) -> TensorDictModuleBase:
     """DUAL's acting policy from the library builder (:func:`make_dual_policy`), as the
     recipe assembles it; ``transition`` picks the source of ``ŝ_t``, ``num_steps`` the
-    actor's (and the transition model's) sampling steps."""
+    actor's (and the transition model's) sampling steps, ``uncertainty`` the ensemble
+    (``laplace.uq``)."""
     layout = TrajectoryLayout(cfg.obs_dim, cfg.action_dim, cfg.horizon)
     model = TrajectoryDiffusion(layout, num_steps=num_steps, hidden=cfg.hidden, depth=cfg.depth)
     actor = PlannerActor(model)
@@ -112,7 +140,11 @@ def _dual(cfg: Config, transition: str, num_steps: int = 1) -> TensorDictModuleB
     else:
         transition_model = TransitionModel.frozen_copy(model)
     spec = Bounded(-1.0, 1.0, shape=(cfg.action_dim,))
-    fit_data = [TensorDict({"observation": torch.randn(512, cfg.obs_dim)}, [512])]
+    fit_data = _fit_data(cfg)
+    if uncertainty == "latent":  # no posterior: M planner latents per call
+        return make_dual_policy(
+            actor, spec, transition_model=transition_model, uncertainty="latent"
+        )
     if transition == "two_pass":  # the generic composition: ŝ_t from its own module
         ensemble = LaplaceEnsembleActor(
             actor, num_samples=5, action_low=-1.0, action_high=1.0, sample_action=False
@@ -148,6 +180,69 @@ def build_dual_m5_n8(cfg: Config) -> TensorDictModuleBase:
     return _dual(cfg, "paired", num_steps=8)
 
 
+def build_dual_m5_latent(cfg: Config) -> TensorDictModuleBase:
+    """The "w τ^N sampling" ablation (``laplace.uq=latent``): ``dual_m5`` with the
+    :class:`~torchrl_dual.modules.laplace.LatentEnsembleActor` (M = 5 planner latents per
+    call, through the actor's MAP weights) in place of the Laplace heads."""
+    return _dual(cfg, "paired", uncertainty="latent")
+
+
+# ------------------------------------------------------------- the recipe's baselines
+def _algo_cfg(cfg: Config, algo: str) -> DictConfig:
+    """``recipes/config/algo/<algo>.yaml``'s ``actor`` (depth, ``N``, activation as the
+    recipe runs them) with the width ``--hidden`` (``budget.network_width``), on CPU."""
+    actor = OmegaConf.load(ALGO_CONFIGS / f"{algo}.yaml").actor
+    actor.hidden = cfg.hidden  # replaces the ${budget.network_width} interpolation
+    return OmegaConf.create({"actor": OmegaConf.to_container(actor), "device": "cpu"})
+
+
+def _spec(cfg: Config) -> Bounded:
+    return Bounded(-1.0, 1.0, shape=(cfg.action_dim,))
+
+
+def build_iql_actor(cfg: Config) -> TensorDictModuleBase:
+    """``algo=iql``'s actor and exploration policy: :func:`make_iql_actor` (MLP ``hidden``
+    × 2, ReLU → ``NormalParamExtractor`` → ``TanhNormal``)."""
+    return make_iql_actor(_algo_cfg(cfg, "iql"), cfg.obs_dim, _spec(cfg))
+
+
+def build_iql_la_m5(cfg: Config) -> TensorDictModuleBase:
+    """``algo=iql_la``'s exploration policy: ``LinearHeadActor.from_actor`` over the IQL
+    actor (``algo/iql_la.yaml``), Laplace ensemble M = 5 (Eq. 9) and shift-aware noise
+    with λ = 0, from :func:`make_dual_policy`; posterior fitted on random states."""
+    head_actor = LinearHeadActor.from_actor(
+        make_iql_actor(_algo_cfg(cfg, "iql_la"), cfg.obs_dim, _spec(cfg))
+    )
+    policy = make_dual_policy(head_actor, _spec(cfg), num_samples=5, shift_weight=0.0)
+    policy[0].fit_laplace(_fit_data(cfg))
+    return policy
+
+
+def _diffusion_actor(cfg: Config, algo: str) -> DiffusionActor:
+    return make_diffusion_actor(_algo_cfg(cfg, algo), cfg.obs_dim, cfg.action_dim)
+
+
+def build_diffql_n5(cfg: Config) -> TensorDictModuleBase:
+    """``algo=diffql``'s exploration policy: TorchRL ``DiffusionActor`` (``N = 5`` DDPM
+    steps, score MLP ``hidden`` × 3, SiLU; :func:`make_diffusion_actor`) then the clamp to
+    the action box."""
+    spec = _spec(cfg)
+    clamp = TensorDictModule(
+        ActionBox(spec.space.low, spec.space.high), in_keys=["action"], out_keys=["action"]
+    )
+    return TensorDictSequential(_diffusion_actor(cfg, "diffql"), clamp)
+
+
+def build_diffql_la_m5(cfg: Config) -> TensorDictModuleBase:
+    """``algo=diffql_la``'s exploration policy: ``DDPMLastStepActor`` (the zero-latent
+    chain, the score network's last layer as the Laplace layer) over ``diffql_n5``'s
+    actor, Laplace ensemble M = 5 and λ = 0 noise, from :func:`make_dual_policy`."""
+    last_step = DDPMLastStepActor(_diffusion_actor(cfg, "diffql_la"), latent="zero")
+    policy = make_dual_policy(last_step, _spec(cfg), num_samples=5, shift_weight=0.0)
+    policy[0].fit_laplace(_fit_data(cfg))
+    return policy
+
+
 BUILDERS: dict[str, Callable[[Config], TensorDictModuleBase]] = {
     "mlp_actor": build_mlp_actor,
     "planner_n32": build_planner_n32,
@@ -156,6 +251,11 @@ BUILDERS: dict[str, Callable[[Config], TensorDictModuleBase]] = {
     "dual_m5_shared": build_dual_m5_shared,
     "dual_m5_two_pass": build_dual_m5_two_pass,
     "dual_m5_n8": build_dual_m5_n8,
+    "dual_m5_latent": build_dual_m5_latent,
+    "iql_actor": build_iql_actor,
+    "iql_la_m5": build_iql_la_m5,
+    "diffql_n5": build_diffql_n5,
+    "diffql_la_m5": build_diffql_la_m5,
 }
 REFERENCES = ("mlp_actor", "planner_n32")
 

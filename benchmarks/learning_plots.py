@@ -14,7 +14,19 @@ from learning_report import t_interval
 
 # Variant -> candidate of ``benchmarks/latency.py --json`` that times its acting policy;
 # a variant whose own name is a key of the latency JSON uses that entry instead.
-LATENCY_CANDIDATE = {"dual": "dual_m5", "dual_lambda0": "dual_m5", "iql": "mlp_actor"}
+LATENCY_CANDIDATE = {
+    "dual": "dual_m5",
+    "dual_lambda0": "dual_m5",  # λ = 0 changes the noise's variance, not the pass
+    "dual_no_uq": "dual_m5",  # M = 0: the same trunk pass, the MAP head alone
+    "dual_no_planner": "dual_m5",  # actor.init=scratch: the same network, untrained start
+    "dual_no_distillation": "dual_m5_n8",
+    "dual_latent_uq": "dual_m5_latent",
+    "iql": "iql_actor",
+    "iql_la": "iql_la_m5",
+    "diffql": "diffql_n5",
+    "diffql_la": "diffql_la_m5",
+    "diffuser": "planner_n32",
+}
 
 
 def _pyplot():

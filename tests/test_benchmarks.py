@@ -33,6 +33,11 @@ def test_latency_benchmark_times_every_candidate_and_writes_json(tmp_path):
         "dual_m5_shared",
         "dual_m5_two_pass",
         "dual_m5_n8",
+        "dual_m5_latent",
+        "iql_actor",
+        "iql_la_m5",
+        "diffql_n5",
+        "diffql_la_m5",
     }
     assert all(value > 0 for value in medians.values())
     assert "goal (restructuring issue #8)" in proc.stdout
