@@ -3,6 +3,7 @@
 * a bimodal toy data set of 1-D trajectories that go either left or right;
 * the one-step planner's reference computations (the unfolded path the exact fast path
   must equal) and the weight changes every cache of derived tensors must notice.
+* tiny fitted Laplace ensembles over a linear-head or planner actor and their data.
 """
 
 from __future__ import annotations
@@ -12,9 +13,15 @@ import copy
 import torch
 from tensordict import TensorDict
 from torch import nn
+from torchrl.modules import MLP
 
-from torchrl_dual.diffusion import TrajectoryDiffusion
-from torchrl_dual.modules import PlannerSampler
+from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
+from torchrl_dual.modules import (
+    LaplaceEnsembleActor,
+    LinearHeadActor,
+    PlannerActor,
+    PlannerSampler,
+)
 
 LEFT_FRACTION = 0.3
 
@@ -169,3 +176,55 @@ def assert_all_close(got, expected, *, tol: float = 1e-5) -> None:
     assert len(got) == len(expected), (len(got), len(expected))
     for a, b in zip(got, expected, strict=True):
         torch.testing.assert_close(a, b, rtol=tol, atol=tol)
+
+
+# ----------------------------------------------------------------------------- Laplace ensembles
+ENSEMBLE_OBS_DIM, ENSEMBLE_ACTION_DIM = 2, 2
+
+
+def ensemble_training_data(
+    n: int = 256,
+    obs_dim: int = ENSEMBLE_OBS_DIM,
+    action_dim: int = ENSEMBLE_ACTION_DIM,
+    seed: int = 0,
+) -> TensorDict:
+    """States in a small cluster around the origin; actions a smooth function of the state."""
+    gen = torch.Generator().manual_seed(seed)
+    observation = torch.randn(n, obs_dim, generator=gen) * 0.3
+    action = torch.tanh(observation[:, :action_dim]) + 0.1 * torch.randn(
+        n, action_dim, generator=gen
+    )
+    return TensorDict({"observation": observation, "action": action}, [n])
+
+
+def ensemble_actor(kind: str, make_model, data: TensorDict | None = None, seed: int = 0):
+    """A tiny ``LinearHeadActor`` (ReLU ``MLP``) or ``PlannerActor`` (normalizer fitted on
+    ``data``); ``make_model`` is the conftest factory (unused for ``"linear_head"``)."""
+    obs, act = ENSEMBLE_OBS_DIM, ENSEMBLE_ACTION_DIM
+    data = ensemble_training_data() if data is None else data
+    if kind == "linear_head":
+        torch.manual_seed(seed)
+        net = MLP(in_features=obs, out_features=act, num_cells=[16, 16], activation_class=nn.ReLU)
+        return LinearHeadActor(net, act)
+    model = make_model(TrajectoryLayout(obs, act, 4), num_steps=1, fit=False, seed=seed)
+    model.normalizer.fit(data["observation"], data["action"] * 2.0)  # readout_scale != 1
+    return PlannerActor(model)
+
+
+def fitted_ensemble(kind: str, make_model, num_samples: int = 8, **kwargs) -> LaplaceEnsembleActor:
+    """A ``LaplaceEnsembleActor`` over :func:`ensemble_actor`, fitted on two batches of
+    :func:`ensemble_training_data`."""
+    data = ensemble_training_data()
+    policy = LaplaceEnsembleActor(
+        ensemble_actor(kind, make_model, data), num_samples=num_samples, **kwargs
+    )
+    policy.fit_laplace([data[:128], data[128:]])
+    return policy
+
+
+def ensemble_observation_td(batch: int = 5, seed: int = 1, scale: float = 0.5) -> TensorDict:
+    """``batch`` observations of the ensemble tests, ``scale`` times standard normal."""
+    gen = torch.Generator().manual_seed(seed)
+    return TensorDict(
+        {"observation": torch.randn(batch, ENSEMBLE_OBS_DIM, generator=gen) * scale}, [batch]
+    )

@@ -1,4 +1,7 @@
-"""Tests for the Laplace ensemble policy of DUAL (Eq. 8 fit, Eq. 9 policy, Eq. 10 in a collector)."""
+"""Tests for the Laplace ensemble policy of DUAL (Eq. 8 fit, Eq. 9 policy).
+
+With a transition model (Eq. 10, collector): ``test_laplace_ensemble_transition.py``;
+over a squashed actor: ``test_laplace_ensemble_squash.py``."""
 
 from __future__ import annotations
 
@@ -7,63 +10,20 @@ import copy
 import pytest
 import torch
 from tensordict import TensorDict
-from tensordict.nn import TensorDictSequential
-from torch import nn
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import MLP, ValueOperator
-from toy import assert_all_close, fine_tuned, previous_step_td
+from toy import ENSEMBLE_ACTION_DIM as ACT
+from toy import ENSEMBLE_OBS_DIM as OBS
+from toy import assert_all_close
+from toy import ensemble_actor as _actor
+from toy import ensemble_observation_td as _obs_td
+from toy import ensemble_training_data as _training_data
+from toy import fitted_ensemble as _fitted_policy
 
-from torchrl_dual.diffusion import TrajectoryLayout
-from torchrl_dual.modules import (
-    LaplaceEnsembleActor,
-    LinearHeadActor,
-    PlannerActor,
-    ShiftAwareNoise,
-    TransitionModel,
-)
-from torchrl_dual.modules.actors.last_layer_actor import TanhSquash
+from torchrl_dual.modules import LaplaceEnsembleActor, LinearHeadActor
 from torchrl_dual.objectives.weighted_map_actor import WeightedMAPActorLoss
-from torchrl_dual.transforms import PreviousTransition
 
-OBS, ACT = 2, 2
 ACTOR_KINDS = ("linear_head", "planner")
-
-
-# ----------------------------------------------------------------------------- factories
-def _training_data(
-    n: int = 256, obs_dim: int = OBS, action_dim: int = ACT, seed: int = 0
-) -> TensorDict:
-    """States in a small cluster around the origin; actions a smooth function of the state."""
-    gen = torch.Generator().manual_seed(seed)
-    observation = torch.randn(n, obs_dim, generator=gen) * 0.3
-    action = torch.tanh(observation[:, :action_dim]) + 0.1 * torch.randn(
-        n, action_dim, generator=gen
-    )
-    return TensorDict({"observation": observation, "action": action}, [n])
-
-
-def _actor(kind: str, make_model, data: TensorDict | None = None, seed: int = 0):
-    """A tiny ``LinearHeadActor`` (ReLU ``MLP``) or ``PlannerActor`` (normalizer fitted on ``data``)."""
-    data = _training_data() if data is None else data
-    if kind == "linear_head":
-        torch.manual_seed(seed)
-        net = MLP(in_features=OBS, out_features=ACT, num_cells=[16, 16], activation_class=nn.ReLU)
-        return LinearHeadActor(net, ACT)
-    model = make_model(TrajectoryLayout(OBS, ACT, 4), num_steps=1, fit=False, seed=seed)
-    model.normalizer.fit(data["observation"], data["action"] * 2.0)  # readout_scale != 1
-    return PlannerActor(model)
-
-
-def _fitted_policy(kind: str, make_model, num_samples: int = 8, **kwargs) -> LaplaceEnsembleActor:
-    data = _training_data()
-    policy = LaplaceEnsembleActor(_actor(kind, make_model, data), num_samples=num_samples, **kwargs)
-    policy.fit_laplace([data[:128], data[128:]])
-    return policy
-
-
-def _obs_td(batch: int = 5, seed: int = 1, scale: float = 0.5) -> TensorDict:
-    gen = torch.Generator().manual_seed(seed)
-    return TensorDict({"observation": torch.randn(batch, OBS, generator=gen) * scale}, [batch])
 
 
 # ----------------------------------------------------------------------------- (a) one pass
@@ -340,61 +300,6 @@ def test_wraps_a_torchrl_mlp_actor_as_iql_plus_la_and_a_planner_actor(make_model
     assert policy(_obs_td(3))["action"].shape == (3, ACT)
 
 
-# ----------------------------------------------------------------------------- (h) collector
-@pytest.mark.parametrize("kind", ["shared", "frozen-copy"])
-def test_collects_pendulum_with_shift_aware_noise_and_stores_all_keys(make_model, kind):
-    from torchrl.collectors import Collector
-    from torchrl.envs import GymEnv, TransformedEnv
-
-    env = TransformedEnv(GymEnv("Pendulum-v1"))
-    env.append_transform(PreviousTransition())
-    env.set_seed(0)
-    torch.manual_seed(0)
-    model = make_model(TrajectoryLayout(3, 1, 4), num_steps=1, fit=False)
-    observation = env.observation_spec["observation"].rand((256,))
-    model.normalizer.fit(observation, env.action_spec.rand((256,)))
-    transition = (
-        TransitionModel(model, frozen=False)
-        if kind == "shared"
-        else TransitionModel(fine_tuned(model, scale=0.1))
-    )
-    ensemble = LaplaceEnsembleActor(
-        PlannerActor(model), num_samples=5, sample_action=False, transition_model=transition
-    )
-    ensemble.fit_laplace([TensorDict({"observation": observation}, [256])])
-    policy = TensorDictSequential(ensemble, ShiftAwareNoise(env.action_spec))
-    collector = Collector(
-        env, policy, frames_per_batch=50, total_frames=100, auto_register_policy_transforms=False
-    )
-    try:
-        batches = list(collector)
-    finally:
-        collector.shutdown()
-    assert len(batches) == 2
-    for data in batches:
-        assert data.batch_size == (50,)
-        for key in ("action", "loc", "scale", "epistemic_variance", "shift_distance"):
-            assert key in data.keys(True, True), key
-        assert (data["epistemic_variance"] > 0).all()
-        assert data["action"].abs().max() <= 2.0  # projected on the Pendulum action spec
-        std = policy[0].actor.std.detach()
-        torch.testing.assert_close(data["scale"] ** 2, data["epistemic_variance"] + std**2)
-        # d_t = ‖p(s' | s_(t-1), a_(t-1)) − s_t‖ with the executed a_(t-1); 0 after reset
-        valid = data["previous_valid"]
-        with torch.no_grad():
-            predicted = transition.predict(data["previous_observation"], data["previous_action"])
-        expected = torch.where(
-            valid, (predicted - data["observation"]).norm(dim=-1, keepdim=True), 0
-        )
-        torch.testing.assert_close(data["shift_distance"], expected, rtol=1e-4, atol=1e-5)
-        torch.testing.assert_close(
-            data["previous_action"][1:][valid[1:, 0]], data["action"][:-1][valid[1:, 0]]
-        )
-        assert (data["shift_distance"][valid] > 0).all()
-        scale = (data["scale"] ** 2 + 0.5 * data["shift_distance"]).sqrt()
-        torch.testing.assert_close(data["exploration_scale"], scale)
-
-
 # ----------------------------------------------------------------------------- (i) errors
 def test_random_mode_before_fit_raises_and_deterministic_mode_works(make_model):
     policy = LaplaceEnsembleActor(_actor("linear_head", make_model))
@@ -460,101 +365,6 @@ def test_without_sample_action_the_ensemble_leaves_the_draw_to_the_next_module(m
     assert (out["epistemic_variance"] > 0).all()
 
 
-# ----------------------------------------------------------------------------- (k) transition
-def _previous_td(batch: int = 6, valid=None) -> TensorDict:
-    return previous_step_td(batch, valid=valid, obs_dim=OBS, action_dim=ACT, observation_scale=0.2)
-
-
-@pytest.mark.parametrize("kind", ["shared", "frozen-copy", "linear-head"])
-def test_with_a_transition_model_the_ensemble_also_writes_the_expected_observation(
-    make_model, kind
-):
-    if kind == "linear-head":  # any last-layer actor: the generic two calls
-        policy = _fitted_policy("linear_head", make_model)
-        transition = TransitionModel(_actor("planner", make_model).model)
-    else:
-        policy = _fitted_policy("planner", make_model)
-        model = policy.actor.model
-        transition = (
-            TransitionModel(model, frozen=False)
-            if kind == "shared"
-            else TransitionModel.frozen_copy(fine_tuned(model))
-        )
-    policy.transition_model = transition
-    valid = torch.tensor([[True], [False], [True], [True], [False], [True]])
-    td = _previous_td(valid=valid)
-    torch.manual_seed(2)
-    with torch.no_grad():  # the action path: one-pass shortcut for the planner actor
-        with_transition = policy(td.clone())
-    torch.manual_seed(2)
-    policy.transition_model = None
-    without = policy(td.clone())  # autograd on: the plain trunk pass
-    predicted = transition.predict(td["previous_observation"], td["previous_action"])
-    expected = torch.where(valid, predicted, td["observation"])
-    torch.testing.assert_close(with_transition["expected_observation"], expected)
-    assert "expected_observation" not in without.keys()
-    keys = ("loc", "scale", "epistemic_variance", "action", "action_log_prob")
-    assert_all_close([with_transition[k] for k in keys], [without[k] for k in keys])
-
-
-def test_the_transition_model_adds_its_keys_and_is_registered_once(make_model):
-    actor = _actor("planner", make_model)
-    frozen = TransitionModel.frozen_copy(actor.model)
-    policy = LaplaceEnsembleActor(actor, transition_model=frozen)
-    assert policy.in_keys == [
-        "observation",
-        "previous_observation",
-        "previous_action",
-        "previous_valid",
-    ]
-    assert policy.out_keys[-1] == "expected_observation"
-    state = policy.state_dict()
-    frozen_keys = [key for key in state if key.startswith("transition_model.")]
-    assert sorted(frozen_keys) == sorted(
-        f"transition_model.model.{k}" for k in frozen.model.state_dict()
-    )
-    shared = LaplaceEnsembleActor(
-        actor, transition_model=TransitionModel(actor.model, frozen=False)
-    )
-    assert not any(key.startswith("transition_model.") for key in shared.state_dict())
-    assert set(shared.state_dict()) == set(LaplaceEnsembleActor(actor).state_dict())
-
-
-def test_deterministic_modes_skip_the_transition_query(make_model):
-    policy = _fitted_policy("planner", make_model)
-    policy.transition_model = TransitionModel(policy.actor.model, frozen=False)
-    with set_exploration_type(ExplorationType.DETERMINISTIC):
-        out = policy(_obs_td(4))  # no previous_* entries needed
-    assert "expected_observation" not in out.keys()
-    torch.testing.assert_close(out["action"], policy.actor(_obs_td(4)["observation"]))
-
-
-def test_a_missing_previous_entry_names_the_ensemble_and_the_transform(make_model):
-    policy = _fitted_policy("planner", make_model)
-    policy.transition_model = TransitionModel(policy.actor.model, frozen=False)
-    with pytest.raises(
-        KeyError, match=r"LaplaceEnsembleActor reads 'previous_action'.*PreviousTransition"
-    ):
-        policy(_previous_td().exclude("previous_action"))
-
-
-def test_a_non_last_layer_actor_or_transition_model_is_rejected(make_model):
-    with pytest.raises(TypeError, match=r"needs a LastLayerActor.*got Linear.*from_actor"):
-        LaplaceEnsembleActor(nn.Linear(2, 2))
-    actor = _actor("planner", make_model)
-    with pytest.raises(TypeError, match="transition_model must be a TransitionModel, got function"):
-        LaplaceEnsembleActor(actor, transition_model=lambda s, a: s)
-
-
-def test_a_frozen_transition_model_on_the_actors_own_planner_is_refused(make_model):
-    from torchrl_dual.modules import PlannerActor, TransitionModel
-
-    model = make_model(num_steps=1)
-    actor = PlannerActor(model)
-    with pytest.raises(ValueError, match="frozen=False"):
-        LaplaceEnsembleActor(actor, transition_model=TransitionModel(model))
-
-
 # ----------------------------------------------------------------------------- no-UQ ablation
 @pytest.mark.parametrize("kind", ACTOR_KINDS)
 def test_zero_samples_act_with_the_map_mean_and_the_aleatoric_std_only(kind, make_model):
@@ -573,73 +383,3 @@ def test_zero_samples_act_with_the_map_mean_and_the_aleatoric_std_only(kind, mak
     assert not torch.equal(first, second)  # still explores with σ̄
     with pytest.raises(ValueError, match="num_samples"):
         LaplaceEnsembleActor(actor, num_samples=-1)
-
-
-# ----------------------------------------------------------------------------- squashed actor
-def _squashed_pair(num_samples: int = 6):
-    """The same fitted ensemble twice: with ``TanhSquash(low, high)`` and without (shared
-    weights, posterior and draws); ``(squashed, affine, low, high)``."""
-    low, high = torch.tensor([-1.0, 0.0]), torch.tensor([1.0, 2.0])
-    affine = _fitted_policy("linear_head", None, num_samples=num_samples)
-    layers = nn.Sequential(*affine.actor.trunk, affine.actor.head)  # the same weights
-    squashed_actor = LinearHeadActor(layers, ACT, squash=TanhSquash(low, high))
-    squashed = LaplaceEnsembleActor(squashed_actor, num_samples=num_samples)
-    squashed.load_state_dict(affine.state_dict(), strict=False)  # σ̄, posterior, draws
-    return squashed, affine, low, high
-
-
-def test_squashed_members_are_the_squash_of_the_affine_members():
-    squashed, affine, low, high = _squashed_pair()
-    assert affine.actor.squash is None and squashed.actor.head is affine.actor.head
-    observation = _obs_td(9, scale=3.0)["observation"]
-    with torch.no_grad():
-        pre = affine.member_actions(observation)
-        members = squashed.member_actions(observation)
-    torch.testing.assert_close(members, low + (high - low) * (torch.tanh(pre) + 1) / 2)
-    assert (members >= low).all() and (members <= high).all()
-
-
-def test_squashed_loc_and_epistemic_are_the_mean_and_variance_of_the_squashed_members():
-    squashed, affine, low, high = _squashed_pair(num_samples=7)
-    td = _obs_td(6, scale=3.0)
-    with torch.no_grad():
-        out = squashed(td.clone())
-        members = squashed.member_actions(td["observation"])
-        pre_loc = affine(td.clone())["loc"]
-    torch.testing.assert_close(out["loc"], members.mean(0))
-    torch.testing.assert_close(out["epistemic_variance"], members.var(0, correction=0))
-    torch.testing.assert_close(out["scale"] ** 2, out["epistemic_variance"] + squashed.actor.std**2)
-    assert (out["epistemic_variance"] > 0).all()
-    # Eq. 9 averages actions: the mean of tanh is not tanh of the mean
-    assert not torch.allclose(out["loc"], low + (high - low) * (torch.tanh(pre_loc) + 1) / 2)
-
-
-def test_a_squashed_actor_has_the_same_posterior_and_a_squashed_map_action():
-    squashed, affine, low, high = _squashed_pair()
-    data = _training_data()
-    squashed.fit_laplace([data])
-    affine.fit_laplace([data])
-    # the Gram matrix, λ, θ* and σ_head: the squash does not enter the posterior
-    got, expected = squashed.laplace.state_dict(), affine.laplace.state_dict()
-    names = [n for n, v in expected.items() if isinstance(v, torch.Tensor)]
-    assert {"G_raw", "theta_map", "noise_variance", "prior_precision"} <= set(names)
-    assert_all_close([got[n] for n in names], [expected[n] for n in names])
-    observation = _obs_td(5)["observation"]
-    with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
-        action = squashed(_obs_td(5))["action"]
-        map_pre = affine(_obs_td(5))["action"]
-    torch.testing.assert_close(action, squashed.actor(observation))
-    torch.testing.assert_close(action, low + (high - low) * (torch.tanh(map_pre) + 1) / 2)
-    zero = LaplaceEnsembleActor(squashed.actor, num_samples=0, sample_action=False)
-    with set_exploration_type(ExplorationType.RANDOM), torch.no_grad():
-        torch.testing.assert_close(zero(_obs_td(5))["loc"], action)
-
-
-def test_gradients_reach_the_head_through_the_squash_of_each_member():
-    squashed, affine, low, high = _squashed_pair(num_samples=3)
-    observation = _obs_td(4, scale=2.0)["observation"]
-    squashed.member_actions(observation).sum().backward()
-    pre = affine.member_actions(observation).detach()  # [M, B, A]
-    # d/db of Σ_m Σ_b c + r tanh(b + ...) = Σ_m Σ_b r (1 - tanh²), r = (high - low) / 2
-    expected = ((high - low) / 2 * (1 - torch.tanh(pre) ** 2)).sum((0, 1))
-    torch.testing.assert_close(squashed.actor.head.bias.grad, expected)
