@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import torch
 from omegaconf import DictConfig
+from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.modules import MLP, ProbabilisticActor, ValueOperator
@@ -39,6 +40,22 @@ class Critic:
     loss: IQLLoss
     optimizer: torch.optim.Optimizer
     target_updater: SoftUpdate
+
+    def step(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
+        """One critic update of Alg. 1 (lines 7 and 15): one gradient step on IQL's
+        Q loss (TD to ``r + γ V(s')``) plus its expectile V loss, then the soft update
+        of the target Q networks. Returns the two losses ``(q_loss, v_loss)``, detached.
+
+        The IQL baseline does not call it: its update sums the actor loss into the same
+        backward pass (:meth:`~torchrl_dual.recipe.IQLLearner.update`).
+        """
+        q_loss, _ = self.loss.qvalue_loss(batch)
+        v_loss, _ = self.loss.value_loss(batch)
+        self.optimizer.zero_grad(set_to_none=True)
+        (q_loss + v_loss).backward()
+        self.optimizer.step()
+        self.target_updater.step()
+        return q_loss.detach(), v_loss.detach()
 
 
 class _NoActor(nn.Module):

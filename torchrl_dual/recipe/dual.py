@@ -99,13 +99,7 @@ class DualLearner(Learner):
 
     def update(self, batch: TensorDictBase) -> dict:
         """One critic (IQL) and one actor (Eq. 7) gradient step, Alg. 1 lines 7-8 / 15-16."""
-        critic = self.critic
-        q_loss, _ = critic.loss.qvalue_loss(batch)
-        v_loss, _ = critic.loss.value_loss(batch)
-        critic.optimizer.zero_grad(set_to_none=True)
-        (q_loss + v_loss).backward()
-        critic.optimizer.step()
-        critic.target_updater.step()
+        q_loss, v_loss = self.critic.step(batch)
         out = self.actor_loss(batch)
         self.actor_optimizer.zero_grad(set_to_none=True)
         out["loss_actor"].backward()
