@@ -23,15 +23,10 @@ from torchrl.data import Bounded
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchrl_dual import DDPMLastStepActor, WeightedMAPActorLoss, make_dual_policy
+from torchrl_dual.objectives.diffql_actor_loss import DiffQLActorLoss, min_q
 from torchrl_dual.recipe import O2ORun, check_command_line, compose_checked, run
 from torchrl_dual.recipe.critics import make_iql_critic
-from torchrl_dual.recipe.diffql import (
-    ActionBox,
-    DiffQLActorLoss,
-    DiffQLLALearner,
-    make_diffusion_actor,
-    min_q,
-)
+from torchrl_dual.recipe.diffql import ActionBox, DiffQLLALearner, make_diffusion_actor
 
 REPO = Path(__file__).resolve().parents[2]
 CONFIG_DIR = REPO / "recipes" / "config"
@@ -124,7 +119,8 @@ def test_diffql_la_runs_end_to_end_on_frozenlake_with_one_hot_actions(cache_dir,
     assert state["stages_done"] == ["actor_critic", "laplace", "offline_eval"]
     assert {"actor", "ensemble"} <= set(state)
     # each weight once: the ensemble's own state is σ̄, the posterior and its draws
-    assert not any(k.startswith("actor.") and k != "actor.log_std" for k in state["ensemble"])
+    shared = ("actor.sampler.", "actor.trunk.", "actor.head.")  # the DDPM actor's
+    assert not any(k.startswith(shared) for k in state["ensemble"])
     assert {"actor.log_std", "weight_deviation", "bias_deviation"} <= set(state["ensemble"])
     actions = state["online_data"]["action"]  # executed: the env kit's one-hot projection
     assert ((actions == 0) | (actions == 1)).all() and (actions.sum(-1) == 1).all()
@@ -164,7 +160,7 @@ def test_diffql_la_s_sigma_bar_maximises_the_weighted_gaussian_likelihood(cache_
     learner.fit_laplace()
     actor = learner.last_step
     batch = next(learner.run.all_transitions())
-    weight = learner.weights.advantage_weights(batch)
+    weight = learner.laplace_weight_fn(batch)
     with torch.no_grad():
         mean = actor(batch["observation"])
 
@@ -228,7 +224,7 @@ def pieces(eta: float = 1.0):
     actor = make_diffusion_actor(cfg, OBS_DIM, ACTION_DIM)
     critic = make_iql_critic(cfg, OBS_DIM, ACTION_DIM)
     box = ActionBox(-torch.ones(ACTION_DIM), torch.ones(ACTION_DIM))
-    return actor, critic, DiffQLActorLoss(actor, critic, box, eta=eta)
+    return actor, critic, DiffQLActorLoss.from_iql(actor, critic.loss, box, eta=eta)
 
 
 def critic_parameters(critic) -> list[torch.Tensor]:
@@ -270,8 +266,8 @@ def test_min_q_is_the_smaller_twin_and_differentiable_in_the_action():
     _, critic, _ = pieces()
     batch = toy_batch(16)
     action = batch["action"].clone().requires_grad_(True)
-    q = min_q(critic, batch["observation"], action)
     network = critic.loss.qvalue_network
+    q = min_q(network, critic.loss.qvalue_network_params, batch["observation"], action)
     twins = []
     for member in critic.loss.qvalue_network_params.unbind(0):
         with member.to_module(network):

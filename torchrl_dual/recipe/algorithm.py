@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 from omegaconf import DictConfig
 
+from torchrl_dual.recipe.errors import ConfigError
 from torchrl_dual.recipe.learner import Learner
 from torchrl_dual.recipe.o2o_run import O2ORun, run_o2o
 from torchrl_dual.recipe.rules import Integer, Real, key
@@ -54,3 +55,22 @@ class OnlineSettings:
 
 def check_nothing(cfg: DictConfig) -> None:
     """No checks across keys."""
+
+
+@dataclass
+class NoShiftExplorationSettings:
+    """``exploration`` of a baseline without a transition model (``iql_la``, ``diffql_la``):
+    Eq. (10) with ``λ = 0``."""
+
+    shift_weight: float = key(Real(0), "λ of Eq. 10; must be 0 (no transition model)")
+
+
+def check_no_shift_weight(cfg: DictConfig) -> None:
+    """``exploration.shift_weight`` must be 0: the actor predicts no next state ``ŝ_t``."""
+    if cfg.exploration.shift_weight != 0:
+        raise ConfigError(
+            "exploration.shift_weight",
+            cfg.exploration.shift_weight,
+            f"must be 0 for {cfg.algo}: its actor has no transition model for Eq. 10's ŝ_t; "
+            "shift-aware exploration is DUAL's (algo=dual)",
+        )

@@ -6,6 +6,7 @@ action (``actor.num_steps = 5`` as in the paper) with Wang et al.'s variance-pre
 schedule ``β_t = 1 − exp(−β_min/N − (β_max − β_min)(2t − 1)/(2N²))`` (``β_min = 0.1``,
 ``β_max = 10``; TorchRL's default linear ``1e-4 … 0.02`` schedule would leave
 ``ᾱ_N ≈ 0.95`` at ``N = 5``, far from noise). It is trained with
+:class:`~torchrl_dual.objectives.diffql_actor_loss.DiffQLActorLoss`,
 
 ``L(θ) = L_bc(θ) − η · mean Q(s, a_π) / mean |Q(s, a_π)|``,
 
@@ -50,19 +51,25 @@ from typing import Any
 
 import torch
 from omegaconf import DictConfig
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
-from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import DiffusionActor
-from torchrl.objectives import DiffusionBCLoss
 
 from torchrl_dual import DDPMLastStepActor, WeightedMAPActorLoss, make_dual_policy
-from torchrl_dual.recipe.algorithm import Algorithm, OnlineSettings, check_nothing
-from torchrl_dual.recipe.critics import CRITICS, Critic
+from torchrl_dual.objectives.diffql_actor_loss import DiffQLActorLoss
+from torchrl_dual.recipe.algorithm import (
+    Algorithm,
+    NoShiftExplorationSettings,
+    OnlineSettings,
+    check_no_shift_weight,
+    check_nothing,
+)
+from torchrl_dual.recipe.critics import CRITICS
 from torchrl_dual.recipe.env_kits import env_kit
-from torchrl_dual.recipe.errors import ConfigError
-from torchrl_dual.recipe.o2o_run import Learner, O2ORun
+from torchrl_dual.recipe.laplace_refits import EnsembleOwnState, LaplaceRefits
+from torchrl_dual.recipe.learner import Learner
+from torchrl_dual.recipe.o2o_run import O2ORun
 from torchrl_dual.recipe.rules import Choice, Either, Integer, Real, key
 
 # ----------------------------------------------------------------------------- settings
@@ -97,24 +104,6 @@ class DiffQLLaplaceSettings:
     )
     temperature: float = key(Real(0), "β of the Laplace fit's weights exp(β (Q - V))")
     max_weight: float = key(Real(0, low_open=True), "clip of those weights")
-
-
-@dataclass
-class DiffQLExplorationSettings:
-    """``algo/diffql_la.yaml``'s ``exploration``: Eq. (10) without its shift term."""
-
-    shift_weight: float = key(Real(0), "λ of Eq. 10; must be 0 (no transition model)")
-
-
-def check_diffql_la(cfg: DictConfig) -> None:
-    """``exploration.shift_weight`` must be 0: Diff-QL has no transition model ``ŝ_t``."""
-    if cfg.exploration.shift_weight != 0:
-        raise ConfigError(
-            "exploration.shift_weight",
-            cfg.exploration.shift_weight,
-            "must be 0 for diffql_la: Diff-QL has no transition model for Eq. 10's "
-            "ŝ_t (DUAL's planner provides one: algo=dual)",
-        )
 
 
 # ----------------------------------------------------------------------------- networks
@@ -166,57 +155,6 @@ class ActionBox(nn.Module):
         return torch.maximum(torch.minimum(action, self.high), self.low)
 
 
-def min_q(critic: Critic, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-    """``min_k Q_k(s, a)`` of the twin critics with detached weights, ``[*B]``: gradients
-    reach ``action`` (and through it the actor), never the critic."""
-    loss = critic.loss
-    network = loss.qvalue_network
-    td = TensorDict(observation=observation, action=action, batch_size=observation.shape[:-1])
-    values = []
-    for member in loss.qvalue_network_params.detach().unbind(0):
-        with member.to_module(network):
-            values.append(network(td.clone(False)).get(loss.tensor_keys.state_action_value))
-    return torch.stack(values).min(0).values.squeeze(-1)
-
-
-class DiffQLActorLoss:
-    """Diff-QL's actor loss ``L_bc + η · (−mean Q(s, a_π) / mean |Q(s, a_π)|)``.
-
-    ``L_bc`` is TorchRL's :class:`~torchrl.objectives.DiffusionBCLoss` on the batch
-    actions; ``a_π`` the actor's stochastic DDPM chain (``ExplorationType.RANDOM``),
-    differentiable through all ``N`` steps and clamped by ``box``; ``Q`` is :func:`min_q`
-    (critic weights detached) and the normaliser ``mean |Q|`` is detached, so the Q-term
-    is invariant to the critic's scale and trains the actor only. Not an ``nn.Module``:
-    it holds no weights of its own.
-    """
-
-    def __init__(
-        self, actor: DiffusionActor, critic: Critic, box: ActionBox, *, eta: float
-    ) -> None:
-        self.actor, self.critic, self.box, self.eta = actor, critic, box, eta
-        self.bc_loss = DiffusionBCLoss(actor)
-
-    def sample_actions(self, observation: torch.Tensor) -> torch.Tensor:
-        """``a_π``, differentiable with respect to the actor's weights."""
-        with set_exploration_type(ExplorationType.RANDOM):
-            return self.box(self.actor.module(observation))
-
-    def q_term(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(−mean Q(s, a_π) / mean |Q(s, a_π)|, mean Q(s, a_π))``."""
-        q = min_q(self.critic, observation, self.sample_actions(observation))
-        return -q.mean() / q.abs().mean().detach().clamp_min(1e-6), q.mean().detach()
-
-    def __call__(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
-        bc = self.bc_loss(batch)["loss_diffusion_bc"]
-        q_term, q_pi = self.q_term(batch["observation"])
-        return {
-            "loss_actor": bc + self.eta * q_term,
-            "loss_bc": bc.detach(),
-            "loss_q": q_term.detach(),
-            "q_pi": q_pi,
-        }
-
-
 # ----------------------------------------------------------------------------- learners
 class DiffQLLearner(Learner):
     """Diff-QL: one ``budget.offline_updates`` stage offline, then the same update online."""
@@ -232,7 +170,9 @@ class DiffQLLearner(Learner):
         self.actor = make_diffusion_actor(cfg, obs_dim, action_dim)
         self.critic = CRITICS[cfg.critic.name][1](cfg, obs_dim, action_dim)
         self.box = ActionBox(spec.space.low, spec.space.high).to(cfg.device)
-        self.actor_loss = DiffQLActorLoss(self.actor, self.critic, self.box, eta=cfg.actor.eta)
+        self.actor_loss = DiffQLActorLoss.from_iql(
+            self.actor, self.critic.loss, self.box, eta=cfg.actor.eta
+        )
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor.lr)
         clamp = TensorDictModule(self.box, in_keys=["action"], out_keys=["action"])
         self.evaluation_policy = TensorDictSequential(self.actor, clamp)
@@ -260,13 +200,7 @@ class DiffQLLearner(Learner):
 
     def update(self, batch: TensorDictBase) -> dict:
         """One IQL critic step, then one actor step on ``L_bc + η · loss_q``."""
-        critic = self.critic
-        q_loss, _ = critic.loss.qvalue_loss(batch)
-        v_loss, _ = critic.loss.value_loss(batch)
-        critic.optimizer.zero_grad(set_to_none=True)
-        (q_loss + v_loss).backward()
-        critic.optimizer.step()
-        critic.target_updater.step()
+        q_loss, v_loss = self.critic.step(batch)
         losses = self.actor_loss(batch)
         self.actor_optimizer.zero_grad(set_to_none=True)
         losses["loss_actor"].backward()
@@ -279,30 +213,10 @@ class DiffQLLearner(Learner):
         }
 
 
-class _EnsembleOwnState:
-    """The ensemble's state without the DDPM actor's weights, which the checkpoint holds
-    as ``actor`` (``DDPMLastStepActor`` shares them): ``σ̄``, the posterior, the draws."""
-
-    def __init__(self, ensemble: nn.Module) -> None:
-        self.ensemble = ensemble
-
-    @staticmethod
-    def _own(name: str) -> bool:
-        return not name.startswith("actor.") or name == "actor.log_std"
-
-    def state_dict(self) -> dict:
-        return {k: v for k, v in self.ensemble.state_dict().items() if self._own(k)}
-
-    def load_state_dict(self, state: dict) -> None:
-        missing, unexpected = self.ensemble.load_state_dict(state, strict=False)
-        if unexpected or any(self._own(name) for name in missing):
-            raise RuntimeError(f"ensemble state: missing {missing}, unexpected {unexpected}")
-
-
-class DiffQLLALearner(DiffQLLearner):
+class DiffQLLALearner(LaplaceRefits, DiffQLLearner):
     """Diff-QL w LA: Diff-QL's training, acting with the Laplace ensemble of its last
     DDPM step (Eq. 8-9) and ``λ = 0`` noise, refitted every ``budget.laplace_refit_every``
-    updates."""
+    updates (:class:`LaplaceRefits`) with ``σ̄`` = :meth:`noise_std`."""
 
     title = "Diff-QL w LA"
     shared_stages = ("actor_critic",)  # offline_cache: Diff-QL's offline updates only
@@ -319,86 +233,48 @@ class DiffQLLALearner(DiffQLLearner):
         cfg, la = run.cfg, run.cfg.laplace
         self.last_step = DDPMLastStepActor(self.actor, latent="zero")
         # only its advantage weights are used (σ̄ and Eq. 8's Hessian); Diff-QL trains the actor
-        self.weights = WeightedMAPActorLoss.from_iql(
+        self.laplace_weight_fn = WeightedMAPActorLoss.from_iql(
             self.last_step,
             self.critic.loss,
             weighting="advantage",
             temperature=la.temperature,
             max_weight=la.max_weight,
-        )
+        ).advantage_weights
         self.policy = make_dual_policy(
             self.last_step,
             run.env.action_spec,
             num_samples=la.num_samples,
             prior_precision=la.prior_precision,
-            shift_weight=0.0,  # no transition model: check_diffql_la
+            shift_weight=0.0,  # no transition model: check_no_shift_weight
             action_projection=env_kit(cfg).action_projection,
             device=cfg.device,
         )
         self.ensemble = self.policy[0]
         self.exploration_policy = self.policy  # Eq. 9 + Eq. 10 with λ = 0
         self.evaluation_policy = self.ensemble  # the MAP mean under DETERMINISTIC
-        self.updates_since_refit = 0
 
     def modules(self) -> dict:
         """Diff-QL's, and the ensemble's own state (the actor's weights are saved once)."""
-        return {**super().modules(), "ensemble": _EnsembleOwnState(self.ensemble)}
+        return {**super().modules(), "ensemble": EnsembleOwnState(self.ensemble, self.actor)}
 
     def shared_modules(self) -> dict:
         """Diff-QL's offline phase; ``σ̄`` and the posterior are fitted after it."""
         return super().modules()
 
-    def state_dict(self) -> dict:
-        return {"updates_since_refit": self.updates_since_refit}
-
-    def load_state_dict(self, state: dict) -> None:
-        self.updates_since_refit = state["updates_since_refit"]
-
-    def offline_stages(self) -> list:
-        return [*super().offline_stages(), ("laplace", self.fit_laplace)]
-
-    def update(self, batch: TensorDictBase) -> dict:
-        metrics = super().update(batch)
-        self.updates_since_refit += 1
-        return metrics
-
-    def after_updates(self) -> None:
-        if self.updates_since_refit >= self.cfg.budget.laplace_refit_every:
-            self.fit_laplace()
-
-    def batch_metrics(self, batch: TensorDictBase) -> dict:
-        return {"epistemic_std": float(batch["epistemic_variance"].mean().sqrt())}
-
     @torch.no_grad()
-    def fit_action_std(self) -> torch.Tensor:
+    def noise_std(self) -> torch.Tensor:
         """``σ̄_a² = Σ_i w_i (a_i − μ(s_i))_a² / Σ_i w_i`` on ``D_offline ∪ D_online``: the
         maximiser of Eq. (7) in ``σ̄`` at the current mean ``μ`` (the zero-latent chain)
-        with the same weights ``w_i`` as Eq. (8); Diff-QL's loss trains no ``σ̄``. ``[A]``."""
+        with the same weights ``w_i`` as Eq. (8); Diff-QL's loss trains no ``σ̄``. ``[A]``.
+        :meth:`~LaplaceRefits.fit_laplace` sets it, then fits Eq. (8) (Alg. 1 lines 9
+        and 17 on the last DDPM step)."""
         total, weight_sum = 0.0, 0.0
         for batch in self.run.all_transitions():
-            weight = self.weights.advantage_weights(batch)
+            weight = self.laplace_weight_fn(batch)
             residual = batch["action"] - self.last_step(batch["observation"])
             total = total + (weight[:, None] * residual.square()).sum(0)
             weight_sum = weight_sum + weight.sum()
         return (total / weight_sum).sqrt()
-
-    def fit_laplace(self) -> None:
-        """Alg. 1 lines 9 and 17 on the last DDPM step: ``σ̄`` (:meth:`fit_action_std`),
-        then Eq. (8) on ``D_offline ∪ D_online`` with the clipped advantage weights; no
-        posterior with ``laplace.num_samples=0`` (the MAP mean and ``σ̄`` only)."""
-        self.updates_since_refit = 0
-        std = self.fit_action_std()
-        actor = self.last_step
-        with torch.no_grad():
-            actor.log_std.copy_(std.log().clamp(actor.min_log_std, actor.max_log_std))
-        metrics = {"noise_std": float(actor.std.mean())}
-        if self.ensemble.num_samples > 0:
-            with torch.no_grad():
-                laplace = self.ensemble.fit_laplace(
-                    self.run.all_transitions(), weight_fn=self.weights.advantage_weights
-                )
-            metrics["prior_precision"] = laplace.prior_precision
-        self.run.log(metrics, self.run.updates, "laplace/")
 
 
 DIFFQL = Algorithm(
@@ -412,10 +288,10 @@ DIFFQL_LA = Algorithm(
     sections={
         "actor": DiffQLActorSettings,
         "laplace": DiffQLLaplaceSettings,
-        "exploration": DiffQLExplorationSettings,
+        "exploration": NoShiftExplorationSettings,
         "online": OnlineSettings,
     },
     critics=("iql",),
-    check=check_diffql_la,
+    check=check_no_shift_weight,
     learner=DiffQLLALearner,
 )

@@ -48,15 +48,18 @@ from dataclasses import dataclass
 from typing import Any
 
 import torch
-from omegaconf import DictConfig
 
 from torchrl_dual import LinearHeadActor, WeightedMAPActorLoss, make_dual_policy
-from torchrl_dual.recipe.algorithm import Algorithm, OnlineSettings
+from torchrl_dual.recipe.algorithm import (
+    Algorithm,
+    NoShiftExplorationSettings,
+    OnlineSettings,
+    check_no_shift_weight,
+)
 from torchrl_dual.recipe.dual_settings import LaplaceSettings
 from torchrl_dual.recipe.env_kits import env_kit
-from torchrl_dual.recipe.errors import ConfigError
 from torchrl_dual.recipe.iql import IQLActorSettings, IQLLearner
-from torchrl_dual.recipe.laplace_refits import LaplaceRefits
+from torchrl_dual.recipe.laplace_refits import EnsembleOwnState, LaplaceRefits
 from torchrl_dual.recipe.o2o_run import O2ORun
 from torchrl_dual.recipe.rules import Choice, Either, Real, key
 
@@ -85,51 +88,6 @@ class IQLLALaplaceSettings:
         ),
         "σ̄: the IQL actor's RMS std at each fit, or a fixed value",
     )
-
-
-@dataclass
-class NoShiftExplorationSettings:
-    """``exploration`` of a baseline without a transition model: Eq. (10) with ``λ = 0``."""
-
-    shift_weight: float = key(Real(0), "λ of Eq. 10; must be 0 (no transition model)")
-
-
-def check_no_shift_weight(cfg: DictConfig) -> None:
-    """``exploration.shift_weight`` must be 0: the actor predicts no next state ``ŝ_t``."""
-    if cfg.exploration.shift_weight != 0:
-        raise ConfigError(
-            "exploration.shift_weight",
-            cfg.exploration.shift_weight,
-            f"must be 0 for {cfg.algo}: its actor has no transition model for Eq. 10's ŝ_t; "
-            "shift-aware exploration is DUAL's (algo=dual)",
-        )
-
-
-class _OwnState:
-    """``state_dict``/``load_state_dict`` of the ensemble without the IQL actor's weights
-    (trunk and head), which the IQL loss already saves: σ̄, the squash's box, the
-    posterior and the ``M`` draws."""
-
-    def __init__(self, ensemble: torch.nn.Module) -> None:
-        self.ensemble = ensemble
-        actor = ensemble.actor
-        self.shared = {
-            f"actor.{name}"
-            for name, value in actor.named_parameters()
-            if value is not actor.log_std
-        }
-
-    def state_dict(self) -> dict:
-        state = self.ensemble.state_dict()
-        return {name: value for name, value in state.items() if name not in self.shared}
-
-    def load_state_dict(self, state: dict) -> None:
-        missing, unexpected = self.ensemble.load_state_dict(state, strict=False)
-        if unexpected or set(missing) != self.shared:
-            raise RuntimeError(
-                f"ensemble state: missing {sorted(set(missing) - self.shared)}, "
-                f"unexpected {sorted(unexpected)}"
-            )
 
 
 class IQLLALearner(LaplaceRefits, IQLLearner):
@@ -173,7 +131,7 @@ class IQLLALearner(LaplaceRefits, IQLLearner):
 
     def modules(self) -> dict:
         """IQL's (the loss holds the actor) and the ensemble's own state."""
-        return {**super().modules(), "ensemble": _OwnState(self.ensemble)}
+        return {**super().modules(), "ensemble": EnsembleOwnState(self.ensemble, self.actor)}
 
     def shared_modules(self) -> dict:
         """IQL's offline phase; the ensemble (``M`` draws) is fitted after it."""

@@ -8,7 +8,8 @@ the ensemble's epistemic std of each collected batch. A fit sets ``σ̄`` (if th
 gives one, :meth:`~LaplaceRefits.noise_std`), then fits Eq. (8) on
 ``D_offline ∪ D_online`` with the learner's per-sample weights. The learner sets
 ``ensemble`` (its :class:`~torchrl_dual.modules.LaplaceEnsembleActor`) and
-``laplace_weight_fn``.
+``laplace_weight_fn``. :class:`EnsembleOwnState` is the ensemble's checkpoint entry
+when its actor shares weights with a module the checkpoint already saves.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from typing import Any
 
 import torch
 from tensordict import TensorDictBase
+from torch import nn
 
 from torchrl_dual.modules import LaplaceEnsembleActor
 from torchrl_dual.recipe.o2o_run import O2ORun
@@ -89,3 +91,38 @@ class LaplaceRefits:
     def load_state_dict(self, state: dict[str, Any]) -> None:
         super().load_state_dict(state)
         self.updates_since_refit = state["updates_since_refit"]
+
+
+class EnsembleOwnState:
+    """``state_dict``/``load_state_dict`` of a Laplace ensemble without the entries of its
+    actor that ``saved_elsewhere`` holds (the same tensors), so the checkpoint saves each
+    weight once: the IQL actor's trunk and head (``iql_la``, saved by the IQL loss), the
+    DDPM actor's score network and schedule (``diffql_la``, saved as ``actor``). What is
+    left is the ensemble's own state: ``σ̄`` (``actor.log_std``), the actor's own buffers
+    (e.g. its squash's box), the posterior and the ``M`` draws.
+
+    Args:
+        ensemble (nn.Module): the :class:`~torchrl_dual.modules.LaplaceEnsembleActor`.
+        saved_elsewhere (nn.Module): the module whose tensors the ensemble's actor shares.
+    """
+
+    def __init__(self, ensemble: nn.Module, saved_elsewhere: nn.Module) -> None:
+        self.ensemble = ensemble
+        held = {id(value) for value in saved_elsewhere.state_dict(keep_vars=True).values()}
+        self.shared = {
+            f"actor.{name}"
+            for name, value in ensemble.actor.state_dict(keep_vars=True).items()
+            if id(value) in held
+        }
+
+    def state_dict(self) -> dict[str, Any]:
+        state = self.ensemble.state_dict()
+        return {name: value for name, value in state.items() if name not in self.shared}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        missing, unexpected = self.ensemble.load_state_dict(state, strict=False)
+        if unexpected or set(missing) != self.shared:
+            raise RuntimeError(
+                f"ensemble state: missing {sorted(set(missing) - self.shared)}, "
+                f"unexpected {sorted(unexpected)}"
+            )

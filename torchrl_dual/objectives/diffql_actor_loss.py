@@ -1,0 +1,151 @@
+"""Diff-QL's actor loss (Wang et al. 2023, "Diffusion policies as an expressive policy
+class for offline RL"), the loss of the recipe's ``diffql`` and ``diffql_la`` baselines.
+
+``L(θ) = L_bc(θ) − η · mean Q(s, a_π) / mean |Q(s, a_π)|``: ``L_bc`` is TorchRL's
+:class:`~torchrl.objectives.DiffusionBCLoss` (ε-prediction on the batch actions), ``a_π``
+a sample of the actor's stochastic DDPM chain with gradients through all ``N`` denoising
+steps, clamped to the action box (Wang et al. clip it too), and the normaliser
+``mean |Q|`` is detached (Wang et al.'s). ``Q`` is any ``(observation, action) -> [*B]``
+whose weights do not train here; :func:`min_q` is ``min_k Q_k`` of twin critics with
+detached weights (:meth:`DiffQLActorLoss.from_iql` reads TorchRL ``IQLLoss``'s).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import TensorDictModule
+from tensordict.utils import NestedKey
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.modules import DiffusionActor
+from torchrl.objectives import DiffusionBCLoss
+
+
+def min_q(
+    qvalue_network: TensorDictModule,
+    qvalue_params: TensorDictBase,
+    observation: torch.Tensor,
+    action: torch.Tensor,
+    *,
+    key: NestedKey = "state_action_value",
+) -> torch.Tensor:
+    """``min_k Q_k(s, a)`` of the critics ``qvalue_params`` (leading dimension ``k``, e.g.
+    ``IQLLoss.qvalue_network_params``) with detached weights, ``[*B]``: gradients reach
+    ``action`` (and through it the actor), never the critic.
+
+    Examples:
+        >>> from torch import nn
+        >>> from tensordict import TensorDict
+        >>> from tensordict.nn import TensorDictModule
+        >>> _ = torch.manual_seed(0)
+        >>> net = TensorDictModule(nn.Bilinear(2, 2, 1), in_keys=["observation", "action"],
+        ...                        out_keys=["state_action_value"])
+        >>> one = TensorDict.from_module(net).detach()
+        >>> twins = torch.stack([one, one * 2])  # Q_2 = 2 Q_1
+        >>> s, a = torch.randn(4, 2), torch.randn(4, 2, requires_grad=True)
+        >>> q = min_q(net, twins, s, a)
+        >>> q1 = net(TensorDict(observation=s, action=a, batch_size=[4]))["state_action_value"]
+        >>> torch.equal(q, torch.minimum(q1, 2 * q1).squeeze(-1)), q.requires_grad
+        (True, True)
+    """
+    td = TensorDict(observation=observation, action=action, batch_size=observation.shape[:-1])
+    values = []
+    for member in qvalue_params.detach().unbind(0):
+        with member.to_module(qvalue_network):
+            values.append(qvalue_network(td.clone(False)).get(key))
+    return torch.stack(values).min(0).values.squeeze(-1)
+
+
+class DiffQLActorLoss:
+    """Diff-QL's actor loss ``L_bc + η · (−mean Q(s, a_π) / mean |Q(s, a_π)|)``.
+
+    ``L_bc`` is TorchRL's :class:`~torchrl.objectives.DiffusionBCLoss` on the batch
+    actions; ``a_π`` the actor's stochastic DDPM chain (``ExplorationType.RANDOM``),
+    differentiable through all ``N`` steps and clamped by ``box``; ``Q`` is ``q_value``
+    (:func:`min_q` with critic weights detached, from :meth:`from_iql`) and the
+    normaliser ``mean |Q|`` is detached, so the Q-term is invariant to the critic's scale
+    and trains the actor only. Not an ``nn.Module``: it holds no weights of its own.
+
+    Args:
+        actor (DiffusionActor): TorchRL's DDPM actor.
+        q_value (callable): ``(observation, action) -> Q [*B]``, differentiable in the
+            action; its own weights must not receive gradients.
+        box (callable): ``action -> action`` clamped to the env's action box.
+
+    Keyword Args:
+        eta (float): ``η``, the weight of the normalised Q-term.
+
+    Examples:
+        >>> from torch import nn
+        >>> from tensordict import TensorDict
+        >>> from torchrl.modules import DiffusionActor
+        >>> _ = torch.manual_seed(0)
+        >>> score = nn.Sequential(nn.Linear(2 + 3 + 1, 16), nn.SiLU(), nn.Linear(16, 2))
+        >>> actor = DiffusionActor(2, score_network=score, num_steps=3)
+        >>> q_value = lambda s, a: -(a - 0.5).square().sum(-1)  # best action: 0.5
+        >>> loss = DiffQLActorLoss(actor, q_value, lambda a: a.clamp(-1, 1), eta=1.0)
+        >>> batch = TensorDict(observation=torch.randn(8, 3), action=torch.rand(8, 2),
+        ...                    batch_size=[8])
+        >>> out = loss(batch)
+        >>> sorted(out)
+        ['loss_actor', 'loss_bc', 'loss_q', 'q_pi']
+        >>> out["loss_actor"].backward()
+        >>> all(p.grad is not None for p in actor.parameters())
+        True
+    """
+
+    def __init__(
+        self,
+        actor: DiffusionActor,
+        q_value: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
+        box: Callable[[torch.Tensor], torch.Tensor],
+        *,
+        eta: float,
+    ) -> None:
+        self.actor, self.q_value, self.box, self.eta = actor, q_value, box, eta
+        self.bc_loss = DiffusionBCLoss(actor)
+
+    @classmethod
+    def from_iql(
+        cls,
+        actor: DiffusionActor,
+        iql_loss,
+        box: Callable[[torch.Tensor], torch.Tensor],
+        *,
+        eta: float,
+    ) -> DiffQLActorLoss:
+        """The loss on the twin Q networks of a TorchRL ``IQLLoss`` (its current, not its
+        target, weights; :func:`min_q`)."""
+
+        def q_value(observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+            return min_q(
+                iql_loss.qvalue_network,
+                iql_loss.qvalue_network_params,
+                observation,
+                action,
+                key=iql_loss.tensor_keys.state_action_value,
+            )
+
+        return cls(actor, q_value, box, eta=eta)
+
+    def sample_actions(self, observation: torch.Tensor) -> torch.Tensor:
+        """``a_π``, differentiable with respect to the actor's weights."""
+        with set_exploration_type(ExplorationType.RANDOM):
+            return self.box(self.actor.module(observation))
+
+    def q_term(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(−mean Q(s, a_π) / mean |Q(s, a_π)|, mean Q(s, a_π))``."""
+        q = self.q_value(observation, self.sample_actions(observation))
+        return -q.mean() / q.abs().mean().detach().clamp_min(1e-6), q.mean().detach()
+
+    def __call__(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+        bc = self.bc_loss(batch)["loss_diffusion_bc"]
+        q_term, q_pi = self.q_term(batch["observation"])
+        return {
+            "loss_actor": bc + self.eta * q_term,
+            "loss_bc": bc.detach(),
+            "loss_q": q_term.detach(),
+            "q_pi": q_pi,
+        }
