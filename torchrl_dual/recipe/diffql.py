@@ -56,7 +56,7 @@ from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
 from torchrl.modules import DiffusionActor
 
-from torchrl_dual import DDPMLastStepActor, WeightedMAPActorLoss, make_dual_policy
+from torchrl_dual import DDPMLastStepActor, WeightedMAPActorLoss
 from torchrl_dual.objectives.diffql_actor_loss import DiffQLActorLoss
 from torchrl_dual.recipe.algorithm import (
     Algorithm,
@@ -67,7 +67,7 @@ from torchrl_dual.recipe.algorithm import (
 )
 from torchrl_dual.recipe.critics import CRITICS
 from torchrl_dual.recipe.env_kits import env_kit
-from torchrl_dual.recipe.laplace_refits import EnsembleOwnState, LaplaceRefits
+from torchrl_dual.recipe.laplace_refits import LaplaceRefits
 from torchrl_dual.recipe.learner import Learner
 from torchrl_dual.recipe.o2o_run import O2ORun
 from torchrl_dual.recipe.rules import Choice, Either, Integer, Real, key
@@ -230,7 +230,7 @@ class DiffQLLALearner(LaplaceRefits, DiffQLLearner):
 
     def __init__(self, run: O2ORun) -> None:
         super().__init__(run)
-        cfg, la = run.cfg, run.cfg.laplace
+        la = run.cfg.laplace
         self.last_step = DDPMLastStepActor(self.actor, latent="zero")
         # only its advantage weights are used (σ̄ and Eq. 8's Hessian); Diff-QL trains the actor
         self.laplace_weight_fn = WeightedMAPActorLoss.from_iql(
@@ -240,26 +240,9 @@ class DiffQLLALearner(LaplaceRefits, DiffQLLearner):
             temperature=la.temperature,
             max_weight=la.max_weight,
         ).advantage_weights
-        self.policy = make_dual_policy(
-            self.last_step,
-            run.env.action_spec,
-            num_samples=la.num_samples,
-            prior_precision=la.prior_precision,
-            shift_weight=0.0,  # no transition model: check_no_shift_weight
-            action_projection=env_kit(cfg).action_projection,
-            device=cfg.device,
-        )
-        self.ensemble = self.policy[0]
-        self.exploration_policy = self.policy  # Eq. 9 + Eq. 10 with λ = 0
+        self.act_with_ensemble(self.last_step)  # Eq. 9 + Eq. 10 with λ = 0
         self.evaluation_policy = self.ensemble  # the MAP mean under DETERMINISTIC
-
-    def modules(self) -> dict:
-        """Diff-QL's, and the ensemble's own state (the actor's weights are saved once)."""
-        return {**super().modules(), "ensemble": EnsembleOwnState(self.ensemble, self.actor)}
-
-    def shared_modules(self) -> dict:
-        """Diff-QL's offline phase; ``σ̄`` and the posterior are fitted after it."""
-        return super().modules()
+        # modules(): Diff-QL's and the ensemble's own state (the actor's weights once)
 
     @torch.no_grad()
     def noise_std(self) -> torch.Tensor:

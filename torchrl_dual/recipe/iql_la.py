@@ -49,7 +49,7 @@ from typing import Any
 
 import torch
 
-from torchrl_dual import LinearHeadActor, WeightedMAPActorLoss, make_dual_policy
+from torchrl_dual import LinearHeadActor, WeightedMAPActorLoss
 from torchrl_dual.recipe.algorithm import (
     Algorithm,
     NoShiftExplorationSettings,
@@ -57,9 +57,8 @@ from torchrl_dual.recipe.algorithm import (
     check_no_shift_weight,
 )
 from torchrl_dual.recipe.dual_settings import LaplaceSettings
-from torchrl_dual.recipe.env_kits import env_kit
 from torchrl_dual.recipe.iql import IQLActorSettings, IQLLearner
-from torchrl_dual.recipe.laplace_refits import EnsembleOwnState, LaplaceRefits
+from torchrl_dual.recipe.laplace_refits import LaplaceRefits
 from torchrl_dual.recipe.o2o_run import O2ORun
 from torchrl_dual.recipe.rules import Choice, Either, Real, key
 
@@ -116,26 +115,9 @@ class IQLLALearner(LaplaceRefits, IQLLearner):
             temperature=cfg.actor.temperature,
             max_weight=IQL_MAX_WEIGHT,
         ).advantage_weights
-        self.policy = make_dual_policy(
-            self.head_actor,
-            run.env.action_spec,
-            num_samples=cfg.laplace.num_samples,
-            prior_precision=cfg.laplace.prior_precision,
-            shift_weight=cfg.exploration.shift_weight,  # 0: check_no_shift_weight
-            action_projection=env_kit(cfg).action_projection,
-            device=cfg.device,
-        )
-        self.ensemble = self.policy[0]
-        self.exploration_policy = self.policy  # Eq. 9 + Eq. 10 with λ = 0
+        self.act_with_ensemble(self.head_actor)  # Eq. 9 + Eq. 10 with λ = 0
         # evaluation_policy: IQLLearner's, the IQL actor's deterministic tanh(loc)
-
-    def modules(self) -> dict:
-        """IQL's (the loss holds the actor) and the ensemble's own state."""
-        return {**super().modules(), "ensemble": EnsembleOwnState(self.ensemble, self.actor)}
-
-    def shared_modules(self) -> dict:
-        """IQL's offline phase; the ensemble (``M`` draws) is fitted after it."""
-        return super().modules()
+        # modules(): IQL's (the loss holds the actor) and the ensemble's own state
 
     @torch.no_grad()
     def noise_std(self) -> torch.Tensor:

@@ -6,10 +6,11 @@ stage to the base learner's stages, counts the base learner's updates, refits on
 ``budget.laplace_refit_every`` of them have accumulated, checkpoints that count and logs
 the ensemble's epistemic std of each collected batch. A fit sets ``σ̄`` (if the learner
 gives one, :meth:`~LaplaceRefits.noise_std`), then fits Eq. (8) on
-``D_offline ∪ D_online`` with the learner's per-sample weights. The learner sets
-``ensemble`` (its :class:`~torchrl_dual.modules.LaplaceEnsembleActor`) and
-``laplace_weight_fn``. :class:`EnsembleOwnState` is the ensemble's checkpoint entry
-when its actor shares weights with a module the checkpoint already saves.
+``D_offline ∪ D_online`` with the learner's per-sample weights. The learner builds the
+acting ensemble over its actor with :meth:`~LaplaceRefits.act_with_ensemble` and sets
+``laplace_weight_fn``. The checkpoint holds the base learner's modules and the
+ensemble's own state (:class:`EnsembleOwnState`, without the tensors it shares with the
+learner's ``actor``); a shared offline phase hands over the base learner's modules only.
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ import torch
 from tensordict import TensorDictBase
 from torch import nn
 
-from torchrl_dual.modules import LaplaceEnsembleActor
+from torchrl_dual.modules import LaplaceEnsembleActor, LastLayerActor, make_dual_policy
+from torchrl_dual.recipe.env_kits import env_kit
 from torchrl_dual.recipe.o2o_run import O2ORun
 
 
@@ -30,16 +32,46 @@ class LaplaceRefits:
     refitted on ``D_offline ∪ D_online`` every ``budget.laplace_refit_every`` updates.
 
     Attributes:
-        ensemble (LaplaceEnsembleActor): the acting ensemble over the learner's actor.
+        actor (nn.Module): the base learner's actor, whose weights its modules save.
+        ensemble (LaplaceEnsembleActor): the acting ensemble over a last-layer view of
+            ``actor`` (:meth:`act_with_ensemble`).
         laplace_weight_fn (callable, optional): ``batch -> [B]`` weights of the actor
             loss whose Hessian Eq. (8) takes (e.g. ``WeightedMAPActorLoss.advantage_weights``);
             ``None``: uniform.
     """
 
     run: O2ORun
+    actor: nn.Module
     ensemble: LaplaceEnsembleActor
     laplace_weight_fn: Callable[[TensorDictBase], torch.Tensor] | None = None
     updates_since_refit: int = 0
+
+    def act_with_ensemble(self, actor: LastLayerActor) -> None:
+        """Acts online with the Laplace ensemble over ``actor`` (Eq. 9, ``M =
+        laplace.num_samples``, ``laplace.prior_precision``), then Eq. (10)'s noise with
+        ``λ = exploration.shift_weight`` (0 without a transition model:
+        :func:`~torchrl_dual.recipe.algorithm.check_no_shift_weight`) and the env kit's
+        ``action_projection``. Sets ``policy``, ``ensemble`` and ``exploration_policy``."""
+        cfg = self.run.cfg
+        self.policy = make_dual_policy(
+            actor,
+            self.run.env.action_spec,
+            num_samples=cfg.laplace.num_samples,
+            prior_precision=cfg.laplace.prior_precision,
+            shift_weight=cfg.exploration.shift_weight,
+            action_projection=env_kit(cfg).action_projection,
+            device=cfg.device,
+        )
+        self.ensemble = self.policy[0]
+        self.exploration_policy = self.policy  # Eq. 9 + Eq. 10
+
+    def modules(self) -> dict[str, Any]:
+        """The base learner's (they save ``actor``) and the ensemble's own state."""
+        return {**super().modules(), "ensemble": EnsembleOwnState(self.ensemble, self.actor)}
+
+    def shared_modules(self) -> dict[str, Any]:
+        """The base learner's offline phase; ``σ̄`` and the ``M`` draws are fitted after it."""
+        return super().modules()
 
     def noise_std(self) -> torch.Tensor | None:
         """``σ̄`` per action dimension to fit with; ``None`` keeps the actor's own (DUAL
