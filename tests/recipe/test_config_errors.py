@@ -29,7 +29,10 @@ CASES = [
     ("critic.expectile=1.5", "critic.expectile=1.5: must lie in (0, 1)"),
     ("env=antmaze", f"env=antmaze: unknown option; choose one of {ENVS}"),
     ("budget=tiny", "budget=tiny: unknown option; choose one of default, paper, smoke"),
-    ("algo=nope", "algo=nope: unknown option; choose one of diffql, diffql_la, diffuser, dual, iql, iql_la"),
+    (
+        "algo=nope",
+        "algo=nope: unknown option; choose one of diffql, diffql_la, diffuser, dual, iql, iql_la",
+    ),
     ("algo=iql actor.temperature=-1", "actor.temperature=-1: must be a number >= 0"),
     ("algo=iql actor.hiden=3", "unknown key 'actor.hiden'; did you mean actor.hidden?"),
     ("algo=iql planner.horizon=4", "unknown key 'planner.horizon'"),

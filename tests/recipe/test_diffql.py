@@ -9,14 +9,12 @@ spreads after a Laplace fit while its MAP mean is the actor's deterministic chai
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import torch
 from omegaconf import OmegaConf
+from recipe_runner import REPO, run_recipe, succeeded
 from tensordict import TensorDict
 from torch import nn
 from torchrl.data import Bounded
@@ -28,7 +26,6 @@ from torchrl_dual.recipe import O2ORun, check_command_line, compose_checked, run
 from torchrl_dual.recipe.critics import make_iql_critic
 from torchrl_dual.recipe.diffql import ActionBox, DiffQLLALearner, make_diffusion_actor
 
-REPO = Path(__file__).resolve().parents[2]
 CONFIG_DIR = REPO / "recipes" / "config"
 # the smoke budget cut further: 10 offline updates, 100 online frames in 2 blocks of 50,
 # each followed by 10 updates (UTD 0.2) and a Laplace refit (diffql_la)
@@ -54,18 +51,6 @@ def common_overrides(output_dir: Path, cache_dir: Path) -> list[str]:
         "num_threads=1",
         *FAST,
     ]
-
-
-def run_recipe(output_dir: Path, cache_dir: Path, *overrides: str) -> subprocess.CompletedProcess:
-    """``python recipes/o2o.py budget=smoke ...`` from the repo root; never raises."""
-    cmd = [sys.executable, "recipes/o2o.py", *common_overrides(output_dir, cache_dir), *overrides]
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "HYDRA_FULL_ERROR": "0"}
-    return subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
-
-
-def succeeded(proc: subprocess.CompletedProcess) -> subprocess.CompletedProcess:
-    assert proc.returncode == 0, f"exit {proc.returncode}\n{proc.stdout}\n{proc.stderr[-4000:]}"
-    return proc
 
 
 def checkpoint_state(output_dir: Path) -> dict:
@@ -113,7 +98,7 @@ def test_diffql_runs_end_to_end_on_pointmaze(diffql_umaze):
 
 def test_diffql_la_runs_end_to_end_on_frozenlake_with_one_hot_actions(cache_dir, tmp_path):
     out = tmp_path / "run"
-    proc = succeeded(run_recipe(out, cache_dir, "algo=diffql_la", "env=frozenlake"))
+    proc = succeeded(run_recipe(out, cache_dir, *FAST, "algo=diffql_la", "env=frozenlake"))
     assert "[diffql_la] normalized score at the end of the online phase:" in proc.stdout
     state = checkpoint_state(out)
     assert state["stages_done"] == ["actor_critic", "laplace", "offline_eval"]

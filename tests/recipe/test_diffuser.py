@@ -3,21 +3,17 @@ N-step planner acting with ``Ï„_{a_0}``, ``L_VLB`` offline and on ``D_offline âˆ
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import torch
+from recipe_runner import REPO, run_recipe, succeeded
 from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchrl_dual.modules import PlannerSampler
 from torchrl_dual.recipe import O2ORun, compose_checked
 from torchrl_dual.recipe.diffuser import DiffuserLearner
-
-REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
@@ -43,24 +39,18 @@ def learner(tmp_path: Path, cache_dir: Path, *overrides: str) -> DiffuserLearner
 
 
 def test_it_runs_end_to_end_on_frozen_lake(tmp_path, cache_dir):
-    cmd = [
-        sys.executable,
-        "recipes/o2o.py",
-        "algo=diffuser",
-        "env=frozenlake",
-        "budget=smoke",
-        f"output_dir={tmp_path / 'run'}",
-        f"data_cache_dir={cache_dir}",
-        "progress=false",
-        "num_threads=1",
-        "budget.planner_updates=10",
-        "budget.online_frames=200",
-        "budget.eval_every=200",
-        "budget.eval_episodes=2",
-    ]
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "HYDRA_FULL_ERROR": "0"}
-    proc = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, f"{proc.stdout}\n{proc.stderr[-4000:]}"
+    proc = succeeded(
+        run_recipe(
+            tmp_path / "run",
+            cache_dir,
+            "algo=diffuser",
+            "env=frozenlake",
+            "budget.planner_updates=10",
+            "budget.online_frames=200",
+            "budget.eval_every=200",
+            "budget.eval_episodes=2",
+        )
+    )
     assert "normalized score at the end of the online phase:" in proc.stdout
 
 

@@ -11,20 +11,17 @@ does to the networks, and the config errors.
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import torch
+from recipe_runner import REPO, run_recipe
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchrl_dual.modules import LaplaceEnsembleActor, PlannerSampler
 from torchrl_dual.modules.laplace import LatentEnsembleActor
 from torchrl_dual.recipe import ConfigError, DualLearner, O2ORun, compose_checked
 
-REPO = Path(__file__).resolve().parents[2]
 RECIPES = REPO / "recipes"
 # the smoke budget cut further: these runs check the plumbing of each switch
 SHORT = (
@@ -35,22 +32,6 @@ SHORT = (
     "budget.eval_episodes=2",
 )
 TINY_DISTILLATION = "budget.distill_updates=[2,2,2,2,2]"
-
-
-def run_recipe(output_dir: Path, cache_dir: Path, *overrides: str) -> subprocess.CompletedProcess:
-    """``python recipes/o2o.py budget=smoke ...`` from the repo root; never raises."""
-    cmd = [
-        sys.executable,
-        "recipes/o2o.py",
-        "budget=smoke",
-        f"output_dir={output_dir}",
-        f"data_cache_dir={cache_dir}",
-        "progress=false",
-        "num_threads=1",
-        *overrides,
-    ]
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "HYDRA_FULL_ERROR": "0"}
-    return subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
 
 
 @pytest.fixture(scope="module")

@@ -9,55 +9,21 @@ generated once; full runs that several tests inspect are session fixtures.
 from __future__ import annotations
 
 import json
-import os
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from recipe_runner import REPO, failed, run_recipe, succeeded
 
 from torchrl_dual.data import OfflineDataset, make_transitions
 from torchrl_dual.data.cache import load_cached_dataset, save_cached_dataset
 from torchrl_dual.recipe import DualLearner, O2ORun, UserError, compose_checked, env_kits, networks
 
-REPO = Path(__file__).resolve().parents[2]
 RECIPES = REPO / "recipes"
 ONLINE_FRAMES = 400  # budget/smoke.yaml
 INTERRUPT_AT = 200
-
-
-def run_recipe(output_dir: Path, cache_dir: Path, *overrides: str) -> subprocess.CompletedProcess:
-    """``python recipes/o2o.py budget=smoke ...`` from the repo root; never raises."""
-    cmd = [
-        sys.executable,
-        "recipes/o2o.py",
-        "budget=smoke",
-        f"output_dir={output_dir}",
-        f"data_cache_dir={cache_dir}",
-        "progress=false",
-        "num_threads=1",  # tiny networks: one thread avoids OpenMP contention
-        *overrides,
-    ]
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "HYDRA_FULL_ERROR": "0"}
-    return subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
-
-
-def succeeded(proc: subprocess.CompletedProcess) -> subprocess.CompletedProcess:
-    assert proc.returncode == 0, f"exit {proc.returncode}\n{proc.stdout}\n{proc.stderr[-4000:]}"
-    return proc
-
-
-def failed(proc: subprocess.CompletedProcess) -> str:
-    """Asserts exit code 2 with one ``error:`` line on stderr and no traceback; returns it."""
-    out = proc.stdout + proc.stderr
-    assert proc.returncode == 2, f"expected exit 2, got {proc.returncode}\n{out[-4000:]}"
-    errors = [line for line in proc.stderr.splitlines() if line.startswith("error: ")]
-    assert len(errors) == 1, proc.stderr[-4000:]
-    assert "Traceback" not in out
-    return errors[0]
 
 
 def checkpoint_state(output_dir: Path) -> dict:

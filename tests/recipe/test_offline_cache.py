@@ -12,7 +12,7 @@ import threading
 from pathlib import Path
 
 import pytest
-from recipe_runner import failed, run_recipe, succeeded
+from recipe_runner import REPO, failed, run_recipe, succeeded
 
 from torchrl_dual.recipe import compose_checked
 from torchrl_dual.recipe.dual import DualLearner
@@ -94,7 +94,7 @@ def test_a_corrupt_snapshot_is_named_with_the_fix(shared_runs, tmp_path):
 
 
 def key(*overrides: str) -> str:
-    cfg = compose_checked(["budget=smoke", *overrides])
+    cfg = compose_checked(REPO / "recipes" / "config", ["budget=smoke", *overrides])
     return OfflinePhaseCache("/unused", offline_key_config(cfg, DualLearner.online_keys), "x").key
 
 
