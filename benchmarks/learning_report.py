@@ -127,6 +127,9 @@ def compact_result(summary: dict, *, variant: str, cell: str, overrides: list[st
         "online_seconds": summary["wall_seconds"] - summary["offline_seconds"],
         "wall_seconds": summary["wall_seconds"],
         "stage_seconds": summary.get("stage_seconds", {}),
+        # CPU seconds of the run's process (absent in summaries written before they were)
+        "cpu_seconds": summary.get("cpu_seconds"),
+        "stage_cpu_seconds": summary.get("stage_cpu_seconds", {}),
         "shared_offline": summary.get("shared_offline", False),
         **meta,
     }

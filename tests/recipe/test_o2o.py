@@ -175,6 +175,14 @@ def test_a_resumed_run_skips_every_offline_stage(interrupted_and_resumed):
     assert "offline @ 0 frames" not in stdout  # the offline evaluation is not redone
 
 
+def test_a_resumed_run_keeps_its_stage_clocks_and_adds_the_online_time(interrupted_and_resumed):
+    before, after = interrupted_and_resumed["interrupted"], interrupted_and_resumed["final"]
+    for clock in ("stage_seconds", "stage_cpu_seconds"):
+        offline = {k: v for k, v in after[clock].items() if k != "online"}
+        assert offline == {k: v for k, v in before[clock].items() if k != "online"}, clock
+        assert after[clock]["online"] > before[clock]["online"] > 0, clock
+
+
 def test_a_resumed_run_continues_the_frame_counter_from_the_checkpoint(interrupted_and_resumed):
     run = interrupted_and_resumed
     final = run["final"]

@@ -72,6 +72,12 @@ def test_the_summary_charges_the_shared_stages_at_their_first_cost(shared_runs):
     leader, follower = summary(shared_runs["leader"]), summary(shared_runs["follower"])
     for stage in DualLearner.shared_stages:
         assert follower["stage_seconds"][stage] == leader["stage_seconds"][stage]
+        assert follower["stage_cpu_seconds"][stage] == leader["stage_cpu_seconds"][stage]
+    assert set(follower["stage_cpu_seconds"]) == set(follower["stage_seconds"])
+    assert follower["cpu_seconds"] == pytest.approx(
+        sum(follower["stage_cpu_seconds"].values()), abs=1e-2
+    )
+    assert all(v > 0 for v in follower["stage_cpu_seconds"].values())
     stages = follower["stage_seconds"]
     assert follower["offline_seconds"] == pytest.approx(
         sum(v for k, v in stages.items() if k != "online"), abs=1e-2

@@ -54,10 +54,11 @@ RESUMABLE_KEYS = (
 )
 # Part of the fingerprint: a checkpoint of another layout (e.g. written before the
 # O2ORun / Learner split) is refused with the checkpoint's "incompatible run" error.
-CHECKPOINT_LAYOUT = "o2o-learner-2"
+CHECKPOINT_LAYOUT = "o2o-learner-3"
 _COUNTERS = (
     "stages_done",
     "stage_seconds",
+    "stage_cpu_seconds",
     "shared_offline",
     "frames",
     "updates",
@@ -123,7 +124,8 @@ class O2ORun:
         )
         # ---- counters
         self.stages_done: list[str] = []
-        self.stage_seconds: dict[str, float] = {}
+        self.stage_seconds: dict[str, float] = {}  # wall-clock seconds per stage
+        self.stage_cpu_seconds: dict[str, float] = {}  # this process's CPU seconds per stage
         self.shared_offline = False
         self.frames = 0
         self.updates = 0
@@ -215,9 +217,9 @@ class O2ORun:
         if name in self.stages_done:
             self.say(f"{name}: done in the checkpoint, skipped")
             return
-        start = time.perf_counter()
+        clock = StageClock(self, name)
         fn()
-        self.stage_seconds[name] = time.perf_counter() - start
+        clock.tick()
         self.stages_done.append(name)
         self.save()
 
@@ -340,7 +342,7 @@ def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORu
     budget = cfg.budget
     next_eval = (run.frames // budget.eval_every + 1) * budget.eval_every
     next_save = run.frames + budget.checkpoint_every
-    clock = _OnlineClock(run)
+    clock = StageClock(run, "online")
     try:
         for batch in run.collector() if run.frames < budget.online_frames else ():
             stats = run.store(batch)  # act with the exploration policy, store in D_online
@@ -371,13 +373,21 @@ def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORu
     return run
 
 
-class _OnlineClock:
-    """Adds the online phase's wall time to ``run.stage_seconds["online"]`` (across resumes)."""
+class StageClock:
+    """Adds the wall-clock and CPU seconds since its creation to ``run.stage_seconds[name]``
+    and ``run.stage_cpu_seconds[name]`` (on top of what a resumed run had already spent).
 
-    def __init__(self, run: O2ORun) -> None:
-        self.run = run
-        self.before = run.stage_seconds.get("online", 0.0)
-        self.start = time.perf_counter()
+    CPU seconds are this process's (``time.process_time``, all its threads): unlike wall
+    time they do not grow when other jobs share the cores, so runs of the learning suite
+    that ran side by side stay comparable (``num_threads=1``: CPU ≈ wall on an idle core).
+    """
+
+    def __init__(self, run: O2ORun, name: str) -> None:
+        self.run, self.name = run, name
+        self.before = (run.stage_seconds.get(name, 0.0), run.stage_cpu_seconds.get(name, 0.0))
+        self.start = (time.perf_counter(), time.process_time())
 
     def tick(self) -> None:
-        self.run.stage_seconds["online"] = self.before + time.perf_counter() - self.start
+        wall, cpu = self.before
+        self.run.stage_seconds[self.name] = wall + time.perf_counter() - self.start[0]
+        self.run.stage_cpu_seconds[self.name] = cpu + time.process_time() - self.start[1]

@@ -24,10 +24,14 @@ def run_summary(run: O2ORun) -> dict:
     ``offline_seconds`` sums the offline stages (``offline_eval`` included; stages loaded
     from a shared offline phase count with the time their first run spent on them), and
     ``wall_seconds`` adds the online phase: the cost of one run on its own.
+    ``stage_cpu_seconds`` and ``cpu_seconds`` are the same in CPU seconds of the run's
+    process (:class:`~torchrl_dual.recipe.o2o_run.StageClock`), which runs sharing the
+    cores do not inflate.
     """
     cfg = run.cfg
     seconds = {name: round(float(value), 3) for name, value in run.stage_seconds.items()}
     offline = sum(value for name, value in seconds.items() if name != "online")
+    cpu = {name: round(float(value), 3) for name, value in run.stage_cpu_seconds.items()}
     return {
         "algo": str(cfg.algo),
         "env": str(cfg.env.name),
@@ -38,6 +42,8 @@ def run_summary(run: O2ORun) -> dict:
         "stage_seconds": seconds,
         "offline_seconds": round(offline, 3),
         "wall_seconds": round(offline + seconds.get("online", 0.0), 3),
+        "stage_cpu_seconds": cpu,
+        "cpu_seconds": round(sum(cpu.values()), 3),
         "shared_offline": bool(run.shared_offline),
         "frames": int(run.frames),
         "updates": int(run.updates),
