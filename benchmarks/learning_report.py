@@ -3,7 +3,7 @@
 Pure functions over the compact per-run JSONs that the suite writes under
 ``benchmarks/results/<budget>/<cell>/<variant>/seed<k>.json``: 95 % Student-t intervals,
 the interval-overlap marker, the area under the online curve, the score at a given
-wall-clock time, the markdown section between the ``learning-suite`` markers of
+wall-clock or CPU time, the markdown section between the ``learning-suite`` markers of
 ``docs/results.md``, and its PNGs (``benchmarks/learning_plots.py``).
 
     >>> mean, half = t_interval([1.0, 2.0, 3.0])  # sd 1, n 3: t(0.975, 2) / sqrt(3)
@@ -81,18 +81,35 @@ def online_auc(history: Sequence[dict]) -> float:
     return area / (frames[-1] - frames[0])
 
 
-def wall_times(result: dict) -> list[float]:
-    """Wall-clock second of each history point: ``offline_seconds`` + (frames / last
-    frame) x ``online_seconds`` (the online phase taken as linear in frames)."""
+def clock_of(results: Iterable[dict]) -> str:
+    """``"cpu"`` when every result has CPU seconds (summaries written since they are
+    recorded), else ``"wall"``: one clock for a whole comparison."""
+    return "cpu" if all(r.get("cpu_seconds") is not None for r in results) else "wall"
+
+
+def run_seconds(result: dict, clock: str = "wall") -> tuple[float, float]:
+    """``(offline, total)`` seconds of one run on ``clock`` (``"wall"`` or ``"cpu"``).
+
+    CPU seconds are the run process's (``num_threads=1`` in the suite: the time the run
+    would take alone on an idle core); wall seconds grow when other jobs share the cores.
+    """
+    if clock == "cpu":
+        return result["offline_cpu_seconds"], result["cpu_seconds"]
+    return result["offline_seconds"], result["wall_seconds"]
+
+
+def eval_times(result: dict, clock: str = "wall") -> list[float]:
+    """Second of each history point on ``clock``: offline seconds + (frames / last
+    frame) x online seconds (the online phase taken as linear in frames)."""
     last = max(float(result["history"][-1]["frames"]), 1.0)
-    online = result["wall_seconds"] - result["offline_seconds"]
-    return [result["offline_seconds"] + h["frames"] / last * online for h in result["history"]]
+    offline, total = run_seconds(result, clock)
+    return [offline + h["frames"] / last * (total - offline) for h in result["history"]]
 
 
-def score_at_time(result: dict, seconds: float) -> float | None:
-    """Normalized score at ``seconds`` of wall-clock time, linear between evaluations;
+def score_at_time(result: dict, seconds: float, clock: str = "wall") -> float | None:
+    """Normalized score at ``seconds`` on ``clock``, linear between evaluations;
     ``None`` while the offline phase is still running, the final score after the end."""
-    times = wall_times(result)
+    times = eval_times(result, clock)
     scores = [h["normalized_score"] for h in result["history"]]
     if seconds < times[0]:
         return None
@@ -128,11 +145,19 @@ def compact_result(summary: dict, *, variant: str, cell: str, overrides: list[st
         "wall_seconds": summary["wall_seconds"],
         "stage_seconds": summary.get("stage_seconds", {}),
         # CPU seconds of the run's process (absent in summaries written before they were)
+        "offline_cpu_seconds": _offline_cpu(summary),
         "cpu_seconds": summary.get("cpu_seconds"),
         "stage_cpu_seconds": summary.get("stage_cpu_seconds", {}),
         "shared_offline": summary.get("shared_offline", False),
         **meta,
     }
+
+
+def _offline_cpu(summary: dict) -> float | None:
+    stages = summary.get("stage_cpu_seconds")
+    if not stages:
+        return None
+    return round(sum(v for k, v in stages.items() if k != "online"), 3)
 
 
 def load_results(root: Path) -> dict[str, dict[str, list[dict]]]:
@@ -157,8 +182,8 @@ def cell_table(variants: dict[str, list[dict]], order: Sequence[str]) -> str:
     variants separate from ``dual`` (final score / AUC)."""
     lines = [
         "| variant | n | offline score | final online score | AUC (online) | wall min "
-        "| vs dual: final / AUC |",
-        "|---|---:|---|---|---|---:|---|",
+        "| CPU min | vs dual: final / AUC |",
+        "|---|---:|---|---|---|---:|---:|---|",
     ]
     stats = {
         v: {k: t_interval([r[k] for r in rs]) for k in ("offline_score", "final_score", "auc")}
@@ -171,15 +196,20 @@ def cell_table(variants: dict[str, list[dict]], order: Sequence[str]) -> str:
         else:
             marker = " / ".join(separation(s[k], stats["dual"][k]) for k in ("final_score", "auc"))
         wall = statistics.fmean(r["wall_seconds"] for r in rs) / 60
+        cpu = (
+            f"{statistics.fmean(r['cpu_seconds'] for r in rs) / 60:.1f}"
+            if clock_of(rs) == "cpu"
+            else "—"
+        )
         lines.append(
             f"| `{v}` | {len(rs)} | {fmt(s['offline_score'])} | {fmt(s['final_score'])} "
-            f"| {fmt(s['auc'])} | {wall:.1f} | {marker} |"
+            f"| {fmt(s['auc'])} | {wall:.1f} | {cpu} | {marker} |"
         )
     return "\n".join(lines)
 
 
-def _at_time(results: list[dict], seconds: float) -> str:
-    scores = [score_at_time(r, seconds) for r in results]
+def _at_time(results: list[dict], seconds: float, clock: str) -> str:
+    scores = [score_at_time(r, seconds, clock) for r in results]
     done = [s for s in scores if s is not None]
     if not done:
         return "offline"
@@ -188,26 +218,28 @@ def _at_time(results: list[dict], seconds: float) -> str:
 
 
 def equal_compute_table(cells: dict[str, dict[str, list[dict]]], order: Sequence[str]) -> str:
-    """DUAL vs IQL per cell: final scores (equal steps) and scores at equal wall time."""
+    """DUAL vs IQL per cell: final scores (equal steps) and scores at equal time, on CPU
+    seconds when every run of the cell's pair has them (:func:`clock_of`), else wall."""
     lines = [
-        "| cell | final dual | final iql | T₁ (min) | dual at T₁ | iql at T₁ "
+        "| cell | final dual | final iql | clock | T₁ (min) | dual at T₁ | iql at T₁ "
         "| T₂ (min) | dual at T₂ | iql at T₂ |",
-        "|---|---|---|---:|---|---|---:|---|---|",
+        "|---|---|---|---|---:|---|---|---:|---|---|",
     ]
     for cell in sorted(cells, key=lambda c: order.index(c) if c in order else len(order)):
         dual, iql = cells[cell].get("dual"), cells[cell].get("iql")
         if not dual or not iql:
             continue
-        wall = {
-            k: statistics.fmean(r["wall_seconds"] for r in rs)
+        clock = clock_of([*dual, *iql])
+        total = {
+            k: statistics.fmean(run_seconds(r, clock)[1] for r in rs)
             for k, rs in (("d", dual), ("i", iql))
         }
-        t1, t2 = min(wall.values()), wall["i"]
+        t1, t2 = min(total.values()), total["i"]
         lines.append(
             f"| {cell} | {fmt(t_interval([r['final_score'] for r in dual]))} "
-            f"| {fmt(t_interval([r['final_score'] for r in iql]))} | {t1 / 60:.1f} "
-            f"| {_at_time(dual, t1)} | {_at_time(iql, t1)} | {t2 / 60:.1f} "
-            f"| {_at_time(dual, t2)} | {_at_time(iql, t2)} |"
+            f"| {fmt(t_interval([r['final_score'] for r in iql]))} | {clock} | {t1 / 60:.1f} "
+            f"| {_at_time(dual, t1, clock)} | {_at_time(iql, t1, clock)} | {t2 / 60:.1f} "
+            f"| {_at_time(dual, t2, clock)} | {_at_time(iql, t2, clock)} |"
         )
     return "\n".join(lines)
 
@@ -273,8 +305,11 @@ def render_section(
             "(the online phase taken as linear in frames, evaluation time included), "
             "the score is interpolated linearly between them and held after the run "
             'ends; before its offline phase ends a run has no score ("offline"). Both '
-            "are read at T₁ = the smaller of the two mean total wall times and at T₂ = "
-            "IQL's mean total wall time (the same when IQL is the faster one).",
+            "are read at T₁ = the smaller of the two mean total times and at T₂ = "
+            "IQL's mean total time (the same when IQL is the faster one). *clock* `cpu`: "
+            "the runs' own CPU seconds (one thread each, what a run takes alone on an idle "
+            "core; runs sharing the cores do not inflate it), used when every run of the "
+            "pair recorded them; `wall`: wall-clock seconds.",
             table,
         ]
     if "latency" in figures:

@@ -78,8 +78,9 @@ def test_separation_marker_needs_non_overlapping_intervals():
     assert lr.separation((10.0, math.nan), (7.0, 1.0)) == "?"
 
 
-def _result(variant, seed, scores, offline_s=100.0, wall_s=300.0, cell="umaze"):
-    """A compact result with evaluations at 0, 50, 100 online frames."""
+def _result(variant, seed, scores, offline_s=100.0, wall_s=300.0, cell="umaze", cpu=None):
+    """A compact result with evaluations at 0, 50, 100 online frames; ``cpu``: optional
+    ``(offline, online)`` CPU seconds."""
     summary = {
         "algo": variant, "env": "pointmaze_umaze", "seed": seed, "budget": "smoke",
         "history": [
@@ -89,6 +90,9 @@ def _result(variant, seed, scores, offline_s=100.0, wall_s=300.0, cell="umaze"):
         ],
         "offline_seconds": offline_s, "wall_seconds": wall_s,
     }  # fmt: skip
+    if cpu is not None:
+        summary["stage_cpu_seconds"] = {"planner": cpu[0], "online": cpu[1]}
+        summary["cpu_seconds"] = cpu[0] + cpu[1]
     meta = {"commit": "abc", "date": "today", "machine": "test box"}
     return lr.compact_result(summary, variant=variant, cell=cell, overrides=[], meta=meta)
 
@@ -108,7 +112,7 @@ def test_auc_is_the_trapezoid_mean_including_the_offline_point():
 def test_score_at_wall_time_interpolates_on_the_run_time_axis():
     # evaluations at 0/50/100 frames; offline 100 s, online 200 s -> at 100 s, 200 s, 300 s
     result = _result("dual", 0, [0.0, 10.0, 30.0], offline_s=100.0, wall_s=300.0)
-    assert lr.wall_times(result) == [100.0, 200.0, 300.0]
+    assert lr.eval_times(result) == [100.0, 200.0, 300.0]
     assert lr.score_at_time(result, 50.0) is None  # still in the offline phase
     assert lr.score_at_time(result, 150.0) == pytest.approx(5.0)
     assert lr.score_at_time(result, 250.0) == pytest.approx(20.0)
@@ -117,7 +121,30 @@ def test_score_at_wall_time_interpolates_on_the_run_time_axis():
     dual = [_result("dual", s, [0.0, 10.0, 30.0]) for s in (0, 1)]
     table = lr.equal_compute_table({"umaze": {"dual": dual, "iql": iql}}, ["umaze"])
     # T1 = T2 = IQL's 200 s: DUAL at 10 (its 50-frame point), IQL at its final 8
-    assert "| umaze | 30.0 ± 0.0 | 8.0 ± 0.0 | 3.3 | 10.0 ± 0.0 | 8.0 ± 0.0 | 3.3 |" in table
+    assert "| umaze | 30.0 ± 0.0 | 8.0 ± 0.0 | wall | 3.3 | 10.0 ± 0.0 | 8.0 ± 0.0 | 3.3 |" in table
+
+
+def test_equal_time_uses_cpu_seconds_when_every_run_of_the_pair_has_them():
+    # wall: DUAL 300 s, IQL 200 s; CPU (alone on a core): DUAL 150 s = 50 + 100, IQL 200 s
+    dual = [_result("dual", s, [0.0, 10.0, 30.0], cpu=(50.0, 100.0)) for s in (0, 1)]
+    iql = [
+        _result("iql", s, [0.0, 5.0, 8.0], offline_s=20.0, wall_s=200.0, cpu=(20.0, 180.0))
+        for s in (0, 1)
+    ]
+    assert lr.eval_times(dual[0], "cpu") == [50.0, 100.0, 150.0]
+    assert lr.score_at_time(dual[0], 75.0, "cpu") == pytest.approx(5.0)
+    table = lr.equal_compute_table({"umaze": {"dual": dual, "iql": iql}}, ["umaze"])
+    # T1 = DUAL's 150 s (2.5 min): DUAL at its end; IQL's evaluations sit at 20, 110 and
+    # 200 CPU seconds, so at 150 s it is 40/90 of the way from 5.0 to 8.0
+    iql_t1 = 5.0 + (150.0 - 110.0) / 90.0 * 3.0
+    assert (
+        f"| umaze | 30.0 ± 0.0 | 8.0 ± 0.0 | cpu | 2.5 | 30.0 ± 0.0 | {iql_t1:.1f} ± 0.0 |" in table
+    )
+    # one run without CPU seconds: the whole pair falls back to wall-clock time
+    iql[1]["cpu_seconds"] = None
+    assert "| wall |" in lr.equal_compute_table({"umaze": {"dual": dual, "iql": iql}}, ["umaze"])
+    cells = lr.cell_table({"dual": dual}, ["dual"])
+    assert "| 5.0 | 2.5 |" in cells  # wall 300 s, CPU 150 s
 
 
 def _write_fake_results(root: Path) -> None:
@@ -142,7 +169,7 @@ def test_report_keeps_hand_written_text_and_is_idempotent(tmp_path, capsys):
     first = docs.read_text()
     assert first.startswith("# Learning results\n\n" + lr.BEGIN)
     assert first.endswith(lr.END + "\n\nIntro written by hand.\n\n## Older runs\n\nkept as is.\n")
-    assert "| `iql` | 3 | 0.0 ± 0.0 | 5.0 ± 2.5 | 2.5 ± 1.2 | 5.0 | ▼ / ▼ |" in first  # t(2)=4.3027
+    assert "| `iql` | 3 | 0.0 ± 0.0 | 5.0 ± 2.5 | 2.5 ± 1.2 | 5.0 | — | ▼ / ▼ |" in first  # t(2)=4.3027
     assert "### DUAL vs IQL at equal steps and at equal wall time" in first
     for png in ("learning_smoke_umaze.png", "latency_vs_score_smoke.png"):
         assert (tmp_path / "figures" / png).stat().st_size > 1000
