@@ -16,46 +16,30 @@ from pathlib import Path
 
 import pytest
 import torch
-from recipe_runner import REPO
 from tensordict import TensorDict
+from test_diffql import CONFIG_DIR, POINTMAZE, checkpoint_state, common_overrides
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchrl_dual.modules.exploration import sampled_entropy
 from torchrl_dual.recipe import O2ORun, check_command_line, compose_checked, run
 from torchrl_dual.recipe.dacer import DACERLearner
 
-CONFIG_DIR = REPO / "recipes" / "config"
 # test_diffql.py's cut-down smoke budget (10 offline updates, 100 online frames in 2
 # blocks of 50, 10 updates each), the regulator every 5 online updates on 8 states x 50
-FAST = [
-    "algo=dacer",
-    "budget=smoke",
-    "progress=false",
-    "num_threads=1",
-    "env.max_episode_steps=50",
-    "budget.offline_updates=10",
-    "online.utd_ratio=0.2",
-    "budget.online_frames=100",
-    "budget.frames_per_batch=50",
-    "budget.eval_every=100",
-    "budget.checkpoint_every=100",
-    "budget.eval_episodes=2",
-    "dacer.entropy_every=5",
-    "dacer.num_states=8",
-    "dacer.num_samples=50",
-]
+DACER_FAST = ["dacer.entropy_every=5", "dacer.num_states=8", "dacer.num_samples=50"]
 
 
 def config(output_dir: Path, cache_dir: Path, *overrides: str):
     return compose_checked(
         CONFIG_DIR,
-        [*FAST, f"output_dir={output_dir}", f"data_cache_dir={cache_dir}", *overrides],
+        [
+            "algo=dacer",
+            *POINTMAZE,
+            *common_overrides(output_dir, cache_dir),
+            *DACER_FAST,
+            *overrides,
+        ],
     )
-
-
-def checkpoint_state(output_dir: Path) -> dict:
-    payload = torch.load(output_dir / "checkpoint.pt", map_location="cpu", weights_only=False)
-    return payload["state"]
 
 
 def scalar_rows(output_dir: Path, name: str) -> list[tuple[int, float]]:
@@ -204,7 +188,7 @@ def test_one_regulator_step_raises_alpha_below_the_target_and_lowers_it_above(
             "error: dacer.num_states=999: must be <= online.batch_size=256",
         ),
         (["dacer.noise_scale=0"], "error: dacer.noise_scale=0: must be a number > 0"),
-        (["dacer.target_entropy=abc"], "error: dacer.target_entropy=abc: must be null or"),
+        (["dacer.target_entropy=abc"], "error: dacer.target_entropy=abc: must be null or a finite number"),
     ],
 )
 def test_bad_dacer_keys_exit_2_with_one_error_line(capsys, argv, message):
