@@ -188,7 +188,10 @@ def test_one_regulator_step_raises_alpha_below_the_target_and_lowers_it_above(
             "error: dacer.num_states=999: must be <= online.batch_size=256",
         ),
         (["dacer.noise_scale=0"], "error: dacer.noise_scale=0: must be a number > 0"),
-        (["dacer.target_entropy=abc"], "error: dacer.target_entropy=abc: must be null or a finite number"),
+        (
+            ["dacer.target_entropy=abc"],
+            "error: dacer.target_entropy=abc: must be null or a finite number",
+        ),
     ],
 )
 def test_bad_dacer_keys_exit_2_with_one_error_line(capsys, argv, message):
