@@ -23,6 +23,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl_dual.modules.exploration import sampled_entropy
 from torchrl_dual.recipe import O2ORun, check_command_line, compose_checked, run
 from torchrl_dual.recipe.dacer import DACERLearner
+from torchrl_dual.recipe.diffql import DiffQLLearner
 
 # test_diffql.py's cut-down smoke budget (10 offline updates, 100 online frames in 2
 # blocks of 50, 10 updates each), the regulator every 5 online updates on 8 states x 50
@@ -49,11 +50,16 @@ def scalar_rows(output_dir: Path, name: str) -> list[tuple[int, float]]:
 
 
 @pytest.fixture(scope="module")
-def dacer_run(tmp_path_factory):
+def cache_dir(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("dacer_data")
+
+
+@pytest.fixture(scope="module")
+def dacer_run(tmp_path_factory, cache_dir):
     """A run interrupted at 50 online frames (its checkpoint kept), a learner rebuilt from
     that checkpoint, and the resumed run to the end."""
     out = tmp_path_factory.mktemp("dacer_umaze")
-    cache = tmp_path_factory.mktemp("dacer_data")
+    cache = cache_dir
     run(config(out, cache, "interrupt_at_frames=50"))
     interrupted = checkpoint_state(out)
     restored = O2ORun(config(out, cache, "resume=true"), DACERLearner).learner
@@ -95,6 +101,24 @@ def test_resume_restores_alpha_its_optimizer_and_the_counters(dacer_run):
     torch.testing.assert_close(
         adam["exp_avg"], interrupted["alpha_optimizer"]["state"][0]["exp_avg"]
     )
+
+
+def test_the_offline_phase_is_diffql_s_to_the_last_weight(cache_dir, tmp_path):
+    """Same seed and keys: Diff-QL's offline updates give ``dacer`` the same actor and
+    critics (the regulator's state draws no random numbers and is not trained offline)."""
+    weights = {}
+    for algo, learner_class in (("diffql", DiffQLLearner), ("dacer", DACERLearner)):
+        overrides = [f"algo={algo}", *POINTMAZE, *common_overrides(tmp_path / algo, cache_dir)]
+        o2o = O2ORun(compose_checked(CONFIG_DIR, overrides), learner_class)
+        o2o.pretrain_updates()
+        weights[algo] = {k: v.state_dict() for k, v in o2o.learner.modules().items()}
+    assert set(weights["dacer"]) - set(weights["diffql"]) == {
+        "exploration_noise",
+        "alpha_optimizer",
+    }
+    for name in ("actor", "critic"):
+        for key, value in weights["diffql"][name].items():
+            assert torch.equal(weights["dacer"][name][key], value), (name, key)
 
 
 # ----------------------------------------------------------------------------- the pieces
