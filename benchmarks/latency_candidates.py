@@ -11,7 +11,8 @@ planner actor); ``dual_m5_latent`` the "w τ^N sampling" ablation (``laplace.uq=
 The recipe's baselines act with their exploration policies, built by the recipe's own
 builders with the actor settings of ``recipes/config/algo/<algo>.yaml`` and the width
 ``cfg.hidden``: ``iql_actor`` (``algo=iql``), ``iql_la_m5`` (``algo=iql_la``),
-``diffql_n5`` (``algo=diffql``) and ``diffql_la_m5`` (``algo=diffql_la``);
+``diffql_n5`` (``algo=diffql``), ``diffql_la_m5`` (``algo=diffql_la``) and ``dacer_n5``
+(``algo=dacer``);
 ``algo=diffuser`` acts as ``planner_n32``.
 
 Weights are untrained: the cost of a forward pass does not depend on the weight values.
@@ -50,6 +51,7 @@ from torchrl_dual.modules import (
     TransitionModel,
     make_dual_policy,
 )
+from torchrl_dual.modules.exploration import EntropyRegulatedNoise, dacer_target_entropy
 from torchrl_dual.recipe.diffql import ActionBox, make_diffusion_actor
 from torchrl_dual.recipe.iql import make_iql_actor
 
@@ -206,15 +208,28 @@ def _diffusion_actor(cfg: Config, algo: str) -> DiffusionActor:
     return make_diffusion_actor(_algo_cfg(cfg, algo), cfg.obs_dim, cfg.action_dim)
 
 
+def _clamp(cfg: Config) -> TensorDictModule:
+    spec = _spec(cfg)
+    box = ActionBox(spec.space.low, spec.space.high)
+    return TensorDictModule(box, in_keys=["action"], out_keys=["action"])
+
+
 def build_diffql_n5(cfg: Config) -> TensorDictModuleBase:
     """``algo=diffql``'s exploration policy: TorchRL ``DiffusionActor`` (``N = 5`` DDPM
     steps, score MLP ``hidden`` × 3, SiLU; :func:`make_diffusion_actor`) then the clamp to
     the action box."""
-    spec = _spec(cfg)
-    clamp = TensorDictModule(
-        ActionBox(spec.space.low, spec.space.high), in_keys=["action"], out_keys=["action"]
+    return TensorDictSequential(_diffusion_actor(cfg, "diffql"), _clamp(cfg))
+
+
+def build_dacer_n5(cfg: Config) -> TensorDictModuleBase:
+    """``algo=dacer``'s exploration policy: ``diffql_n5``'s actor (``algo/dacer.yaml``),
+    then ``EntropyRegulatedNoise`` (``noise_scale · α · ε`` with the yaml's values) and the
+    clamp; the entropy estimate runs in the update, not on the action path."""
+    settings = OmegaConf.load(ALGO_CONFIGS / "dacer.yaml").dacer
+    noise = EntropyRegulatedNoise(
+        dacer_target_entropy(cfg.action_dim), settings.noise_scale, settings.init_alpha
     )
-    return TensorDictSequential(_diffusion_actor(cfg, "diffql"), clamp)
+    return TensorDictSequential(_diffusion_actor(cfg, "dacer"), noise, _clamp(cfg))
 
 
 def build_diffql_la_m5(cfg: Config) -> TensorDictModuleBase:
@@ -240,4 +255,5 @@ BUILDERS: dict[str, Callable[[Config], TensorDictModuleBase]] = {
     "iql_la_m5": build_iql_la_m5,
     "diffql_n5": build_diffql_n5,
     "diffql_la_m5": build_diffql_la_m5,
+    "dacer_n5": build_dacer_n5,
 }

@@ -27,6 +27,7 @@ LATENCY_CANDIDATE = {
     "diffql": "diffql_n5",
     "diffql_la": "diffql_la_m5",
     "diffuser": "planner_n32",
+    "dacer": "dacer_n5",
 }
 
 

@@ -38,6 +38,7 @@ def test_latency_benchmark_times_every_candidate_and_writes_json(tmp_path):
         "iql_la_m5",
         "diffql_n5",
         "diffql_la_m5",
+        "dacer_n5",
     }
     assert all(value > 0 for value in medians.values())
     assert "goal (restructuring issue #8)" in proc.stdout

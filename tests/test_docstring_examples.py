@@ -32,6 +32,8 @@ MUST_HAVE_EXAMPLES = (
     "torchrl_dual.diffusion.trajectory_layout",
     "torchrl_dual.modules.actors.planner_actor",
     "torchrl_dual.modules.dual_policy",
+    "torchrl_dual.modules.exploration.entropy_regulator",
+    "torchrl_dual.modules.exploration.gmm_entropy",
     "torchrl_dual.modules.exploration.shift_aware_noise",
     "torchrl_dual.modules.laplace.laplace_ensemble_actor",
     "torchrl_dual.modules.planner.planner_policy",

@@ -31,7 +31,7 @@ CASES = [
     ("budget=tiny", "budget=tiny: unknown option; choose one of default, paper, smoke"),
     (
         "algo=nope",
-        "algo=nope: unknown option; choose one of diffql, diffql_la, diffuser, dual, iql, iql_la",
+        "algo=nope: unknown option; choose one of dacer, diffql, diffql_la, diffuser, dual, iql, iql_la",
     ),
     ("algo=iql actor.temperature=-1", "actor.temperature=-1: must be a number >= 0"),
     ("algo=iql actor.hiden=3", "unknown key 'actor.hiden'; did you mean actor.hidden?"),

@@ -8,6 +8,7 @@ learner module, a config file and one line here.
 from __future__ import annotations
 
 from torchrl_dual.recipe.algorithm import Algorithm
+from torchrl_dual.recipe.dacer import DACER
 from torchrl_dual.recipe.diffql import DIFFQL, DIFFQL_LA
 from torchrl_dual.recipe.diffuser import DIFFUSER
 from torchrl_dual.recipe.dual_settings import DUAL
@@ -21,5 +22,6 @@ ALGORITHMS: dict[str, Algorithm] = {
     "diffql": DIFFQL,
     "diffql_la": DIFFQL_LA,
     "diffuser": DIFFUSER,
+    "dacer": DACER,
 }
 """``algo`` -> :class:`Algorithm`."""

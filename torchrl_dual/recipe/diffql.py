@@ -174,17 +174,17 @@ class DiffQLLearner(Learner):
             self.actor, self.critic.loss, self.box, eta=cfg.actor.eta
         )
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor.lr)
-        clamp = TensorDictModule(self.box, in_keys=["action"], out_keys=["action"])
-        self.evaluation_policy = TensorDictSequential(self.actor, clamp)
-        projection = env_kit(cfg).action_projection
-        self.exploration_policy = (
-            self.evaluation_policy
-            if projection is None
-            else TensorDictSequential(
-                self.actor,
-                clamp,
-                TensorDictModule(projection, in_keys=["action"], out_keys=["action"]),
-            )
+        self.clamp = TensorDictModule(self.box, in_keys=["action"], out_keys=["action"])
+        self.evaluation_policy = TensorDictSequential(self.actor, self.clamp)
+        self.exploration_policy = self.projected(self.evaluation_policy)
+
+    def projected(self, policy: nn.Module) -> nn.Module:
+        """``policy`` followed by the env kit's ``action_projection``, if it has one."""
+        projection = env_kit(self.cfg).action_projection
+        if projection is None:
+            return policy
+        return TensorDictSequential(
+            policy, TensorDictModule(projection, in_keys=["action"], out_keys=["action"])
         )
 
     def modules(self) -> dict:

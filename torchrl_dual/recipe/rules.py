@@ -110,6 +110,8 @@ class Real(Rule):
         return low_ok and high_ok
 
     def describe(self) -> str:
+        if self.low is None and self.high is None:
+            return "must be a finite number"
         bounds = _bounds(self.low, self.high, self.low_open, self.high_open)
         if self.low is not None and self.high is not None:
             return f"must lie in {bounds}"
