@@ -11,6 +11,7 @@ from torchrl_dual.recipe.algorithm import Algorithm
 from torchrl_dual.recipe.diffql import DIFFQL, DIFFQL_LA
 from torchrl_dual.recipe.diffuser import DIFFUSER
 from torchrl_dual.recipe.dual_settings import DUAL
+from torchrl_dual.recipe.edis import EDIS
 from torchrl_dual.recipe.iql import IQL
 from torchrl_dual.recipe.iql_la import IQL_LA
 
@@ -21,5 +22,6 @@ ALGORITHMS: dict[str, Algorithm] = {
     "diffql": DIFFQL,
     "diffql_la": DIFFQL_LA,
     "diffuser": DIFFUSER,
+    "edis": EDIS,
 }
 """``algo`` -> :class:`Algorithm`."""
