@@ -59,11 +59,19 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     ),
     "dual_latent_uq": ("algo=dual", "laplace.uq=latent"),
     "diffuser": ("algo=diffuser",),
+    # planner augmentation (Algorithm 1 line 14, EDIS): IQL + guided planner transitions,
+    # and DUAL + the same step ("DUAL + EDIS", the paper's Fig. 4(b))
+    "edis": ("algo=edis",),
+    "dual_augment": ("algo=dual", "augment.kind=planner"),
 }
 """Variant name -> recipe overrides."""
 
 ABLATION_VARIANTS = ("dual_no_planner", "dual_no_distillation", "dual_latent_uq", "diffuser")
 """The paper's other ablation rows and the Diffuser baseline (beyond the issue's grid)."""
+
+AUGMENT_VARIANTS = ("edis", "dual_augment")
+"""Planner augmentation: defined, in no cell yet (``--variants`` picks them once one lists
+them)."""
 
 SHIFT_VARIANTS = ("dual", "iql", "dual_lambda0")
 
@@ -81,7 +89,8 @@ class Cell:
 CELLS: dict[str, Cell] = {
     "umaze": Cell(
         ("env=pointmaze_umaze",),
-        tuple(v for v in VARIANTS if v not in ABLATION_VARIANTS), 5, "PointMaze U-maze",
+        tuple(v for v in VARIANTS if v not in ABLATION_VARIANTS + AUGMENT_VARIANTS), 5,
+        "PointMaze U-maze",
     ),
     "umaze_ablations": Cell(
         ("env=pointmaze_umaze",), ABLATION_VARIANTS, 3,
@@ -108,7 +117,13 @@ CELLS: dict[str, Cell] = {
 
 # Overrides that only the online phase reads: runs differing only in these share the
 # offline phase (torchrl_dual.recipe.offline_cache.ONLINE_KEYS).
-ONLINE_ONLY = ("env.shift=", "laplace.num_samples=", "laplace.uq=", "exploration.shift_weight=")
+ONLINE_ONLY = (
+    "env.shift=",
+    "laplace.num_samples=",
+    "laplace.uq=",
+    "exploration.shift_weight=",
+    "augment.",
+)
 
 
 @dataclass(frozen=True)
