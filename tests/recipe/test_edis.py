@@ -15,7 +15,7 @@ import pytest
 import torch
 from recipe_runner import REPO
 
-from torchrl_dual.recipe import compose_checked, run
+from torchrl_dual.recipe import O2ORun, compose_checked, run
 from torchrl_dual.recipe.dual import DualLearner
 from torchrl_dual.recipe.edis import EDISLearner
 from torchrl_dual.recipe.planner_augment import is_generated
@@ -159,3 +159,19 @@ def test_dual_with_planner_augmentation_guides_its_teacher(tmp_path, cache_dir):
     ]
     assert {"augment_guider", "augment_reward"} <= set(state)
     assert state["learner"]["augment"] == learner.augmenter.state_dict()
+
+
+def test_planner_augmentation_leaves_dual_s_networks_and_random_stream_as_they_were(
+    tmp_path, cache_dir
+):
+    """The augmenter's networks come from their own stream: DUAL's offline phase (and
+    with it an offline_cache entry) is the same with and without augmentation."""
+    states = []
+    for kind in ("none", "planner"):
+        overrides = [*FAST, f"output_dir={tmp_path / kind}", f"data_cache_dir={cache_dir}"]
+        cfg = compose_checked(CONFIG_DIR, [*overrides, "algo=dual", f"augment.kind={kind}"])
+        learner = O2ORun(cfg, DualLearner).learner
+        states.append((torch.get_rng_state(), learner.teacher.state_dict()))
+    (rng_none, teacher_none), (rng_planner, teacher_planner) = states
+    assert torch.equal(rng_none, rng_planner)
+    assert all(torch.equal(teacher_none[k], teacher_planner[k]) for k in teacher_none)

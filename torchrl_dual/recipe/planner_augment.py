@@ -149,9 +149,14 @@ class PlannerAugmenter:
         self.planner = planner
         self.layout = planner.layout
         self.offline_windows = offline_windows(cfg, run.data, a.batch_size)
-        self.guider = NoisyWindowClassifier(self.layout.window_shape, hidden=a.hidden)
+        # initialised from their own stream: the run's random stream, hence its offline
+        # phase, is the same as without augmentation (and may be shared with such runs)
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(cfg.seed)
+            self.guider = NoisyWindowClassifier(self.layout.window_shape, hidden=a.hidden)
+            self.reward_model = RewardModel(planner.normalizer, hidden=a.hidden)
         self.guider.to(cfg.device)
-        self.reward_model = RewardModel(planner.normalizer, hidden=a.hidden).to(cfg.device)
+        self.reward_model.to(cfg.device)
         self.guider_optimizer = torch.optim.Adam(self.guider.parameters(), lr=a.lr)
         self.reward_optimizer = torch.optim.Adam(self.reward_model.parameters(), lr=a.lr)
         self.sampler = PlannerSampler(planner, sampler="ddpm")
