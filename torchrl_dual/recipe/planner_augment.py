@@ -208,21 +208,28 @@ class PlannerAugmenter:
             return False
         metrics = self.fit_guider(online_windows)
         metrics.update(self.fit_reward_model(real))
-        generated = self.generate(real["observation"])
+        windows = self.generate(real["observation"])
+        generated = self.windows_to_transitions(windows, self.generated_windows)
+        self.generated_windows += windows.shape[0]
         self.run.replay.extend(generated.cpu())
         metrics.update(
             transitions=generated.shape[0],
             reward_mean=float(generated["next", "reward"].mean()),
+            log_ratio=float(self.log_ratio(windows).mean()),
         )
         self.run.log(metrics, self.run.updates, "augment/")
         return True
 
     def normalized(self, windows: TensorDictBase) -> torch.Tensor:
-        """``[B, H + 1]`` raw windows -> the planner's normalized ``[B, H + 1, D]``."""
-        norm = self.planner.normalizer
-        return self.layout.pack(
-            norm.normalize_observation(windows["observation"]),
-            norm.normalize_action(windows["action"]),
+        """``[B, H + 1]`` window TensorDict -> the planner's normalized ``[B, H + 1, D]``."""
+        return self.normalize(self.layout.pack(windows["observation"], windows["action"]))
+
+    def normalize(self, windows: torch.Tensor) -> torch.Tensor:
+        """Raw ``[B, H + 1, D]`` windows in the planner's normalized units."""
+        norm, layout = self.planner.normalizer, self.layout
+        return layout.pack(
+            norm.normalize_observation(layout.observations(windows)),
+            norm.normalize_action(layout.actions(windows)),
         )
 
     def fit_guider(self, online_windows: WindowReplayBuffer) -> dict[str, float]:
@@ -255,16 +262,19 @@ class PlannerAugmenter:
         return metrics
 
     @torch.no_grad()
-    def generate(self, states: torch.Tensor) -> TensorDictBase:
-        """``augment.num_windows`` guided windows from ``s_0`` among ``states``, as flat
-        marked transitions (see :func:`windows_to_transitions`)."""
+    def generate(self, states: torch.Tensor) -> torch.Tensor:
+        """``augment.num_windows`` raw guided windows ``[W, H + 1, D]``, ``s_0`` drawn
+        among ``states`` (kept exact)."""
         a = self.settings
         s0 = states[torch.randint(states.shape[0], (a.num_windows,))].to(self.run.cfg.device)
         guidance = classifier_guidance(self.guider, a.guidance_scale) if a.guidance_scale else None
-        windows = self.sampler.plan(s0, deterministic=False, mean_shift=guidance)
-        first = self.generated_windows
-        self.generated_windows += a.num_windows
-        return self.windows_to_transitions(windows, first)
+        return self.sampler.plan(s0, deterministic=False, mean_shift=guidance)
+
+    @torch.no_grad()
+    def log_ratio(self, windows: torch.Tensor) -> torch.Tensor:
+        """The guider's ``log q_online/q_offline`` (``−ε``) of raw clean windows (``t = 0``)."""
+        normalized = self.normalize(windows)
+        return self.guider(normalized, normalized.new_zeros(normalized.shape[0]))
 
     def windows_to_transitions(self, windows: torch.Tensor, first: int) -> TensorDictBase:
         """Raw ``[W, H + 1, D]`` windows -> the flat transitions ``(s_i, a_i, s_{i+1})``,
