@@ -60,15 +60,18 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     "dual_latent_uq": ("algo=dual", "laplace.uq=latent"),
     "diffuser": ("algo=diffuser",),
     "dacer": ("algo=dacer",),
+    # planner augmentation (Algorithm 1 line 14, EDIS): IQL + guided planner transitions,
+    # and DUAL + the same step ("DUAL + EDIS", the paper's Fig. 4(b))
+    "edis": ("algo=edis",),
+    "dual_augment": ("algo=dual", "augment.kind=planner"),
 }
 """Variant name -> recipe overrides."""
 
-ABLATION_VARIANTS = ("dual_no_planner", "dual_no_distillation", "dual_latent_uq", "diffuser")
-"""The paper's other ablation rows and the Diffuser baseline (beyond the issue's grid)."""
+ABLATION_VARIANTS = ("dual_no_planner", "dual_no_distillation", "dual_latent_uq")
+"""The paper's other ablation rows (beyond the issue's grid)."""
 
-UNSCHEDULED_VARIANTS = ("dacer",)
-"""Defined, but in no cell yet (issue #9's DACER baseline): add one to a cell's variants
-to run it."""
+PAPER_BASELINES = ("diffuser", "dacer", "edis", "dual_augment")
+"""The paper's other baselines and "DUAL + EDIS" (beyond the issue's grid)."""
 
 SHIFT_VARIANTS = ("dual", "iql", "dual_lambda0")
 
@@ -86,12 +89,16 @@ class Cell:
 CELLS: dict[str, Cell] = {
     "umaze": Cell(
         ("env=pointmaze_umaze",),
-        tuple(v for v in VARIANTS if v not in (*ABLATION_VARIANTS, *UNSCHEDULED_VARIANTS)), 5,
+        tuple(v for v in VARIANTS if v not in (*ABLATION_VARIANTS, *PAPER_BASELINES)), 5,
         "PointMaze U-maze",
     ),
     "umaze_ablations": Cell(
         ("env=pointmaze_umaze",), ABLATION_VARIANTS, 3,
-        "PointMaze U-maze: w/o planner, w/o distillation (N = 8), latent UQ, Diffuser",
+        "PointMaze U-maze: w/o planner, w/o distillation (N = 8), latent UQ",
+    ),
+    "umaze_baselines": Cell(
+        ("env=pointmaze_umaze",), PAPER_BASELINES, 3,
+        "PointMaze U-maze: Diffuser, DACER, EDIS (IQL + planner augmentation), DUAL + EDIS",
     ),
     "umaze_rotation": Cell(
         ("env=pointmaze_umaze", "env.shift=rotation"), SHIFT_VARIANTS, 3,
@@ -114,7 +121,13 @@ CELLS: dict[str, Cell] = {
 
 # Overrides that only the online phase reads: runs differing only in these share the
 # offline phase (torchrl_dual.recipe.offline_cache.ONLINE_KEYS).
-ONLINE_ONLY = ("env.shift=", "laplace.num_samples=", "laplace.uq=", "exploration.shift_weight=")
+ONLINE_ONLY = (
+    "env.shift=",
+    "laplace.num_samples=",
+    "laplace.uq=",
+    "exploration.shift_weight=",
+    "augment.",
+)
 
 
 @dataclass(frozen=True)

@@ -170,7 +170,9 @@ def test_report_keeps_hand_written_text_and_is_idempotent(tmp_path, capsys):
     first = docs.read_text()
     assert first.startswith("# Learning results\n\n" + lr.BEGIN)
     assert first.endswith(lr.END + "\n\nIntro written by hand.\n\n## Older runs\n\nkept as is.\n")
-    assert "| `iql` | 3 | 0.0 ± 0.0 | 5.0 ± 2.5 | 2.5 ± 1.2 | 5.0 | — | ▼ / ▼ |" in first  # t(2)=4.3027
+    assert (
+        "| `iql` | 3 | 0.0 ± 0.0 | 5.0 ± 2.5 | 2.5 ± 1.2 | 5.0 | — | ▼ / ▼ |" in first
+    )  # t(2)=4.3027
     assert "### DUAL vs IQL at equal steps and at equal wall time" in first
     for png in ("learning_smoke_umaze.png", "latency_vs_score_smoke.png"):
         assert (tmp_path / "figures" / png).stat().st_size > 1000

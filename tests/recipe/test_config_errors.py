@@ -31,7 +31,8 @@ CASES = [
     ("budget=tiny", "budget=tiny: unknown option; choose one of default, paper, smoke"),
     (
         "algo=nope",
-        "algo=nope: unknown option; choose one of dacer, diffql, diffql_la, diffuser, dual, iql, iql_la",
+        "algo=nope: unknown option; choose one of dacer, diffql, diffql_la, diffuser, dual, edis, "
+        "iql, iql_la",
     ),
     ("algo=iql actor.temperature=-1", "actor.temperature=-1: must be a number >= 0"),
     ("algo=iql actor.hiden=3", "unknown key 'actor.hiden'; did you mean actor.hidden?"),
@@ -96,6 +97,26 @@ CASES = [
         "exploration.transition_model=oracle: unknown option; choose one of frozen, shared",
     ),
     ("online.offline_fraction=1.0", "online.offline_fraction=1.0: must lie in (0, 1)"),
+    (
+        "augment.kind=edis",
+        "augment.kind=edis: unknown option; choose one of none, planner",
+    ),
+    (
+        "algo=edis augment.kind=none",
+        "augment.kind=none: must be planner for algo=edis (EDIS is IQL plus planner "
+        "augmentation; IQL alone is algo=iql)",
+    ),
+    (
+        "algo=edis budget=smoke augment.every=500",
+        "augment.every=500: exceeds the online phase's 200 updates (online.utd_ratio x "
+        "budget.online_frames): no augmentation round would run; lower augment.every or use "
+        "augment.kind=none",
+    ),
+    (
+        "algo=edis planner.num_steps=1",
+        "planner.num_steps=1: must be >= 2 with augment.kind=planner: the guidance shifts the "
+        "means of the teacher's DDPM steps",
+    ),
     ("critic.discount=0", "critic.discount=0: must lie in (0, 1]"),
     ("env.maze=tiny", "env.maze=tiny: unknown option; choose one of umaze, medium, large"),
     ("env=frozenlake env.epsilon=2", "env.epsilon=2: must lie in [0, 1]"),

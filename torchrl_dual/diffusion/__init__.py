@@ -1,6 +1,11 @@
 """Trajectory diffusion: schedules, denoisers, samplers and window sampling."""
 
 from torchrl_dual.diffusion.denoiser import ResidualMLPDenoiser, SinusoidalTimeEmbedding
+from torchrl_dual.diffusion.guidance import (
+    NoisyWindowClassifier,
+    classifier_guidance,
+    density_ratio_loss,
+)
 from torchrl_dual.diffusion.model import LATENTS, SAMPLERS, TrajectoryDiffusion
 from torchrl_dual.diffusion.normalizer import Normalizer
 from torchrl_dual.diffusion.schedule import SCHEDULES, NoiseSchedule
@@ -13,10 +18,13 @@ __all__ = [
     "SAMPLERS",
     "SCHEDULES",
     "NoiseSchedule",
+    "NoisyWindowClassifier",
     "Normalizer",
     "ResidualMLPDenoiser",
     "SinusoidalTimeEmbedding",
     "TrajectoryDiffusion",
     "TrajectoryLayout",
     "WindowReplayBuffer",
+    "classifier_guidance",
+    "density_ratio_loss",
 ]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import torch
 from torch import nn
 
@@ -11,6 +13,8 @@ from torchrl_dual.diffusion.schedule import NoiseSchedule
 from torchrl_dual.diffusion.trajectory_layout import TrajectoryLayout
 
 SAMPLERS = ("ddim", "ddpm")
+MeanShift = Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
+"""``(z_t, t, Σ) -> Δμ``: a shift of the DDPM posterior mean (classifier guidance)."""
 # The one-step sampler's latent z_1: the mean (zero) latent, or drawn at every call.
 LATENTS = ("zero", "sample")
 
@@ -141,17 +145,25 @@ class TrajectoryDiffusion(nn.Module):
         cond: torch.Tensor,
         mask: torch.Tensor,
         generator: torch.Generator | None = None,
+        mean_shift: MeanShift | None = None,
     ) -> torch.Tensor:
-        """Ancestral update: a draw from the posterior ``q(z_s | z_t, x = x̂)``."""
+        """Ancestral update: a draw from the posterior ``q(z_s | z_t, x = x̂)``.
+
+        ``mean_shift(z, t, Σ)``, if given, is added to the posterior mean ``μ`` (``Σ`` the
+        posterior variance): classifier guidance's ``μ + s·Σ·∇ log p(y | z_t)`` (Dhariwal &
+        Nichol 2021, Alg. 1). The known entries stay exact either way.
+        """
         x_hat, _, _ = self.predict(z, t, cond, mask)
         alpha_t, sigma_t = self._scales(t, z)
         alpha_s, sigma_s = self._scales(s, z)
         alpha_ts = alpha_t / alpha_s
         var_ts = (sigma_t**2 - alpha_ts**2 * sigma_s**2).clamp_min(0.0)
         mean = (alpha_ts * sigma_s**2 * z + alpha_s * var_ts * x_hat) / sigma_t**2
-        std = (var_ts * sigma_s**2 / sigma_t**2).sqrt()
+        variance = var_ts * sigma_s**2 / sigma_t**2
+        if mean_shift is not None:
+            mean = mean + mean_shift(torch.where(mask, cond, z), t, variance)
         noise = torch.randn(z.shape, generator=generator, device=z.device, dtype=z.dtype)
-        return torch.where(mask, cond, mean + std * noise)
+        return torch.where(mask, cond, mean + variance.sqrt() * noise)
 
     # ---------------------------------------------------------------- sampling
     def time_grid(self, num_steps: int, device=None) -> torch.Tensor:
@@ -172,6 +184,7 @@ class TrajectoryDiffusion(nn.Module):
         sampler: str = "ddim",
         generator: torch.Generator | None = None,
         noise: torch.Tensor | None = None,
+        mean_shift: MeanShift | None = None,
     ) -> torch.Tensor:
         """Draws normalized windows ``τ ~ p_θ(τ | known entries)``.
 
@@ -184,6 +197,9 @@ class TrajectoryDiffusion(nn.Module):
             sampler (str): ``"ddim"`` (deterministic given the initial noise) or ``"ddpm"``.
             generator (torch.Generator, optional): source of the initial noise.
             noise (Tensor, optional): the initial ``z_1``; drawn when omitted.
+            mean_shift (callable, optional): ``(z_t, t, Σ) -> Δμ`` added to each DDPM
+                posterior mean (:meth:`ddpm_step`); needs ``sampler="ddpm"`` and more than
+                one step. :func:`~torchrl_dual.diffusion.classifier_guidance` builds one.
         """
         if sampler not in SAMPLERS:
             raise ValueError(f"Unknown sampler {sampler!r}; choose one of {SAMPLERS}.")
@@ -196,6 +212,11 @@ class TrajectoryDiffusion(nn.Module):
         times = self.time_grid(
             self.num_steps if num_steps is None else num_steps, device=cond.device
         )
+        if mean_shift is not None and (sampler != "ddpm" or len(times) == 2):
+            raise ValueError(
+                "mean_shift (guidance) shifts DDPM posterior means: it needs sampler='ddpm' "
+                f"and num_steps > 1, got sampler={sampler!r} with {len(times) - 1} step(s)."
+            )
         if noise is None:
             noise = torch.randn(cond.shape, generator=generator, device=cond.device)
         z = torch.where(mask, cond, noise.to(cond.dtype))
@@ -207,7 +228,7 @@ class TrajectoryDiffusion(nn.Module):
             if sampler == "ddim":
                 z = self.ddim_step(z, t_b, s_b, cond, mask)
             elif float(s) > 0:
-                z = self.ddpm_step(z, t_b, s_b, cond, mask, generator)
+                z = self.ddpm_step(z, t_b, s_b, cond, mask, generator, mean_shift)
             else:
                 z = self.predict(z, t_b, cond, mask)[0]
         return z

@@ -16,7 +16,12 @@ from torchrl_dual.modules.actors import (
 from torchrl_dual.modules.dual_policy import make_dual_policy
 from torchrl_dual.modules.exploration import ShiftAwareNoise
 from torchrl_dual.modules.laplace import LaplaceEnsembleActor, LastLayerLaplace
-from torchrl_dual.modules.planner import PlannerPolicy, PlannerSampler, TransitionModel
+from torchrl_dual.modules.planner import (
+    PlannerPolicy,
+    PlannerSampler,
+    RewardModel,
+    TransitionModel,
+)
 
 __all__ = [
     "DDPMLastStepActor",
@@ -27,6 +32,7 @@ __all__ = [
     "PlannerActor",
     "PlannerPolicy",
     "PlannerSampler",
+    "RewardModel",
     "ShiftAwareNoise",
     "TransitionModel",
     "make_dual_policy",

@@ -8,7 +8,7 @@
 * :data:`ALGORITHMS` (``algorithms``) — one entry per ``algo``: an :class:`Algorithm`
   (``algorithm``: config sections, critics, cross-key checks, :class:`Learner`) defined
   next to its learner: ``dual`` (``dual_settings``), ``iql``, ``iql_la``, ``diffql``,
-  ``diffql_la`` (``diffql``), ``diffuser``, ``dacer``;
+  ``diffql_la`` (``diffql``), ``diffuser``, ``dacer``, ``edis``;
 * :data:`CRITICS` (``critics``) — one entry per ``critic.name``;
 * :func:`validate_config` (``schema``) — the schema of every config group, checked
   before any data or network; errors are :class:`UserError` (``errors``), reported as
@@ -20,8 +20,10 @@
   keys; ``run_summary`` writes each finished run's ``summary.json``;
 * :class:`DualLearner` / :func:`run_dual` (``dual``) — Algorithm 1;
   :class:`IQLLearner` / :func:`run_iql` (``iql``) — the IQL baseline; the other
-  baselines in ``iql_la``, ``diffql``, ``diffuser``, ``dacer`` (``laplace_refits``: the
-  shared Laplace refit schedule of ``iql_la`` and ``diffql_la``).
+  baselines in ``iql_la``, ``diffql``, ``diffuser``, ``dacer``, ``edis`` (``laplace_refits``: their
+  shared Laplace refit schedule; ``planner_stage``: the planner's offline stage;
+  ``planner_augment``: Algorithm 1 line 14's planner augmentation, also DUAL's
+  ``augment.kind=planner``).
 """
 
 from torchrl_dual.recipe.algorithm import Algorithm

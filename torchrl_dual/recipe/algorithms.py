@@ -12,6 +12,7 @@ from torchrl_dual.recipe.dacer import DACER
 from torchrl_dual.recipe.diffql import DIFFQL, DIFFQL_LA
 from torchrl_dual.recipe.diffuser import DIFFUSER
 from torchrl_dual.recipe.dual_settings import DUAL
+from torchrl_dual.recipe.edis import EDIS
 from torchrl_dual.recipe.iql import IQL
 from torchrl_dual.recipe.iql_la import IQL_LA
 
@@ -23,5 +24,6 @@ ALGORITHMS: dict[str, Algorithm] = {
     "diffql_la": DIFFQL_LA,
     "diffuser": DIFFUSER,
     "dacer": DACER,
+    "edis": EDIS,
 }
 """``algo`` -> :class:`Algorithm`."""

@@ -23,7 +23,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-from omegaconf import DictConfig
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule, TensorDictSequential
 
@@ -36,9 +35,9 @@ from torchrl_dual.recipe import networks
 from torchrl_dual.recipe.algorithm import Algorithm, OnlineSettings
 from torchrl_dual.recipe.dual_settings import PlannerSettings
 from torchrl_dual.recipe.env_kits import env_kit
-from torchrl_dual.recipe.errors import ConfigError, UserError
 from torchrl_dual.recipe.learner import Learner
 from torchrl_dual.recipe.o2o_run import O2ORun
+from torchrl_dual.recipe.planner_stage import check_planner_window, offline_windows
 from torchrl_dual.recipe.rules import Choice, key
 
 
@@ -60,12 +59,7 @@ class DiffuserLearner(Learner):
         self.run = run
         cfg = self.cfg = run.cfg
         p = cfg.planner
-        try:
-            self.offline_windows = WindowReplayBuffer(
-                run.data.transitions, p.horizon, p.batch_size, device=cfg.device
-            )
-        except ValueError as err:  # no episode is long enough for a window
-            raise UserError("planner.horizon", p.horizon, str(err)) from err
+        self.offline_windows = offline_windows(cfg, run.data, p.batch_size)
         self.online_windows: WindowReplayBuffer | None = None
         self.online_length = 0
         self.planner = networks.make_planner(cfg, run.data)
@@ -145,20 +139,9 @@ class DiffuserLearner(Learner):
         return {k: float(v) for k, v in out.items()}
 
 
-def check_diffuser(cfg: DictConfig) -> None:
-    """The planner's window must fit in an episode."""
-    if cfg.planner.horizon >= cfg.env.max_episode_steps:
-        raise ConfigError(
-            "planner.horizon",
-            cfg.planner.horizon,
-            f"must be < env.max_episode_steps={cfg.env.max_episode_steps} (a window holds "
-            "horizon + 1 steps of one episode)",
-        )
-
-
 DIFFUSER = Algorithm(
     sections={"planner": PlannerSettings, "diffuser": DiffuserSettings, "online": OnlineSettings},
     critics=("iql",),  # the critic section is not read: the Diffuser has no critic
-    check=check_diffuser,
+    check=check_planner_window,
     learner=DiffuserLearner,
 )

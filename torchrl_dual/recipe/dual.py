@@ -13,13 +13,13 @@ import torch
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
 
-from torchrl_dual.diffusion import WindowReplayBuffer
-from torchrl_dual.objectives import progressive_distillation, train_planner
+from torchrl_dual.objectives import progressive_distillation
 from torchrl_dual.recipe import networks
 from torchrl_dual.recipe.critics import CRITICS
-from torchrl_dual.recipe.errors import UserError
 from torchrl_dual.recipe.learner import Learner
 from torchrl_dual.recipe.o2o_run import O2ORun, run_o2o
+from torchrl_dual.recipe.planner_augment import augment_capacity, make_augmenter
+from torchrl_dual.recipe.planner_stage import offline_windows, pretrain_planner
 
 
 class DualLearner(Learner):
@@ -29,18 +29,13 @@ class DualLearner(Learner):
     title = "DUAL"
     # offline_cache: DUAL's online ablations (no UQ, λ = 0) and every shift share these
     shared_stages = ("planner", "distillation", "actor_critic")
-    online_keys = ("laplace.num_samples", "laplace.uq", "exploration.shift_weight")
+    online_keys = ("laplace.num_samples", "laplace.uq", "exploration.shift_weight", "augment")
 
     def __init__(self, run: O2ORun) -> None:
         self.run = run
         cfg = self.cfg = run.cfg
         data = run.data
-        try:
-            self.windows = WindowReplayBuffer(
-                data.transitions, cfg.planner.horizon, cfg.planner.batch_size, device=cfg.device
-            )
-        except ValueError as err:  # no episode is long enough for a window
-            raise UserError("planner.horizon", cfg.planner.horizon, str(err)) from err
+        self.windows = offline_windows(cfg, data, cfg.planner.batch_size)
         # ---- networks: teacher g_θ', actor π_θ and its transition model, critics
         self.teacher = networks.make_planner(cfg, data)
         self.actor = networks.make_actor(cfg, self.teacher)
@@ -56,17 +51,22 @@ class DualLearner(Learner):
         self.exploration_policy = self.policy  # Eq. 9 + Eq. 10
         self.evaluation_policy = self.ensemble  # the MAP mean under DETERMINISTIC
         self.updates_since_refit = 0
+        # augment.kind=planner: guided teacher windows added to D_online (Alg. 1 l. 14);
+        # built last, so the networks above get the same weights either way
+        self.augmenter = make_augmenter(run, self.teacher)
+        self.extra_online_capacity = augment_capacity(cfg)
 
     # ------------------------------------------------------------------ the protocol
     def modules(self) -> dict:
         """Each weight once: the frozen transition model is inside the ensemble, a shared
-        one is the actor's own planner."""
+        one is the actor's own planner; with ``augment.kind=planner``, the augmenter's."""
         return {
             "teacher": self.teacher,
             "ensemble": self.ensemble,  # actor, σ̄, Laplace posterior, frozen ŝ_t model
             "critic": self.critic.loss,
             "critic_optimizer": self.critic.optimizer,
             "actor_optimizer": self.actor_optimizer,
+            **(self.augmenter.modules() if self.augmenter else {}),
         }
 
     def shared_modules(self) -> dict:
@@ -84,10 +84,15 @@ class DualLearner(Learner):
         return shared
 
     def state_dict(self) -> dict:
-        return {"updates_since_refit": self.updates_since_refit}
+        state = {"updates_since_refit": self.updates_since_refit}
+        if self.augmenter:
+            state["augment"] = self.augmenter.state_dict()
+        return state
 
     def load_state_dict(self, state: dict) -> None:
         self.updates_since_refit = state["updates_since_refit"]
+        if self.augmenter:
+            self.augmenter.load_state_dict(state["augment"])
 
     def offline_stages(self) -> list:
         return [
@@ -113,9 +118,12 @@ class DualLearner(Learner):
 
     def after_updates(self) -> None:
         """Alg. 1 line 17: refit the posterior once ``budget.laplace_refit_every`` updates
-        have accumulated since the last fit."""
+        have accumulated since the last fit; then line 14 (``augment.kind=planner``): add
+        guided planner transitions to D_online for the next block when due."""
         if self.updates_since_refit >= self.cfg.budget.laplace_refit_every:
             self.fit_laplace()
+        if self.augmenter:
+            self.augmenter.after_updates()
 
     def batch_metrics(self, batch: TensorDictBase) -> dict:
         return {
@@ -126,17 +134,7 @@ class DualLearner(Learner):
     # ------------------------------------------------------------------ offline stages
     def pretrain_planner(self) -> None:
         """Alg. 1 lines 3-4: θ' ← θ' − λ_g ∇ L_VLB on D_offline (Eq. 3)."""
-        p = self.cfg.planner
-        train_planner(
-            self.teacher,
-            self.windows.sample,
-            self.cfg.budget.planner_updates,
-            lr=p.lr,
-            action_condition_prob=p.action_condition_prob,
-            logger=self.run.logger,
-            log_prefix="planner/",
-            progress=self.cfg.progress,
-        )
+        pretrain_planner(self.run, self.teacher, self.windows)
 
     def distill(self) -> None:
         """Alg. 1 line 5: distil g_θ' into the one-step π_θ and p(s'|s, a; θ).

@@ -17,6 +17,8 @@ from torchrl_dual.recipe.algorithm import Algorithm, OnlineSettings
 from torchrl_dual.recipe.dual import DualLearner
 from torchrl_dual.recipe.errors import ConfigError
 from torchrl_dual.recipe.networks import ACTOR_INITS, TRANSITION_MODELS
+from torchrl_dual.recipe.planner_augment import AugmentSettings, check_augment
+from torchrl_dual.recipe.planner_stage import check_planner_window
 from torchrl_dual.recipe.rules import Choice, Either, Integer, PowerOfTwo, Real, key
 
 
@@ -98,13 +100,8 @@ def check_dual(cfg: DictConfig) -> None:
             + ("" if final_steps == 1 else " (distillation.final_steps)"),
         )
     check_ablations(cfg)
-    if p.horizon >= cfg.env.max_episode_steps:
-        raise ConfigError(
-            "planner.horizon",
-            p.horizon,
-            f"must be < env.max_episode_steps={cfg.env.max_episode_steps} (a window holds "
-            "horizon + 1 steps of one episode)",
-        )
+    check_planner_window(cfg)
+    check_augment(cfg)
     if cfg.actor.latent == "sample" and p.schedule != "cosine":
         raise ConfigError(
             "actor.latent",
@@ -156,6 +153,7 @@ DUAL = Algorithm(
         "laplace": LaplaceSettings,
         "exploration": ExplorationSettings,
         "online": OnlineSettings,
+        "augment": AugmentSettings,
     },
     critics=("iql",),
     check=check_dual,

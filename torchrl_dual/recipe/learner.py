@@ -43,6 +43,11 @@ class Learner(ABC):
     """Dotted config keys of this algorithm that its :attr:`shared_stages` do not read
     (beyond :data:`~torchrl_dual.recipe.offline_cache.ONLINE_KEYS`)."""
 
+    extra_online_capacity: int = 0
+    """Online transitions the learner adds beyond the collected frames (planner
+    augmentation, :func:`~torchrl_dual.recipe.planner_augment.augment_capacity`): the
+    online buffer holds ``budget.online_frames`` plus these, so none overwrites another."""
+
     @abstractmethod
     def modules(self) -> dict[str, Any]:
         """Name -> object with ``state_dict``/``load_state_dict`` (networks, losses,

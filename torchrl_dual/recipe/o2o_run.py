@@ -118,7 +118,7 @@ class O2ORun:
         self.learner = make_learner(self)
         self.replay = OfflineToOnlineReplayBuffer(
             self.offline_buffer,
-            online_capacity=max(cfg.budget.online_frames, 1),
+            online_capacity=max(cfg.budget.online_frames + self.learner.extra_online_capacity, 1),
             offline_fraction=cfg.online.offline_fraction,
             batch_size=cfg.online.batch_size,
         )

@@ -6,7 +6,7 @@ import torch
 from torch import nn
 
 from torchrl_dual._utils import is_deterministic
-from torchrl_dual.diffusion.model import TrajectoryDiffusion
+from torchrl_dual.diffusion.model import MeanShift, TrajectoryDiffusion
 
 
 class PlannerSampler(nn.Module):
@@ -50,8 +50,11 @@ class PlannerSampler(nn.Module):
         action: torch.Tensor | None = None,
         *,
         deterministic: bool | None = None,
+        mean_shift: MeanShift | None = None,
     ) -> torch.Tensor:
-        """The sampled window in normalized units, ``[*B, H + 1, obs_dim + action_dim]``."""
+        """The sampled window in normalized units, ``[*B, H + 1, obs_dim + action_dim]``.
+
+        ``mean_shift`` guides a DDPM sampler (see :meth:`TrajectoryDiffusion.sample`)."""
         layout, norm = self.model.layout, self.model.normalizer
         if observation.shape[-1] != layout.obs_dim:
             raise ValueError(
@@ -72,6 +75,7 @@ class PlannerSampler(nn.Module):
             num_steps=self.num_steps,
             sampler="ddim" if deterministic else self.sampler,
             noise=cond if deterministic else None,  # known entries of cond, zeros elsewhere
+            mean_shift=mean_shift,
         )
 
     def plan(
@@ -80,13 +84,17 @@ class PlannerSampler(nn.Module):
         action: torch.Tensor | None = None,
         *,
         deterministic: bool | None = None,
+        mean_shift: MeanShift | None = None,
     ) -> torch.Tensor:
         """A whole window in raw units, ``[*B, H + 1, obs_dim + action_dim]``.
 
-        ``s_0`` (and ``a_0`` when given) are copied from the input, hence exact.
+        ``s_0`` (and ``a_0`` when given) are copied from the input, hence exact;
+        ``mean_shift`` guides a DDPM sampler (see :meth:`TrajectoryDiffusion.sample`).
         """
         layout, norm = self.model.layout, self.model.normalizer
-        window = self.normalized_window(observation, action, deterministic=deterministic)
+        window = self.normalized_window(
+            observation, action, deterministic=deterministic, mean_shift=mean_shift
+        )
         states = norm.denormalize_observation(layout.observations(window))
         actions = norm.denormalize_action(layout.actions(window))
         states[..., 0, :] = observation
