@@ -55,7 +55,7 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     "dual_no_distillation": (
         "algo=dual",
         "distillation.final_steps=8",
-        "budget.distill_updates=[300,300]",
+        "budget.distill_updates=[100,100]",
     ),
     "dual_latent_uq": ("algo=dual", "laplace.uq=latent"),
     "diffuser": ("algo=diffuser",),
@@ -315,7 +315,7 @@ def report(args: argparse.Namespace, command: str) -> None:
         machine=machine(),
     )
     text = args.docs.read_text() if args.docs.exists() else "# Learning results\n"
-    args.docs.write_text(replace_section(text, section))
+    args.docs.write_text(replace_section(text, section, args.budget))
     print(f"report: {args.docs} ({len(figures)} figures under {args.figures})")
 
 

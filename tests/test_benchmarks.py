@@ -166,10 +166,11 @@ def test_report_keeps_hand_written_text_and_is_idempotent(tmp_path, capsys):
         *("--results", str(tmp_path / "results"), "--docs", str(docs)),
         *("--figures", str(tmp_path / "figures")),
     ]
+    begin, end = lr.markers("smoke")
     assert learning.main(argv) == 0
     first = docs.read_text()
-    assert first.startswith("# Learning results\n\n" + lr.BEGIN)
-    assert first.endswith(lr.END + "\n\nIntro written by hand.\n\n## Older runs\n\nkept as is.\n")
+    assert first.startswith("# Learning results\n\n" + begin)
+    assert first.endswith(end + "\n\nIntro written by hand.\n\n## Older runs\n\nkept as is.\n")
     assert (
         "| `iql` | 3 | 0.0 ± 0.0 | 5.0 ± 2.5 | 2.5 ± 1.2 | 5.0 | — | ▼ / ▼ |" in first
     )  # t(2)=4.3027
@@ -179,8 +180,14 @@ def test_report_keeps_hand_written_text_and_is_idempotent(tmp_path, capsys):
         assert f"(figures/{png})" in first
     assert learning.main(argv) == 0
     second = docs.read_text()
-    assert lr.replace_section(second, "X") == lr.replace_section(first, "X")  # same layout
-    assert second.count(lr.BEGIN) == 1 and second.split(lr.END)[1] == first.split(lr.END)[1]
+    assert lr.replace_section(second, "X", "smoke") == lr.replace_section(first, "X", "smoke")
+    assert second.count(begin) == 1 and second.split(end)[1] == first.split(end)[1]
+    # another budget's section is added above and leaves this one as it is
+    other = lr.replace_section(
+        second, "<!-- learning-suite:paper:begin -->P<!-- learning-suite:paper:end -->", "paper"
+    )
+    assert other.split(begin, 1)[1] == second.split(begin, 1)[1]
+    assert other.index("learning-suite:paper:begin") < other.index(begin)
 
 
 def test_resume_skips_runs_with_a_json_and_continues_checkpointed_ones(tmp_path, capsys):

@@ -377,9 +377,11 @@ class StageClock:
     """Adds the wall-clock and CPU seconds since its creation to ``run.stage_seconds[name]``
     and ``run.stage_cpu_seconds[name]`` (on top of what a resumed run had already spent).
 
-    CPU seconds are this process's (``time.process_time``, all its threads): unlike wall
-    time they do not grow when other jobs share the cores, so runs of the learning suite
-    that ran side by side stay comparable (``num_threads=1``: CPU ≈ wall on an idle core).
+    CPU seconds are this process's (``time.process_time``, all its threads). Other jobs
+    on the same cores inflate them far less than wall time (measured on a 2-core machine
+    under heavy load: a stage's CPU seconds ×1.2-1.4, its wall seconds ×2.9), so runs of
+    the learning suite that ran side by side stay roughly comparable (``num_threads=1``:
+    CPU ≈ wall on an idle core).
     """
 
     def __init__(self, run: O2ORun, name: str) -> None:
