@@ -147,7 +147,7 @@ def test_latent_uq_builds_the_latent_ensemble_and_fits_no_posterior(tmp_path, ca
     [
         (
             ["distillation.final_steps=8"],
-            "budget.distill_updates=[300, 300, 600, 1200, 2400]: must have 2 entries, one per "
+            "budget.distill_updates=[100, 100, 200, 400, 800]: must have 2 entries, one per "
             "halving round of planner.num_steps=32 -> 8 (distillation.final_steps)",
         ),
         (["distillation.final_steps=64"], "must be <= planner.num_steps=32"),
