@@ -56,6 +56,13 @@ def test_a_follower_loads_the_shared_offline_phase(shared_runs):
     )
     assert not summary(shared_runs["leader"])["shared_offline"]
     assert summary(shared_runs["follower"])["shared_offline"]
+
+
+def test_a_shifted_run_prints_its_score_without_the_shift_too(shared_runs):
+    history = summary(shared_runs["follower"])["history"]
+    plain = history[-1]["normalized_score_unshifted"]
+    assert f"; without the shift {plain:.1f}" in shared_runs["procs"]["follower"].stdout
+    assert "without the shift" not in shared_runs["procs"]["leader"].stdout  # no shift
     assert len(list(shared_runs["cache"].iterdir())) == 1  # one entry for both
 
 

@@ -260,9 +260,11 @@ class O2ORun:
         result.update(frames=self.frames, label=label)
         self.history.append(result)
         self.log({k: v for k, v in result.items() if k != "label"}, self.frames, "eval/")
+        unshifted = result.get("normalized_score_unshifted")  # under env.shift only
         self.say(
             f"{label} @ {self.frames} frames: normalized score "
             f"{result['normalized_score']:.1f} (return {result['return']:.3f})"
+            + ("" if unshifted is None else f"; without the shift {unshifted:.1f}")
         )
         return result
 
