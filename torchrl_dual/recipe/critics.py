@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 from omegaconf import DictConfig
@@ -40,6 +41,11 @@ class Critic:
     loss: IQLLoss
     optimizer: torch.optim.Optimizer
     target_updater: SoftUpdate
+
+    def modules(self) -> dict[str, Any]:
+        """What a learner's checkpoint holds of the critics (:meth:`Learner.modules`): the
+        loss (V, both Q and the target Q networks) and its optimizer."""
+        return {"critic": self.loss, "critic_optimizer": self.optimizer}
 
     def step(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """One critic update of Alg. 1 (lines 7 and 15): one gradient step on IQL's

@@ -190,8 +190,7 @@ class DiffQLLearner(Learner):
     def modules(self) -> dict:
         return {
             "actor": self.actor,
-            "critic": self.critic.loss,
-            "critic_optimizer": self.critic.optimizer,
+            **self.critic.modules(),
             "actor_optimizer": self.actor_optimizer,
         }
 

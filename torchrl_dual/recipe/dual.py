@@ -63,8 +63,7 @@ class DualLearner(Learner):
         return {
             "teacher": self.teacher,
             "ensemble": self.ensemble,  # actor, σ̄, Laplace posterior, frozen ŝ_t model
-            "critic": self.critic.loss,
-            "critic_optimizer": self.critic.optimizer,
+            **self.critic.modules(),
             "actor_optimizer": self.actor_optimizer,
             **(self.augmenter.modules() if self.augmenter else {}),
         }
@@ -75,8 +74,7 @@ class DualLearner(Learner):
         shared = {
             "teacher": self.teacher,
             "actor": self.actor,
-            "critic": self.critic.loss,
-            "critic_optimizer": self.critic.optimizer,
+            **self.critic.modules(),
             "actor_optimizer": self.actor_optimizer,
         }
         if self.transition.frozen:

@@ -102,8 +102,7 @@ class IQLLearner(Learner):
     def modules(self) -> dict:
         """The IQL loss holds the actor, V, both Q and the target Q networks."""
         return {
-            "critic": self.critic.loss,
-            "critic_optimizer": self.critic.optimizer,
+            **self.critic.modules(),
             "actor_optimizer": self.actor_optimizer,
         }
 
