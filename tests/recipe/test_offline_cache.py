@@ -84,7 +84,10 @@ def test_the_summary_charges_the_shared_stages_at_their_first_cost(shared_runs):
     assert follower["cpu_seconds"] == pytest.approx(
         sum(follower["stage_cpu_seconds"].values()), abs=1e-2
     )
-    assert all(v > 0 for v in follower["stage_cpu_seconds"].values())
+    # stages that compute something took CPU time (the follower's Laplace stage, with
+    # laplace.num_samples=0, has nothing to fit and may round to 0)
+    cpu = follower["stage_cpu_seconds"]
+    assert all(cpu[stage] > 0 for stage in (*DualLearner.shared_stages, "online"))
     stages = follower["stage_seconds"]
     assert follower["offline_seconds"] == pytest.approx(
         sum(v for k, v in stages.items() if k != "online"), abs=1e-2
