@@ -13,38 +13,26 @@ from pathlib import Path
 
 import pytest
 import torch
-from recipe_runner import REPO
+from test_diffql import CONFIG_DIR, POINTMAZE, checkpoint_state
+from test_diffql import FAST as CUT_SMOKE_BUDGET
 
 from torchrl_dual.recipe import O2ORun, compose_checked, run
 from torchrl_dual.recipe.dual import DualLearner
 from torchrl_dual.recipe.edis import EDISLearner
 from torchrl_dual.recipe.planner_augment import is_generated
 
-CONFIG_DIR = REPO / "recipes" / "config"
 FAST = [
     "budget=smoke",
     "progress=false",
     "num_threads=1",
-    "env.max_episode_steps=50",
+    *POINTMAZE,
     "budget.planner_updates=20",
-    "budget.offline_updates=10",
-    "online.utd_ratio=0.2",
-    "budget.online_frames=100",
-    "budget.frames_per_batch=50",
-    "budget.eval_every=100",
-    "budget.checkpoint_every=100",
-    "budget.eval_episodes=2",
-    "budget.laplace_refit_every=10",
+    *CUT_SMOKE_BUDGET,
     "augment.num_windows=8",
     "augment.guider_updates=5",
     "augment.reward_updates=5",
 ]
 WINDOWS, HORIZON = 8, 8
-
-
-def checkpoint_state(output_dir: Path) -> dict:
-    payload = torch.load(output_dir / "checkpoint.pt", map_location="cpu", weights_only=False)
-    return payload["state"]
 
 
 def run_in_process(output_dir: Path, cache_dir: Path, *overrides: str):
