@@ -21,13 +21,16 @@ from torchrl_dual.recipe import ConfigError, compose_checked
 
 REPO = Path(__file__).resolve().parents[2]
 CONFIG_DIR = REPO / "recipes" / "config"
-ENVS = "frozenlake, pointmaze_large, pointmaze_medium, pointmaze_umaze"
+ENVS = (
+    "adroit, antmaze, frozenlake, halfcheetah, hopper, pointmaze_large, pointmaze_medium, "
+    "pointmaze_umaze, walker2d"
+)
 
 # (overrides, the message after "error: ")
 CASES = [
     ("budget.online_frames=-5", "budget.online_frames=-5: must be an integer >= 0"),
     ("critic.expectile=1.5", "critic.expectile=1.5: must lie in (0, 1)"),
-    ("env=antmaze", f"env=antmaze: unknown option; choose one of {ENVS}"),
+    ("env=mujoco", f"env=mujoco: unknown option; choose one of {ENVS}"),
     ("budget=tiny", "budget=tiny: unknown option; choose one of default, default_v1, paper, smoke"),
     (
         "algo=nope",
@@ -120,7 +123,10 @@ CASES = [
     ("critic.discount=0", "critic.discount=0: must lie in (0, 1]"),
     ("env.maze=tiny", "env.maze=tiny: unknown option; choose one of umaze, medium, large"),
     ("env=frozenlake env.epsilon=2", "env.epsilon=2: must lie in [0, 1]"),
-    ("env.kind=mujoco", "env.kind=mujoco: unknown option; choose one of pointmaze, frozenlake"),
+    (
+        "env.kind=mujoco",
+        "env.kind=mujoco: unknown option; choose one of pointmaze, frozenlake, antmaze, locomotion, adroit",
+    ),
     (
         "logger.backend=nope",
         "logger.backend=nope: unknown option; choose one of csv, tensorboard, wandb, mlflow, trackio",
@@ -202,7 +208,7 @@ def recipe(*args: str, cwd: Path = REPO, **env: str) -> subprocess.CompletedProc
 
 @pytest.mark.parametrize(
     "override",
-    ["env=antmaze", "budget.onlin_frames=3", "output_dir"],
+    ["env=mujoco", "budget.onlin_frames=3", "output_dir"],
 )
 def test_the_command_line_exits_2_with_one_error_line_and_no_traceback(override, tmp_path):
     if override == "output_dir":  # an existing file: Hydra must not get to create it

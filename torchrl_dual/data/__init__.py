@@ -19,6 +19,7 @@ from torchrl_dual.data.maze_dataset import (
     load_or_generate_maze_dataset,
 )
 from torchrl_dual.data.minari import default_observation_keys, load_minari_dataset
+from torchrl_dual.data.minari_writer import collect_episodes, write_minari_dataset
 from torchrl_dual.data.offline_dataset import OfflineDataset
 from torchrl_dual.data.replay import to_replay_buffer
 from torchrl_dual.data.scores import normalized_score
@@ -34,6 +35,7 @@ __all__ = [
     "TRANSITION_KEYS",
     "MazeWaypointController",
     "OfflineDataset",
+    "collect_episodes",
     "compute_maze_references",
     "default_cache_dir",
     "default_observation_keys",
@@ -49,4 +51,5 @@ __all__ = [
     "save_cached_dataset",
     "to_replay_buffer",
     "validate_transitions",
+    "write_minari_dataset",
 ]

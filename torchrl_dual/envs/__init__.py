@@ -1,6 +1,7 @@
-"""Environment factories: PointMaze (Gymnasium-Robotics) and slippery Frozen-Lake, and their
-online dynamics shifts (:data:`SHIFTS`)."""
+"""Environment factories: PointMaze (Gymnasium-Robotics), slippery Frozen-Lake, flat
+(normalized) observations for any Gymnasium env, and online dynamics shifts (:data:`SHIFTS`)."""
 
+from torchrl_dual.envs.flat_observation import FlatObservation, flat_dim, make_flat_env
 from torchrl_dual.envs.frozenlake import (
     FROZENLAKE_MAPS,
     FROZENLAKE_NUM_ACTIONS,
@@ -40,6 +41,9 @@ from torchrl_dual.envs.shifts import (
 )
 
 __all__ = [
+    "FlatObservation",
+    "flat_dim",
+    "make_flat_env",
     "DEFAULT_SHIFT_ANGLE",
     "SHIFTS",
     "BiasedSlip",

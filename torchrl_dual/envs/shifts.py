@@ -172,7 +172,11 @@ class BiasedSlip(gym.Wrapper):
 
 
 SHIFTS: dict[str, DynamicsShift] = {
-    "none": DynamicsShift(("pointmaze", "frozenlake"), lambda env, angle, scale: env, "nothing"),
+    "none": DynamicsShift(
+        ("pointmaze", "frozenlake", "antmaze", "locomotion", "adroit"),
+        lambda env, angle, scale: env,
+        "nothing",
+    ),
     "rotation": DynamicsShift(
         ("pointmaze",),
         lambda env, angle, scale: RotatedAction(env, angle),

@@ -16,7 +16,6 @@ on) and without it (``normalized_score_unshifted``).
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -45,43 +44,11 @@ from torchrl_dual.envs import (
     shift_names,
 )
 from torchrl_dual.evaluation import evaluate_episodes, frozenlake_policy_actions
+from torchrl_dual.recipe.env_kit import EnvKit, EnvSettings, Evaluator
 from torchrl_dual.recipe.errors import UserError
-from torchrl_dual.recipe.rules import Choice, Either, Integer, Maybe, Real, Text, key
+from torchrl_dual.recipe.minari_kits import MINARI_KITS
+from torchrl_dual.recipe.rules import Choice, Either, Maybe, Real, key
 from torchrl_dual.transforms import PreviousTransition
-
-Evaluator = Callable[[nn.Module], dict[str, float]]
-"""``policy -> {"return": ..., "normalized_score": ..., ...}`` under deterministic actions."""
-
-
-@dataclass(frozen=True)
-class EnvKit:
-    """What the recipe needs from one kind of environment.
-
-    Args:
-        settings (type): schema dataclass of the ``env.*`` keys, a subclass of
-            :class:`EnvSettings` (see ``rules.key``).
-        load_data (callable): ``cfg -> OfflineDataset``, ``D_offline`` (cached).
-        make_env (callable): ``cfg -> EnvBase``, the online env (the recipe appends
-            :class:`~torchrl_dual.transforms.PreviousTransition` for Eq. 10's ``d_t``).
-        make_evaluator (callable): ``(cfg, data) -> Evaluator``.
-        action_projection (callable, optional): maps the sampled action to the executed
-            one (stored in the replay buffer), e.g. the one-hot argmax of a discrete env.
-    """
-
-    settings: type
-    load_data: Callable[[DictConfig], OfflineDataset]
-    make_env: Callable[[DictConfig], EnvBase]
-    make_evaluator: Callable[[DictConfig, OfflineDataset], Evaluator]
-    action_projection: Callable[[torch.Tensor], torch.Tensor] | None = None
-
-
-@dataclass
-class EnvSettings:
-    """The ``env.*`` keys every kit has; a kit's schema adds its own."""
-
-    name: str = key(Text(), "used in output_dir and the plot title")
-    kind: str = key(Text(), "the ENV_KITS entry")
-    max_episode_steps: int = key(Integer(1), "time limit of an episode")
 
 
 # ----------------------------------------------------------------------------- PointMaze
@@ -113,7 +80,7 @@ def _pointmaze_data(cfg: DictConfig) -> OfflineDataset:
     )
 
 
-def _pointmaze_env(cfg: DictConfig) -> EnvBase:
+def _pointmaze_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
     env = cfg.env
     return make_pointmaze_env(
         env.maze,
@@ -183,7 +150,7 @@ def _frozenlake_data(cfg: DictConfig) -> OfflineDataset:
     )
 
 
-def _frozenlake_env(cfg: DictConfig) -> EnvBase:
+def _frozenlake_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
     env = cfg.env
     return make_frozenlake_env(
         env.map_name,
@@ -238,6 +205,7 @@ ENV_KITS: dict[str, EnvKit] = {
         _frozenlake_evaluator,
         action_projection=one_hot_argmax,
     ),
+    **MINARI_KITS,  # antmaze, locomotion, adroit (torchrl_dual.recipe.minari_kits)
 }
 """``env.kind`` -> :class:`EnvKit`."""
 
@@ -262,10 +230,11 @@ def make_offline_dataset(cfg: DictConfig) -> OfflineDataset:
     return data
 
 
-def make_train_env(cfg: DictConfig) -> EnvBase:
+def make_train_env(cfg: DictConfig, data: OfflineDataset | None = None) -> EnvBase:
     """The online env with :class:`PreviousTransition`, which carries ``(s_{t-1}, a_{t-1})``
-    to the policy; the policy turns them into ``d_t`` of Eq. (10)."""
-    return env_kit(cfg).make_env(cfg).append_transform(PreviousTransition())
+    to the policy; the policy turns them into ``d_t`` of Eq. (10). ``data`` is
+    ``D_offline`` when the caller has it (kits whose env depends on it read it otherwise)."""
+    return env_kit(cfg).make_env(cfg, data).append_transform(PreviousTransition())
 
 
 def check_dims(env: EnvBase, data: OfflineDataset, name: Any = None) -> None:

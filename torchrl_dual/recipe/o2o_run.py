@@ -40,7 +40,7 @@ from torchrl_dual.recipe.errors import ConfigError, UserError
 from torchrl_dual.recipe.learner import Learner
 from torchrl_dual.recipe.offline_cache import run_offline_stages
 from torchrl_dual.recipe.plots import plot_learning_curve
-from torchrl_dual.recipe.run_summary import write_summary
+from torchrl_dual.recipe.run_summary import score_text, write_summary
 
 # Settings that may change when a run is resumed; everything else must match.
 RESUMABLE_KEYS = (
@@ -110,7 +110,7 @@ class O2ORun:
         saved = self._load_checkpoint() if cfg.resume and self.checkpoint.exists() else None
         # ---- data and envs (Alg. 1 line 1)
         self.data = env_kits.make_offline_dataset(cfg)
-        self.env = env_kits.make_train_env(cfg)
+        self.env = env_kits.make_train_env(cfg, self.data)
         env_kits.check_dims(self.env, self.data, cfg.env.name)
         self.evaluate_policy = env_kits.make_evaluator(cfg, self.data)
         self.offline_buffer = self._offline_buffer()
@@ -263,8 +263,8 @@ class O2ORun:
         unshifted = result.get("normalized_score_unshifted")  # under env.shift only
         self.say(
             f"{label} @ {self.frames} frames: normalized score "
-            f"{result['normalized_score']:.1f} (return {result['return']:.3f})"
-            + ("" if unshifted is None else f"; without the shift {unshifted:.1f}")
+            f"{score_text(result['normalized_score'])} (return {result['return']:.3f})"
+            + ("" if unshifted is None else f"; without the shift {score_text(unshifted)}")
         )
         return result
 
@@ -321,10 +321,13 @@ class O2ORun:
         final = self.history[-1] if self.history else None
         self.say("done.")
         if offline is not None:
-            self.say(f"normalized score after the offline phase: {offline['normalized_score']:.1f}")
+            self.say(
+                f"normalized score after the offline phase: {score_text(offline['normalized_score'])}"
+            )
         if final is not None:
             self.say(
-                f"normalized score at the end of the online phase: {final['normalized_score']:.1f}"
+                "normalized score at the end of the online phase: "
+                + score_text(final["normalized_score"])
             )
         self.say(f"metrics CSV: {self.output_dir / 'logs' / self.name / 'scalars'}")
         self.say(f"learning curve: {png}")

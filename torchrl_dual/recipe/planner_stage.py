@@ -47,8 +47,10 @@ def pretrain_planner(
 
 
 def check_planner_window(cfg: DictConfig) -> None:
-    """The planner's window must fit in an episode."""
-    if cfg.planner.horizon >= cfg.env.max_episode_steps:
+    """The planner's window must fit in an episode (a null time limit is the data set's,
+    checked against its episodes when the windows are cut)."""
+    limit = cfg.env.max_episode_steps
+    if limit is not None and cfg.planner.horizon >= limit:
         raise ConfigError(
             "planner.horizon",
             cfg.planner.horizon,

@@ -189,6 +189,23 @@ class IntegerList(Rule):
         return f"must be a list of integers >= {self.low}"
 
 
+@dataclasses.dataclass(frozen=True)
+class RealList(Rule):
+    """A list of ``length`` finite numbers (e.g. a pair of reference returns)."""
+
+    length: int
+
+    def allows(self, value: Any) -> bool:
+        return (
+            isinstance(value, list)
+            and len(value) == self.length
+            and all(_is_number(v) and not isinstance(v, bool) for v in value)
+        )
+
+    def describe(self) -> str:
+        return f"must be a list of {self.length} finite numbers"
+
+
 def key(rule: Rule, doc: str = "") -> Any:
     """Declares a schema field: the config key's :class:`Rule` and its meaning."""
     return dataclasses.field(metadata={"rule": rule, "doc": doc})

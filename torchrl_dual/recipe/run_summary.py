@@ -8,6 +8,7 @@ a shared offline phase, and the resolved config.
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -16,6 +17,19 @@ from omegaconf import OmegaConf
 
 if TYPE_CHECKING:
     from torchrl_dual.recipe.o2o_run import O2ORun
+
+
+NO_REFERENCES = "n/a (the data set has no reference returns; set env.reference_returns)"
+
+
+def score_text(score: float) -> str:
+    """A normalized score for the console, or why there is none (NaN: no references).
+
+    Examples:
+        >>> score_text(57.25), score_text(float("nan"))[:3]
+        ('57.2', 'n/a')
+    """
+    return NO_REFERENCES if math.isnan(score) else f"{score:.1f}"
 
 
 def run_summary(run: O2ORun) -> dict:

@@ -132,6 +132,8 @@ def validate_config(cfg: DictConfig) -> DictConfig:
         raise ConfigError(
             "critic", cfg.critic.name, f"{cfg.algo} supports {', '.join(algorithm.critics)}"
         )
+    if kit.check is not None:  # what the env needs on disk (e.g. a Minari data set)
+        kit.check(cfg)
     algorithm.check(cfg)
     check_machine(cfg)
     return cfg
