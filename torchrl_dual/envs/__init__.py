@@ -1,5 +1,5 @@
-"""Environment factories: PointMaze (Gymnasium-Robotics) and slippery Frozen-Lake, and their
-online dynamics shifts (:data:`SHIFTS`)."""
+"""Environment factories: PointMaze (Gymnasium-Robotics) and slippery Frozen-Lake, and the
+online dynamics shifts (:data:`SHIFTS`) of these and of the MuJoCo locomotion robots."""
 
 from torchrl_dual.envs.frozenlake import (
     FROZENLAKE_MAPS,
@@ -16,6 +16,13 @@ from torchrl_dual.envs.frozenlake_mdp import (
     frozenlake_success_probability,
     frozenlake_transition_matrix,
     frozenlake_value_iteration,
+)
+from torchrl_dual.envs.locomotion_shifts import (
+    KINEMATIC_JOINTS,
+    LOCOMOTION_ROBOTS,
+    LOCOMOTION_SHIFTS,
+    LocomotionShift,
+    locomotion_robot,
 )
 from torchrl_dual.envs.onehot_action import ContinuousOneHotAction
 from torchrl_dual.envs.pointmaze import (
@@ -41,6 +48,11 @@ from torchrl_dual.envs.shifts import (
 
 __all__ = [
     "DEFAULT_SHIFT_ANGLE",
+    "KINEMATIC_JOINTS",
+    "LOCOMOTION_ROBOTS",
+    "LOCOMOTION_SHIFTS",
+    "LocomotionShift",
+    "locomotion_robot",
     "SHIFTS",
     "BiasedSlip",
     "DynamicsShift",
