@@ -56,6 +56,21 @@ def test_each_shift_changes_the_next_states_and_none_changes_nothing(robot):
         assert np.abs(shifted - plain).max() > 0.2, (robot, shift)
 
 
+@pytest.mark.parametrize("robot", list(ROBOTS))
+def test_level_one_is_the_identity_for_every_shift(robot):
+    # the edits are nothing but the scaling: s = 1 leaves the dynamics as they were
+    # (bit-identical in place; the recompiled morphology differs by float rounding of the
+    # recomputed positions only)
+    qpos, qvel = probe_state(robot, "kinematic")
+    plain = rollout(gym.make(ROBOTS[robot]), qpos, qvel)
+    for shift in SHIFTS:
+        env = apply_shift(gym.make(ROBOTS[robot]), shift, scale=1.0, kind="locomotion")
+        atol = 1e-9 if shift == "morphology" else 0.0
+        np.testing.assert_allclose(
+            rollout(env, qpos, qvel), plain, rtol=0, atol=atol, err_msg=shift
+        )
+
+
 def original_and_shifted(robot: str, shift: str):
     """The models of two envs of one id, the second shifted after the first was made."""
     plain = gym.make(ROBOTS[robot])
@@ -173,6 +188,9 @@ def test_morphology_keeps_the_spec_and_the_env_steps_and_resets():
     assert obs.shape == (17,)
     assert np.isfinite(env.step(env.action_space.sample())[0]).all()
     assert env.unwrapped.mujoco_renderer.model is env.unwrapped.model
+    again = gym.make(env.spec)  # the spec records the shift
+    leg = again.unwrapped.model.geom("leg_geom").id
+    assert again.unwrapped.model.geom_size[leg, 1] == env.unwrapped.model.geom_size[leg, 1] == 0.125
 
 
 def test_unsupported_robot_or_kind_is_a_clear_error():

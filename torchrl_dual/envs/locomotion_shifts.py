@@ -63,11 +63,13 @@ def locomotion_robot(env: gym.Env) -> str:
         >>> locomotion_robot(gym.make("HalfCheetah-v5"))
         'halfcheetah'
     """
-    name = type(env.unwrapped).__name__
-    if name not in LOCOMOTION_ROBOTS:
-        supported = ", ".join(f"{cls} ({robot})" for cls, robot in LOCOMOTION_ROBOTS.items())
-        raise ValueError(f"ODRL locomotion shifts support {supported}; got {name}.")
-    return LOCOMOTION_ROBOTS[name]
+    for cls in type(env.unwrapped).__mro__:  # Gymnasium's class or a subclass of it
+        if cls.__name__ in LOCOMOTION_ROBOTS:
+            return LOCOMOTION_ROBOTS[cls.__name__]
+    supported = ", ".join(f"{cls} ({robot})" for cls, robot in LOCOMOTION_ROBOTS.items())
+    raise ValueError(
+        f"ODRL locomotion shifts support {supported}; got {type(env.unwrapped).__name__}."
+    )
 
 
 def _floats(element: ET.Element, attribute: str) -> np.ndarray:
@@ -163,7 +165,8 @@ class LocomotionShift(gym.Wrapper, gym.utils.RecordConstructorArgs):
     ``friction``, ``gravity`` and ``kinematic`` edit ``env.unwrapped.model`` in place;
     ``morphology`` recompiles the env's XML with the limb shrunk and swaps the model and
     data of ``env.unwrapped``. Either way only this env instance changes (each Gymnasium
-    MuJoCo env compiles its own model) and ``env.spec`` keeps its id.
+    MuJoCo env compiles its own model) and ``env.spec`` keeps its id; the spec also records
+    the shift (``additional_wrappers``), so ``gym.make(env.spec)`` rebuilds the shifted env.
 
     Args:
         env (gym.Env): ``Hopper-v5``, ``HalfCheetah-v5`` or ``Walker2d-v5`` (any kwargs).

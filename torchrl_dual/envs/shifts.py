@@ -178,6 +178,22 @@ class BiasedSlip(gym.Wrapper):
         inner.P = biased_slip_table(inner.P, probs[1], clockwise=self.clockwise)
 
 
+LOCOMOTION_DOCS = {
+    "friction": "ODRL friction: the robot's geom friction multiplied by env.shift_scale",
+    "gravity": "ODRL gravity: the gravity vector multiplied by env.shift_scale",
+    "kinematic": "ODRL kinematic: the knee (hopper) or thigh joints' range divided by "
+    "env.shift_scale (ODRL easy / medium / hard = 1.25 / 2 / 5)",
+    "morphology": "ODRL morphology: the foot (hopper), torso (halfcheetah) or shins (walker2d) "
+    "shrunk by env.shift_scale (ODRL easy / medium / hard = 1.25 / 2 / 5; hopper foot "
+    "1.25 / 1.67 / 2.5)",
+}
+"""ODRL locomotion shift -> its :data:`SHIFTS` doc line (:class:`LocomotionShift`)."""
+
+
+def _locomotion(shift: str) -> Callable[[gym.Env, float, float | None], gym.Env]:
+    return lambda env, angle, scale: LocomotionShift(env, shift, scale)
+
+
 SHIFTS: dict[str, DynamicsShift] = {
     "none": DynamicsShift(
         ("pointmaze", "frozenlake", "locomotion"), lambda env, angle, scale: env, "nothing"
@@ -209,32 +225,10 @@ SHIFTS: dict[str, DynamicsShift] = {
         lambda env, angle, scale: BiasedSlip(env, clockwise=True),
         "slips always turn clockwise of the intended move",
     ),
-    "friction": DynamicsShift(
-        ("locomotion",),
-        lambda env, angle, scale: LocomotionShift(env, "friction", scale),
-        "ODRL friction: the robot's geom friction multiplied by env.shift_scale",
-        default_scale=2.0,
-    ),
-    "gravity": DynamicsShift(
-        ("locomotion",),
-        lambda env, angle, scale: LocomotionShift(env, "gravity", scale),
-        "ODRL gravity: the gravity vector multiplied by env.shift_scale",
-        default_scale=2.0,
-    ),
-    "kinematic": DynamicsShift(
-        ("locomotion",),
-        lambda env, angle, scale: LocomotionShift(env, "kinematic", scale),
-        "ODRL kinematic: the knee (hopper) or thigh joints' range divided by env.shift_scale "
-        "(ODRL easy / medium / hard = 1.25 / 2 / 5)",
-        default_scale=2.0,
-    ),
-    "morphology": DynamicsShift(
-        ("locomotion",),
-        lambda env, angle, scale: LocomotionShift(env, "morphology", scale),
-        "ODRL morphology: the foot (hopper), torso (halfcheetah) or shins (walker2d) shrunk "
-        "by env.shift_scale (ODRL easy / medium / hard = 1.25 / 2 / 5; hopper 1.25 / 1.67 / 2.5)",
-        default_scale=2.0,
-    ),
+    **{
+        name: DynamicsShift(("locomotion",), _locomotion(name), doc, default_scale=2.0)
+        for name, doc in LOCOMOTION_DOCS.items()
+    },
 }
 """Shift name -> :class:`DynamicsShift`."""
 
