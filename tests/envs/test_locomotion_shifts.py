@@ -202,5 +202,7 @@ def test_unsupported_robot_or_kind_is_a_clear_error():
         apply_shift(gym.make("Hopper-v5"), "friction", kind="pointmaze")
     with pytest.raises(ValueError, match=r"Unknown locomotion shift 'mass'"):
         LocomotionShift(gym.make("Hopper-v5"), "mass")
+    with pytest.raises(ValueError, match="apply the morphology shift before"):
+        LocomotionShift(make("hopper", "gravity"), "morphology")
     with pytest.raises(ValueError, match="scale must be > 0"):
         LocomotionShift(gym.make("Hopper-v5"), "gravity", 0.0)

@@ -159,6 +159,14 @@ def _friction_geoms(model, robot: str) -> tuple[np.ndarray, slice]:
     return np.arange(model.ngeom), slice(0, 3)
 
 
+def _shifted_below(env: gym.Env) -> bool:
+    while isinstance(env, gym.Wrapper):
+        if isinstance(env, LocomotionShift):
+            return True
+        env = env.env
+    return False
+
+
 class LocomotionShift(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """A MuJoCo locomotion env under one ODRL dynamics shift (module docstring).
 
@@ -203,6 +211,8 @@ class LocomotionShift(gym.Wrapper, gym.utils.RecordConstructorArgs):
             for joint in KINEMATIC_JOINTS[self.robot]:
                 model.jnt_range[model.joint(joint).id] /= self.scale
         else:
+            if _shifted_below(env):  # recompiling from the XML would drop their edits
+                raise ValueError("apply the morphology shift before any other locomotion shift")
             root = ET.parse(inner.fullpath).getroot()
             MORPHOLOGY_EDITS[self.robot](root, self.scale)
             model = mujoco.MjModel.from_xml_string(ET.tostring(root, encoding="unicode"))
