@@ -41,7 +41,9 @@ def next_states(shift: str, steps: int = 5, **kw) -> np.ndarray:
 def test_every_shift_applies_to_the_env_kinds_it_names():
     assert shift_names("pointmaze") == ("none", "rotation", "damping", "mass")
     assert shift_names("frozenlake") == ("none", "biased_slip", "biased_slip_cw")
-    assert set(SHIFTS) == set(shift_names("pointmaze")) | set(shift_names("frozenlake"))
+    assert shift_names("locomotion") == ("none", "friction", "gravity", "kinematic", "morphology")
+    kinds = ("pointmaze", "frozenlake", "locomotion")
+    assert set(SHIFTS) == set().union(*(shift_names(kind) for kind in kinds))
 
 
 @pytest.mark.parametrize("shift", POINTMAZE_SHIFTS)

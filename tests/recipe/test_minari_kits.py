@@ -245,3 +245,17 @@ def test_ids_of_the_published_families():
         dataset_id("locomotion", task="hopper", dataset="medium", dataset_version="v0") == HOPPER_ID
     )
     assert dataset_id("adroit", task="pen", dataset="cloned", dataset_version="v2") == PEN_ID
+
+
+def test_an_odrl_shift_reaches_the_online_and_evaluation_envs_not_the_data(minari_path, tmp_path):
+    plain_cfg = compose(tmp_path, "env=hopper")
+    cfg = compose(tmp_path, "env=hopper", "env.shift=gravity")
+    data = env_kits.make_offline_dataset(cfg)
+    plain = env_kits.make_offline_dataset(plain_cfg)
+    assert (data.transitions == plain.transitions).all()
+    gravity = _gym_env(plain_cfg, plain, eval_env=True, shifted=True).unwrapped.model.opt.gravity
+    for eval_env in (False, True):
+        shifted = _gym_env(cfg, data, eval_env=eval_env, shifted=True).unwrapped.model.opt.gravity
+        assert np.allclose(shifted, 2.0 * gravity)
+    online = env_kits.make_train_env(cfg, data)
+    assert np.allclose(online.base_env._env.unwrapped.model.opt.gravity, 2.0 * gravity)

@@ -1,5 +1,6 @@
 """Environment factories: PointMaze (Gymnasium-Robotics), slippery Frozen-Lake, flat
-(normalized) observations for any Gymnasium env, and online dynamics shifts (:data:`SHIFTS`)."""
+(normalized) observations for any Gymnasium env, and the online dynamics shifts
+(:data:`SHIFTS`) of these and of the MuJoCo locomotion robots (ODRL)."""
 
 from torchrl_dual.envs.flat_observation import FlatObservation, flat_dim, make_flat_env
 from torchrl_dual.envs.frozenlake import (
@@ -17,6 +18,13 @@ from torchrl_dual.envs.frozenlake_mdp import (
     frozenlake_success_probability,
     frozenlake_transition_matrix,
     frozenlake_value_iteration,
+)
+from torchrl_dual.envs.locomotion_shifts import (
+    KINEMATIC_JOINTS,
+    LOCOMOTION_ROBOTS,
+    LOCOMOTION_SHIFTS,
+    LocomotionShift,
+    locomotion_robot,
 )
 from torchrl_dual.envs.onehot_action import ContinuousOneHotAction
 from torchrl_dual.envs.pointmaze import (
@@ -45,6 +53,11 @@ __all__ = [
     "flat_dim",
     "make_flat_env",
     "DEFAULT_SHIFT_ANGLE",
+    "KINEMATIC_JOINTS",
+    "LOCOMOTION_ROBOTS",
+    "LOCOMOTION_SHIFTS",
+    "LocomotionShift",
+    "locomotion_robot",
     "SHIFTS",
     "BiasedSlip",
     "DynamicsShift",

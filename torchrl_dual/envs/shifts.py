@@ -8,6 +8,9 @@ exact Frozen-Lake model (:mod:`~torchrl_dual.envs.frozenlake_mdp`) rewrites its
 transition table with the same function as the env (:func:`biased_slip_table`).
 
 * ``none`` (every env kind): nothing changes.
+* ``friction``, ``gravity``, ``kinematic``, ``morphology`` (locomotion: Hopper,
+  HalfCheetah, Walker2d v5): ODRL's shifts at level ``scale`` (default 2.0), see
+  :mod:`~torchrl_dual.envs.locomotion_shifts`.
 * ``rotation`` (pointmaze): the action ``(ax, ay)`` is rotated by ``angle`` degrees
   (counter-clockwise) before the env clips and executes it.
 * ``damping`` (pointmaze): MuJoCo ``model.dof_damping`` of the point's two slide joints
@@ -34,17 +37,21 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
+from torchrl_dual.envs.locomotion_shifts import LocomotionShift
+
 
 @dataclass(frozen=True)
 class DynamicsShift:
     """One entry of :data:`SHIFTS`.
 
     Args:
-        kinds (tuple of str): the env kinds (``"pointmaze"``, ``"frozenlake"``) it applies to.
+        kinds (tuple of str): the env kinds (``"pointmaze"``, ``"frozenlake"``,
+            ``"locomotion"``) it applies to.
         wrap (callable): ``(env, angle, scale) -> env``, the shifted Gymnasium env.
         doc (str): one line saying what changes.
-        default_scale (float, optional): the scale used when none is given (sized so that
-            the offline expert keeps at most half of its score; see ``docs/recipe.md``).
+        default_scale (float, optional): the scale used when none is given (PointMaze: sized
+            so that the offline expert keeps at most half of its score, see
+            ``docs/recipe.md``; locomotion: DUAL's ODRL "shift level 2.0").
     """
 
     kinds: tuple[str, ...]
@@ -171,6 +178,22 @@ class BiasedSlip(gym.Wrapper):
         inner.P = biased_slip_table(inner.P, probs[1], clockwise=self.clockwise)
 
 
+LOCOMOTION_DOCS = {
+    "friction": "ODRL friction: the robot's geom friction multiplied by env.shift_scale",
+    "gravity": "ODRL gravity: the gravity vector multiplied by env.shift_scale",
+    "kinematic": "ODRL kinematic: the knee (hopper) or thigh joints' range divided by "
+    "env.shift_scale (ODRL easy / medium / hard = 1.25 / 2 / 5)",
+    "morphology": "ODRL morphology: the foot (hopper), torso (halfcheetah) or shins (walker2d) "
+    "shrunk by env.shift_scale (ODRL easy / medium / hard = 1.25 / 2 / 5; hopper foot "
+    "1.25 / 1.67 / 2.5)",
+}
+"""ODRL locomotion shift -> its :data:`SHIFTS` doc line (:class:`LocomotionShift`)."""
+
+
+def _locomotion(shift: str) -> Callable[[gym.Env, float, float | None], gym.Env]:
+    return lambda env, angle, scale: LocomotionShift(env, shift, scale)
+
+
 SHIFTS: dict[str, DynamicsShift] = {
     "none": DynamicsShift(
         ("pointmaze", "frozenlake", "antmaze", "locomotion", "adroit"),
@@ -204,6 +227,10 @@ SHIFTS: dict[str, DynamicsShift] = {
         lambda env, angle, scale: BiasedSlip(env, clockwise=True),
         "slips always turn clockwise of the intended move",
     ),
+    **{
+        name: DynamicsShift(("locomotion",), _locomotion(name), doc, default_scale=2.0)
+        for name, doc in LOCOMOTION_DOCS.items()
+    },
 }
 """Shift name -> :class:`DynamicsShift`."""
 
@@ -217,6 +244,8 @@ def shift_names(kind: str) -> tuple[str, ...]:
     Examples:
         >>> shift_names("pointmaze"), shift_names("frozenlake")
         (('none', 'rotation', 'damping', 'mass'), ('none', 'biased_slip', 'biased_slip_cw'))
+        >>> shift_names("locomotion")
+        ('none', 'friction', 'gravity', 'kinematic', 'morphology')
     """
     return tuple(name for name, shift in SHIFTS.items() if kind in shift.kinds)
 
@@ -241,13 +270,13 @@ def apply_shift(
     """Returns ``env`` under the dynamics shift ``shift`` (``env`` itself for ``"none"``).
 
     Args:
-        env (gym.Env): the raw Gymnasium env (PointMaze or Frozen-Lake).
+        env (gym.Env): the raw Gymnasium env (PointMaze, Frozen-Lake or a MuJoCo locomotion env).
         shift (str): a :data:`SHIFTS` name.
 
     Keyword Args:
         angle (float, optional): degrees for ``rotation``; defaults to 60.
-        scale (float, optional): factor for ``damping`` / ``mass``; defaults to the
-            entry's ``default_scale``.
+        scale (float, optional): factor for ``damping`` / ``mass``, level of the locomotion
+            shifts; defaults to the entry's ``default_scale``.
         kind (str, optional): the env kind, to reject a shift made for another env.
 
     Examples:
