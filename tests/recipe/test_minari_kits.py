@@ -16,18 +16,13 @@ import torch
 pytest.importorskip("h5py", reason="Minari's storage needs h5py: pip install 'minari[hdf5]'")
 minari = pytest.importorskip("minari")
 
-from minari_local import (  # noqa: E402
-    ANTMAZE_ID,
-    HOPPER_ID,
-    PEN_ID,
-    UMAZE_EVAL_MAP,
-    UMAZE_MAP,
-    write_antmaze_umaze,
-    write_hopper_medium,
-    write_pen_cloned,
-)
 from recipe_runner import failed, run_recipe  # noqa: E402
 
+from torchrl_dual.data.minari_standins import (  # noqa: E402
+    UMAZE_EVAL_MAP,
+    UMAZE_MAP,
+    write_standin_dataset,
+)
 from torchrl_dual.recipe import ConfigError, UserError, compose_checked, env_kits, run  # noqa: E402
 from torchrl_dual.recipe.minari_kits import (  # noqa: E402
     OBSERVATION_STD_EPS,
@@ -35,6 +30,11 @@ from torchrl_dual.recipe.minari_kits import (  # noqa: E402
     check_observation_layout,
 )
 
+ANTMAZE_ID, HOPPER_ID, PEN_ID = (
+    "D4RL/antmaze/umaze-v1",
+    "mujoco/hopper/medium-v0",
+    "D4RL/pen/cloned-v2",
+)
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "recipes" / "config"
 FAST = [
     "budget.offline_updates=10",
@@ -54,9 +54,9 @@ def minari_path(tmp_path_factory):
     path = tmp_path_factory.mktemp("minari_datasets")
     patch = pytest.MonkeyPatch()
     patch.setenv("MINARI_DATASETS_PATH", str(path))
-    write_antmaze_umaze()
-    write_hopper_medium()
-    write_pen_cloned()
+    write_standin_dataset(ANTMAZE_ID, 4, 40)
+    write_standin_dataset(HOPPER_ID, 6, 60)
+    write_standin_dataset(PEN_ID, 3, 40)
     yield path
     patch.undo()
 

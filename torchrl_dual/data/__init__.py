@@ -19,6 +19,7 @@ from torchrl_dual.data.maze_dataset import (
     load_or_generate_maze_dataset,
 )
 from torchrl_dual.data.minari import default_observation_keys, load_minari_dataset
+from torchrl_dual.data.minari_standins import STANDINS, write_standin_dataset
 from torchrl_dual.data.minari_writer import collect_episodes, write_minari_dataset
 from torchrl_dual.data.offline_dataset import OfflineDataset
 from torchrl_dual.data.replay import to_replay_buffer
@@ -30,6 +31,7 @@ from torchrl_dual.data.transition_layout import (
 )
 
 __all__ = [
+    "STANDINS",
     "FROZENLAKE_GENERATOR_VERSION",
     "MAZE_GENERATOR_VERSION",
     "TRANSITION_KEYS",
@@ -52,4 +54,5 @@ __all__ = [
     "to_replay_buffer",
     "validate_transitions",
     "write_minari_dataset",
+    "write_standin_dataset",
 ]

@@ -1,28 +1,30 @@
-"""Tiny Minari data sets made here, under the published ids, env versions and metadata
-fields (the published ones cannot be downloaded where the tests run).
+"""Stand-in Minari data sets: tiny random-action data under the published ids, env
+versions and metadata fields, for machines that cannot download the published ones
+(tests, CI, benchmarks of the code paths).
 
-* ``D4RL/antmaze/umaze-v1``: ``AntMaze_UMaze-v4`` with D4RL's U-maze map (goal top left,
-  reset bottom left), ``continuing_task=True``, ``reset_target=False``, and the evaluation
-  env of the Minari generation scripts (start and goal on the right-hand column);
-  ``ref_min_score`` / ``ref_max_score`` present, as in the D4RL imports.
-* ``mujoco/hopper/medium-v0``: ``Hopper-v5``; no reference scores (Minari's MuJoCo data
-  sets are not D4RL imports).
-* ``D4RL/pen/cloned-v2``: ``AdroitHandPen-v1`` with references.
-
-Actions are uniform random and episodes are cut short; the reference values are stand-ins
-of the right kind (random < expert), not the published numbers.
+:data:`STANDINS` maps a published id to how its env is made: ``D4RL/antmaze/umaze-v1`` is
+``AntMaze_UMaze-v4`` with D4RL's U-maze map (goal top left, reset bottom left),
+``continuing_task=True``, ``reset_target=False``, and the evaluation env of the Minari
+generation scripts (start and goal on the right-hand column), with references as the D4RL
+imports carry; ``mujoco/<robot>/medium-v0`` are the v5 MuJoCo envs without references
+(Minari's MuJoCo data sets are not D4RL imports); ``D4RL/pen/cloned-v2`` is
+``AdroitHandPen-v1`` with references. The reference values are stand-ins of the right kind
+(random < expert), not the published numbers, and the data is uniform random actions: it
+exercises loading, flattening, boundaries, envs and scores, not learning.
 """
 
 from __future__ import annotations
 
-from copy import deepcopy
+from dataclasses import dataclass, field
+from typing import Any
 
 import gymnasium as gym
 
-from torchrl_dual.data import collect_episodes, write_minari_dataset
+from torchrl_dual.data.minari_writer import collect_episodes, write_minari_dataset
 
 R, G = "r", "g"
 UMAZE_MAP = [[1, 1, 1, 1, 1], [1, G, 0, 0, 1], [1, 1, 1, 0, 1], [1, R, 0, 0, 1], [1, 1, 1, 1, 1]]
+"""D4RL's ``antmaze-umaze`` map (data collection): goal top left, reset bottom left."""
 UMAZE_EVAL_MAP = [
     [1, 1, 1, 1, 1],
     [1, 0, 0, R, 1],
@@ -30,40 +32,81 @@ UMAZE_EVAL_MAP = [
     [1, 0, 0, G, 1],
     [1, 1, 1, 1, 1],
 ]
-
-ANTMAZE_ID = "D4RL/antmaze/umaze-v1"
-HOPPER_ID = "mujoco/hopper/medium-v0"
-PEN_ID = "D4RL/pen/cloned-v2"
+"""The evaluation map the Minari AntMaze data sets record."""
 
 
-def _register() -> None:
+@dataclass(frozen=True)
+class StandIn:
+    """How the env of one published data set is made.
+
+    Args:
+        env_id (str): the Gymnasium id the published data set records.
+        kwargs (dict): its ``gym.make`` kwargs.
+        eval_kwargs (dict, optional): kwargs that differ in its evaluation env.
+        references (tuple of float, optional): stand-in ``(ref_min_score, ref_max_score)``.
+    """
+
+    env_id: str
+    kwargs: dict[str, Any] = field(default_factory=dict)
+    eval_kwargs: dict[str, Any] | None = None
+    references: tuple[float, float] | None = None
+
+
+STANDINS: dict[str, StandIn] = {
+    "D4RL/antmaze/umaze-v1": StandIn(
+        "AntMaze_UMaze-v4",
+        {"maze_map": UMAZE_MAP, "continuing_task": True, "reset_target": False},
+        {"maze_map": UMAZE_EVAL_MAP},
+        (0.0, 400.0),
+    ),
+    "mujoco/hopper/medium-v0": StandIn("Hopper-v5"),
+    "mujoco/halfcheetah/medium-v0": StandIn("HalfCheetah-v5"),
+    "mujoco/walker2d/medium-v0": StandIn("Walker2d-v5"),
+    "D4RL/pen/cloned-v2": StandIn("AdroitHandPen-v1", references=(96.26, 3076.83)),
+}
+"""Published Minari id -> :class:`StandIn`."""
+
+
+def write_standin_dataset(
+    dataset_id: str, num_episodes: int = 4, steps: int = 40, *, seed: int = 0
+):
+    """Writes a random-action stand-in for ``dataset_id`` into ``MINARI_DATASETS_PATH``.
+
+    Args:
+        dataset_id (str): a key of :data:`STANDINS`.
+        num_episodes (int): episodes. Defaults to 4.
+        steps (int): cut each episode after this many steps (truncated). Defaults to 40.
+
+    Keyword Args:
+        seed (int): episode ``k`` is reset with ``seed + k``.
+
+    Returns:
+        the ``minari.MinariDataset``.
+
+    Examples:
+        >>> import os, tempfile
+        >>> os.environ["MINARI_DATASETS_PATH"] = tempfile.mkdtemp()
+        >>> dataset = write_standin_dataset("mujoco/hopper/medium-v0", 2, 10)
+        >>> dataset.env_spec.id, dataset.total_steps <= 20
+        ('Hopper-v5', True)
+    """
+    if dataset_id not in STANDINS:
+        raise ValueError(f"no stand-in for {dataset_id!r}; known: {sorted(STANDINS)}.")
     import gymnasium_robotics
 
     gym.register_envs(gymnasium_robotics)
-
-
-def write_antmaze_umaze(num_episodes: int = 4, steps: int = 40):
-    _register()
-    env = gym.make("AntMaze_UMaze-v4", maze_map=UMAZE_MAP, continuing_task=True, reset_target=False)
-    eval_spec = deepcopy(env.spec)
-    eval_spec.kwargs["maze_map"] = UMAZE_EVAL_MAP
-    buffers = collect_episodes(env, None, num_episodes, max_steps=steps)
+    standin = STANDINS[dataset_id]
+    env = gym.make(standin.env_id, **standin.kwargs)
+    eval_spec = None
+    if standin.eval_kwargs is not None:
+        eval_spec = gym.make(standin.env_id, **{**standin.kwargs, **standin.eval_kwargs}).spec
+    buffers = collect_episodes(env, None, num_episodes, seed=seed, max_steps=steps)
     env.close()
     return write_minari_dataset(
-        ANTMAZE_ID, buffers, env.spec, eval_env_spec=eval_spec, reference_returns=(0.0, 400.0)
+        dataset_id,
+        buffers,
+        env.spec,
+        eval_env_spec=eval_spec,
+        reference_returns=standin.references,
+        algorithm_name="torchrl_dual stand-in (uniform random actions)",
     )
-
-
-def write_hopper_medium(num_episodes: int = 6, steps: int = 60):
-    env = gym.make("Hopper-v5")
-    buffers = collect_episodes(env, None, num_episodes, max_steps=steps)
-    env.close()
-    return write_minari_dataset(HOPPER_ID, buffers, env.spec)
-
-
-def write_pen_cloned(num_episodes: int = 3, steps: int = 40):
-    _register()
-    env = gym.make("AdroitHandPen-v1")
-    buffers = collect_episodes(env, None, num_episodes, max_steps=steps)
-    env.close()
-    return write_minari_dataset(PEN_ID, buffers, env.spec, reference_returns=(96.26, 3076.83))
