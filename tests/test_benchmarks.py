@@ -257,3 +257,49 @@ def test_a_failed_run_prints_its_stderr_tail_and_the_suite_exits_nonzero(
     assert "2 runs failed: medium/iql/seed0, medium/iql/seed1" in printed.err
     assert not (tmp_path / "results" / "smoke").exists()
     assert "No results yet." in (tmp_path / "results.md").read_text()
+
+
+# ---------------------------------------------------------------- env families
+import families  # noqa: E402
+
+
+def test_paper_projection_multiplies_each_cost_by_the_paper_budget():
+    unit = dict.fromkeys(
+        (
+            "planner_update_ms",
+            "distill_update_ms",
+            "actor_critic_update_ms",
+            "laplace_ms_per_1k_transitions",
+            "online_step_ms",
+            "eval_step_ms",
+        ),
+        3.6,  # 3.6 ms: one hour per million
+    )
+    hours = families.projection_hours(unit, max_episode_steps=1000)
+    assert hours["planner"] == pytest.approx(1.0) and hours["actor_critic"] == pytest.approx(1.0)
+    assert hours["distillation"] == pytest.approx(0.1)
+    assert hours["online_updates"] == pytest.approx(0.5) and hours["online_steps"] == pytest.approx(
+        1.0
+    )
+    assert hours["evaluation"] == pytest.approx(21 * 100 * 1000 / 1e6)
+    # 51 fits (one offline + 50 refits in 500k online updates) over 1M offline + on average
+    # 0.5M online transitions
+    assert hours["laplace"] == pytest.approx(51 * 1500 / 1e6)
+    assert hours["total"] == pytest.approx(sum(v for k, v in hours.items() if k != "total"))
+
+
+@pytest.mark.skipif(
+    __import__("importlib").util.find_spec("minari") is None, reason="needs minari[hdf5]"
+)
+def test_families_benchmark_runs_on_a_stand_in_data_set(tmp_path):
+    out = tmp_path / "families.json"
+    cmd = [sys.executable, "benchmarks/families.py", "--families", "hopper"]
+    cmd += ["--updates", "5", "--steps", "20", "--json", str(out)]
+    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    (row,) = json.loads(out.read_text())
+    assert (row["family"], row["obs_dim"], row["action_dim"]) == ("hopper", 11, 3)
+    assert all(
+        row[k] > 0 for k in ("planner_update_ms", "actor_critic_update_ms", "online_step_ms")
+    )
+    assert row["paper_budget_cpu_hours"]["total"] > 0
