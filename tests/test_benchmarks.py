@@ -303,3 +303,11 @@ def test_families_benchmark_runs_on_a_stand_in_data_set(tmp_path):
         row[k] > 0 for k in ("planner_update_ms", "actor_critic_update_ms", "online_step_ms")
     )
     assert row["paper_budget_cpu_hours"]["total"] > 0
+
+
+def test_ant_controller_cost_projects_minaris_budget():
+    cmd = [sys.executable, "benchmarks/ant_controller_cost.py", "--updates", "2", "--steps", "20"]
+    cmd += ["--width", "32", "--depth", "1", "--batch-size", "16"]
+    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "| Minari's train_ant.py | 30,000,000 | 1,875,000 |" in proc.stdout
