@@ -7,11 +7,10 @@ import math
 import pytest
 import torch
 from tensordict import TensorDict
-from tensordict.nn import NormalParamExtractor, TensorDictModule
-from torch import nn
 from torchrl.data import Bounded
-from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
+from torchrl.modules import MLP, ProbabilisticActor, ValueOperator
 from torchrl.objectives import CQLLoss
+from toy import mlp_by_hand, tanh_normal_actor
 
 from torchrl_dual.objectives import PENALTY_LAYOUTS, CalQLLoss
 
@@ -21,16 +20,7 @@ OBS, ACT, BATCH, NUM = 3, 2, 6, 4
 # ----------------------------------------------------------------------------- factories
 def _mock_nets(seed: int = 0) -> tuple[ProbabilisticActor, ValueOperator]:
     torch.manual_seed(seed)
-    spec = Bounded(-torch.ones(ACT), torch.ones(ACT), (ACT,))
-    net = nn.Sequential(
-        MLP(in_features=OBS, out_features=2 * ACT, num_cells=[8]), NormalParamExtractor()
-    )
-    actor = ProbabilisticActor(
-        TensorDictModule(net, in_keys=["observation"], out_keys=["loc", "scale"]),
-        in_keys=["loc", "scale"],
-        spec=spec,
-        distribution_class=TanhNormal,
-    )
+    actor = tanh_normal_actor(OBS, ACT, Bounded(-torch.ones(ACT), torch.ones(ACT), (ACT,)))
     qvalue = ValueOperator(
         MLP(in_features=OBS + ACT, out_features=1, num_cells=[8]), in_keys=["observation", "action"]
     )
@@ -70,10 +60,8 @@ def _penalty(loss: CQLLoss, batch: TensorDict, seed: int = 1) -> torch.Tensor:
 
 
 def _q_by_hand(params: TensorDict, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-    """``W2 tanh(W0 [s, a] + b0) + b2`` of the one-hidden-layer TorchRL ``MLP`` Q network."""
-    x = torch.cat([obs, action], -1)
-    hidden = torch.tanh(x @ params["module", "0", "weight"].T + params["module", "0", "bias"])
-    return (hidden @ params["module", "2", "weight"].T + params["module", "2", "bias"]).squeeze(-1)
+    """``Q(s, a)`` of the one-hidden-layer TorchRL ``MLP`` Q network, written out."""
+    return mlp_by_hand(params, torch.cat([obs, action], -1))
 
 
 def _penalty_by_hand(loss: CalQLLoss, batch: TensorDict, bound: torch.Tensor, seed: int = 1):
@@ -149,18 +137,18 @@ def test_a_bound_above_the_policy_q_raises_the_penalty_and_one_below_leaves_cqls
         assert torch.equal(td["bound_rate"], torch.ones(BATCH))
 
 
-def test_the_bound_binds_per_state():
-    loss = _mock_loss()
+def test_the_bound_binds_per_state_and_reduction_none_gives_one_penalty_per_transition():
     base = _mock_batch(-math.inf)
     bound = torch.full((BATCH, 1), -math.inf)
     bound[2] = 100.0
-    reduced = CalQLLoss(*_mock_nets(), num_random=NUM, reduction="none")
-    reduced.make_value_estimator(gamma=0.9)
-    free = _penalty(reduced, base)
-    one = _penalty(reduced, base.set("mc_return", bound))
-    changed = (one - free).abs() > 1e-6
-    assert changed.tolist() == [i == 2 for i in range(BATCH)]
-    assert one.shape == (BATCH,) and _penalty(loss, base).shape == ()
+    for layout in PENALTY_LAYOUTS:
+        per_row = _mock_loss(penalty_layout=layout, reduction="none", scalar_output_mode="exclude")
+        free = _penalty(per_row, base)
+        one = _penalty(per_row, base.clone().set("mc_return", bound))
+        assert one.shape == (BATCH,)
+        assert ((one - free).abs() > 1e-6).tolist() == [i == 2 for i in range(BATCH)], layout
+        mean = _penalty(_mock_loss(penalty_layout=layout), base)
+        torch.testing.assert_close(free.mean(), mean)
 
 
 # ----------------------------------------------------------------------------- gradients

@@ -1,7 +1,7 @@
 """Cal-QL: TorchRL's CQL loss with the policy Q-values of its penalty bounded by MC returns.
 
 Nakamoto et al., 2023, "Cal-QL: Calibrated Offline RL Pre-Training for Efficient Online
-Fine-Tuning" (NeurIPS), Eq. (5.1) and Alg. 1: CQL's conservative regulariser
+Fine-Tuning" (NeurIPS), Sec. 5 (the Cal-QL regulariser) and Alg. 1: CQL's conservative regulariser
 ``α·(E_{s∼D, a∼π}[Q(s, a)] − E_{s,a∼D}[Q(s, a)])`` becomes
 ``α·(E_{s∼D, a∼π}[max(Q(s, a), V^μ(s))] − E_{s,a∼D}[Q(s, a)])``, with ``V^μ(s)`` the
 Monte-Carlo return-to-go of the data (:func:`torchrl_dual.data.monte_carlo_returns`).
@@ -26,7 +26,7 @@ PENALTY_LAYOUTS = ("calql", "torchrl")
 
 
 class CalQLLoss(CQLLoss):
-    """The Cal-QL critic loss (Nakamoto et al. 2023, Eq. 5.1 / Alg. 1), a TorchRL ``CQLLoss``.
+    """The Cal-QL critic loss (Nakamoto et al. 2023, Sec. 5 and Alg. 1), a TorchRL ``CQLLoss``.
 
     Everything but the conservative penalty is :class:`~torchrl.objectives.CQLLoss`: the
     twin-Q Bellman loss ``loss_qvalue``, the SAC actor, BC and entropy losses, the optional
