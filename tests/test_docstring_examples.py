@@ -26,6 +26,7 @@ EXCLUDED: tuple[str, ...] = ()
 MUST_HAVE_EXAMPLES = (
     "torchrl_dual._utils",
     "torchrl_dual.checkpoint",
+    "torchrl_dual.data.mc_returns",
     "torchrl_dual.diffusion._fast_path.paired_trunk",
     "torchrl_dual._versioned_cache",
     "torchrl_dual.diffusion.model",
@@ -38,6 +39,7 @@ MUST_HAVE_EXAMPLES = (
     "torchrl_dual.modules.laplace.laplace_ensemble_actor",
     "torchrl_dual.modules.planner.planner_policy",
     "torchrl_dual.modules.planner.transition_model",
+    "torchrl_dual.objectives.calql",
     "torchrl_dual.objectives.distillation",
     "torchrl_dual.objectives.update_loop",
 )

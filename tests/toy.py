@@ -4,6 +4,8 @@
 * the one-step planner's reference computations (the unfolded path the exact fast path
   must equal) and the weight changes every cache of derived tensors must notice.
 * tiny fitted Laplace ensembles over a linear-head or planner actor and their data.
+* a tiny TorchRL ``TanhNormal`` actor and the by-hand forward of a one-hidden-layer ``MLP``
+  (critic losses' reference computations).
 """
 
 from __future__ import annotations
@@ -12,8 +14,10 @@ import copy
 
 import torch
 from tensordict import TensorDict
+from tensordict.nn import NormalParamExtractor, TensorDictModule
 from torch import nn
-from torchrl.modules import MLP
+from torchrl.data import TensorSpec
+from torchrl.modules import MLP, ProbabilisticActor, TanhNormal
 
 from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
 from torchrl_dual.modules import (
@@ -24,6 +28,28 @@ from torchrl_dual.modules import (
 )
 
 LEFT_FRACTION = 0.3
+
+
+def tanh_normal_actor(
+    obs_dim: int, action_dim: int, spec: TensorSpec | None = None
+) -> ProbabilisticActor:
+    """A TorchRL ``TanhNormal`` actor on ``observation``, one hidden layer of 8 cells."""
+    net = nn.Sequential(
+        MLP(in_features=obs_dim, out_features=2 * action_dim, num_cells=[8]), NormalParamExtractor()
+    )
+    return ProbabilisticActor(
+        TensorDictModule(net, in_keys=["observation"], out_keys=["loc", "scale"]),
+        in_keys=["loc", "scale"],
+        spec=spec,
+        distribution_class=TanhNormal,
+    )
+
+
+def mlp_by_hand(params: TensorDict, x: torch.Tensor) -> torch.Tensor:
+    """``W2 tanh(W0 x + b0) + b2`` of a one-hidden-layer TorchRL ``MLP`` inside a
+    ``ValueOperator`` (``params`` as the loss holds them, under ``"module"``)."""
+    hidden = torch.tanh(x @ params["module", "0", "weight"].T + params["module", "0", "bias"])
+    return (hidden @ params["module", "2", "weight"].T + params["module", "2", "bias"]).squeeze(-1)
 
 
 def bimodal_transitions(num_episodes: int = 400, length: int = 12, seed: int = 0) -> TensorDict:

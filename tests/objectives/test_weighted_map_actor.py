@@ -7,10 +7,11 @@ import math
 import pytest
 import torch
 from tensordict import TensorDict
-from tensordict.nn import NormalParamExtractor, TensorDictModule
+from tensordict.nn import TensorDictModule
 from torch import nn
-from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
+from torchrl.modules import MLP, ValueOperator
 from torchrl.objectives import IQLLoss
+from toy import mlp_by_hand, tanh_normal_actor
 
 from torchrl_dual.modules import LinearHeadActor, PlannerActor
 from torchrl_dual.objectives.weighted_map_actor import WEIGHTINGS, WeightedMAPActorLoss
@@ -29,14 +30,7 @@ def _mock_actor(obs_dim: int = OBS, action_dim: int = ACT, *, seed: int = 0) -> 
 def _mock_iql(obs_dim: int = OBS, action_dim: int = ACT, *, seed: int = 0) -> IQLLoss:
     """A real TorchRL ``IQLLoss`` with tiny ``ValueOperator`` Q (twin) and V networks."""
     torch.manual_seed(seed)
-    net = nn.Sequential(
-        MLP(in_features=obs_dim, out_features=2 * action_dim, num_cells=[8]), NormalParamExtractor()
-    )
-    policy = ProbabilisticActor(
-        TensorDictModule(net, in_keys=["observation"], out_keys=["loc", "scale"]),
-        in_keys=["loc", "scale"],
-        distribution_class=TanhNormal,
-    )
+    policy = tanh_normal_actor(obs_dim, action_dim)
     qvalue = ValueOperator(
         MLP(in_features=obs_dim + action_dim, out_features=1, num_cells=[8]),
         in_keys=["observation", "action"],
@@ -58,12 +52,6 @@ def _mock_batch(
         },
         [batch],
     )
-
-
-def _mlp_by_hand(params: TensorDict, x: torch.Tensor) -> torch.Tensor:
-    """``W2 tanh(W0 x + b0) + b2`` of a one-hidden-layer TorchRL ``MLP`` inside a ``ValueOperator``."""
-    hidden = torch.tanh(x @ params["module", "0", "weight"].T + params["module", "0", "bias"])
-    return (hidden @ params["module", "2", "weight"].T + params["module", "2", "bias"]).squeeze(-1)
 
 
 class _LinearCritic(nn.Module):
@@ -145,8 +133,8 @@ def test_advantage_weights_equal_clipped_exp_of_min_q_minus_v_by_hand():
     sa = torch.cat([batch["observation"], batch["action"]], -1)
     target = iql.target_qvalue_network_params
     with torch.no_grad():
-        q = torch.stack([_mlp_by_hand(target[k], sa) for k in range(2)]).min(0).values
-        v = _mlp_by_hand(iql.value_network_params, batch["observation"])
+        q = torch.stack([mlp_by_hand(target[k], sa) for k in range(2)]).min(0).values
+        v = mlp_by_hand(iql.value_network_params, batch["observation"])
     unclipped = torch.exp(temperature * (q - v))
     max_weight = float(unclipped.median())  # so that the clip is exercised
     expected = unclipped.clamp_max(max_weight)

@@ -1,4 +1,5 @@
-"""Offline data: transition layout, local generators, Minari loading, normalized scores."""
+"""Offline data: transition layout, local generators, Minari loading, normalized scores,
+Monte-Carlo returns-to-go (Cal-QL's bound)."""
 
 from torchrl_dual.data.cache import (
     default_cache_dir,
@@ -18,6 +19,7 @@ from torchrl_dual.data.maze_dataset import (
     generate_maze_dataset,
     load_or_generate_maze_dataset,
 )
+from torchrl_dual.data.mc_returns import episode_returns, monte_carlo_returns
 from torchrl_dual.data.minari import default_observation_keys, load_minari_dataset
 from torchrl_dual.data.minari_standins import STANDINS, write_standin_dataset
 from torchrl_dual.data.minari_writer import collect_episodes, write_minari_dataset
@@ -41,6 +43,7 @@ __all__ = [
     "compute_maze_references",
     "default_cache_dir",
     "default_observation_keys",
+    "episode_returns",
     "generate_frozenlake_dataset",
     "generate_maze_dataset",
     "load_cached_dataset",
@@ -49,6 +52,7 @@ __all__ = [
     "load_or_generate_frozenlake_dataset",
     "load_or_generate_maze_dataset",
     "make_transitions",
+    "monte_carlo_returns",
     "normalized_score",
     "save_cached_dataset",
     "to_replay_buffer",

@@ -1,0 +1,227 @@
+"""Cal-QL: TorchRL's CQL loss with the policy Q-values of its penalty bounded by MC returns.
+
+Nakamoto et al., 2023, "Cal-QL: Calibrated Offline RL Pre-Training for Efficient Online
+Fine-Tuning" (NeurIPS), Sec. 5 (the Cal-QL regulariser) and Alg. 1: CQL's conservative regulariser
+``α·(E_{s∼D, a∼π}[Q(s, a)] − E_{s,a∼D}[Q(s, a)])`` becomes
+``α·(E_{s∼D, a∼π}[max(Q(s, a), V^μ(s))] − E_{s,a∼D}[Q(s, a)])``, with ``V^μ(s)`` the
+Monte-Carlo return-to-go of the data (:func:`torchrl_dual.data.monte_carlo_returns`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import dispatch
+from tensordict.utils import NestedKey
+from torch import Tensor
+from torchrl.objectives.cql import CQLLoss
+
+from torchrl_dual._utils import read_loss_input
+
+PENALTY_LAYOUTS = ("calql", "torchrl")
+"""How :class:`CalQLLoss` groups the sampled actions inside the logsumexp."""
+
+
+class CalQLLoss(CQLLoss):
+    """The Cal-QL critic loss (Nakamoto et al. 2023, Sec. 5 and Alg. 1), a TorchRL ``CQLLoss``.
+
+    Everything but the conservative penalty is :class:`~torchrl.objectives.CQLLoss`: the
+    twin-Q Bellman loss ``loss_qvalue``, the SAC actor, BC and entropy losses, the optional
+    Lagrange multiplier. The penalty (``loss_cql``) is CQL's importance-sampled
+    ``logsumexp`` over ``num_random`` uniform actions and ``num_random`` policy actions at
+    ``s`` and at ``s'``, minus the Q-value of the data action, where Cal-QL bounds the
+    policy Q-values from below by the data's Monte-Carlo return ``G(s)``
+    (``tensor_keys.mc_return``):
+
+    1. ``a_u ∼ U(-1, 1)``, ``a_π ∼ π(·|s)``, ``a'_π ∼ π(·|s')`` (``num_random`` each; the
+       penalty reads the actor detached: its gradients reach the Q networks only);
+    2. ``Q_π ← max(Q(s, a_π), G(s))`` and ``Q'_π ← max(Q(·, a'_π), G(s))``  (Cal-QL, Alg. 1);
+    3. ``loss_cql = w·(T·logsumexp([Q(s, a_u) − log 0.5^d, Q_π − log π(a_π|s),
+       Q'_π − log π(a'_π|s')] / T) − Q(s, a))`` per Q network, summed over the two, with
+       ``w = min_q_weight`` and ``T = temperature``.
+
+    ``penalty_layout`` picks the grouping of step 3. ``"calql"`` (default) follows the
+    Cal-QL and CQL reference code: the ``3·num_random`` actions of one state in one
+    logsumexp, the next-state policy actions evaluated at ``s`` (``Q(s, a'_π)``).
+    ``"torchrl"`` reproduces TorchRL 0.14's ``CQLLoss.cql_loss``: one logsumexp over the
+    three sources per draw (averaged over the ``num_random`` draws) and ``Q(s', a'_π)``;
+    with ``G = -inf`` it returns ``CQLLoss``'s outputs (to float precision; tested). Both
+    layouts give one penalty per transition (``reduction="none"``), where ``CQLLoss``
+    broadcasts its ``cql_q1_loss`` to ``[B, B·num_random]`` (same mean).
+
+    The bound comes from the data, computed once per episode with the critic's discount:
+    terminated and truncated episodes both stop the sum at their last step (no bootstrap of
+    a time-limit tail, as Cal-QL's code does), and with sparse rewards an episode that never
+    succeeds gets ``r_fail / (1 - γ)`` everywhere (Cal-QL's AntMaze / Adroit rule, see
+    :mod:`torchrl_dual.data.mc_returns`). Transitions without a bound can carry ``-inf``,
+    which turns Cal-QL back into CQL for them.
+
+    Args:
+        actor_network (ProbabilisticTensorDictSequential): the stochastic actor (actions in
+            ``[-1, 1]``, as CQL's uniform proposal assumes).
+        qvalue_network (TensorDictModule): ``Q(s, a)``, duplicated into two networks.
+
+    Keyword Args:
+        penalty_layout (str): one of :data:`PENALTY_LAYOUTS`. Defaults to ``"calql"``.
+        **kwargs: every keyword argument of ``CQLLoss``: ``min_q_weight`` (CQL's ``α``,
+            default 1.0), ``num_random`` (10), ``temperature`` (1.0), ``with_lagrange``
+            (False), ``lagrange_thresh``, ``alpha_init``, ``loss_function``, ``reduction`` ...
+
+    The input needs CQLLoss's keys plus ``tensor_keys.mc_return`` (``[*B, 1]`` or ``[*B]``).
+    The output has CQLLoss's entries plus ``bound_rate``, the fraction of policy Q-values
+    the bound raised (Cal-QL logs it); ``bound_rate`` is also written per sample into the
+    input, as CQLLoss writes its ``cql_q1_loss``.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from tensordict.nn import TensorDictModule
+        >>> from torch import nn
+        >>> from torchrl.data import Bounded
+        >>> from torchrl.modules import MLP, NormalParamExtractor, ProbabilisticActor, TanhNormal
+        >>> from torchrl.modules import ValueOperator
+        >>> _ = torch.manual_seed(0)
+        >>> n_obs, n_act, batch = 3, 2, 4
+        >>> spec = Bounded(-torch.ones(n_act), torch.ones(n_act), (n_act,))
+        >>> actor = ProbabilisticActor(
+        ...     TensorDictModule(nn.Sequential(nn.Linear(n_obs, 2 * n_act), NormalParamExtractor()),
+        ...         in_keys=["observation"], out_keys=["loc", "scale"]),
+        ...     in_keys=["loc", "scale"], spec=spec, distribution_class=TanhNormal)
+        >>> qvalue = ValueOperator(MLP(in_features=n_obs + n_act, out_features=1, num_cells=[8]),
+        ...     in_keys=["observation", "action"])
+        >>> loss_fn = CalQLLoss(actor, qvalue, num_random=4, min_q_weight=5.0)
+        >>> loss_fn.make_value_estimator(gamma=0.99)
+        >>> data = TensorDict({
+        ...     "observation": torch.randn(batch, n_obs), "action": spec.rand((batch,)),
+        ...     "mc_return": torch.full((batch, 1), 3.0),
+        ...     ("next", "observation"): torch.randn(batch, n_obs),
+        ...     ("next", "reward"): torch.ones(batch, 1),
+        ...     ("next", "done"): torch.zeros(batch, 1, dtype=torch.bool),
+        ...     ("next", "terminated"): torch.zeros(batch, 1, dtype=torch.bool)}, [batch])
+        >>> out = loss_fn(data)
+        >>> float(out["bound_rate"])  # a fresh critic sits far below G = 3
+        1.0
+        >>> (out["loss_qvalue"] + out["loss_cql"]).backward()
+    """
+
+    @dataclass
+    class _AcceptedKeys(CQLLoss._AcceptedKeys):
+        """CQLLoss's keys plus Cal-QL's.
+
+        Attributes:
+            mc_return (NestedKey): the Monte-Carlo return-to-go ``G(s)`` of the transition,
+                the lower bound of the policy Q-values. Defaults to ``"mc_return"``.
+            bound_rate (NestedKey): written per sample: the fraction of its policy
+                Q-values raised by the bound. Defaults to ``"bound_rate"``.
+        """
+
+        mc_return: NestedKey = "mc_return"
+        bound_rate: NestedKey = "bound_rate"
+
+    default_keys = _AcceptedKeys
+    tensor_keys: _AcceptedKeys
+
+    def __init__(self, actor_network, qvalue_network, *, penalty_layout: str = "calql", **kwargs):
+        if penalty_layout not in PENALTY_LAYOUTS:
+            raise ValueError(
+                f"penalty_layout={penalty_layout!r} is not one of {PENALTY_LAYOUTS}: 'calql' "
+                "follows the Cal-QL reference code, 'torchrl' reproduces CQLLoss's grouping."
+            )
+        super().__init__(actor_network, qvalue_network, **kwargs)
+        self.penalty_layout = penalty_layout
+
+    @property
+    def in_keys(self):
+        return list({*super().in_keys, self.tensor_keys.mc_return})
+
+    @property
+    def out_keys(self):
+        if self._out_keys is None:
+            self._out_keys = [*CQLLoss.out_keys.fget(self), "bound_rate"]
+        return self._out_keys
+
+    @out_keys.setter
+    def out_keys(self, values):
+        self._out_keys = values
+
+    @dispatch
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        out = super().forward(tensordict)
+        rate = tensordict.get(self.tensor_keys.bound_rate).detach()
+        out.set("bound_rate", rate if self.reduction == "none" else rate.mean())
+        return out
+
+    def _policy_q(self, tensordict: TensorDictBase, num: int) -> tuple[Tensor, ...]:
+        """Q of the uniform, current-policy and next-policy actions: ``[2, B·num]`` each,
+        plus the two ``[B·num]`` log-probs. Draws in ``CQLLoss.cql_loss``'s order."""
+        action_key = self.tensor_keys.action
+        random_actions = tensordict.get(action_key).new_empty(
+            (*tensordict.shape[:-1], tensordict.shape[-1] * num, tensordict[action_key].shape[-1])
+        )
+        random_actions.uniform_(-1, 1)
+        curr_td, curr_log_pi = self._get_policy_actions(
+            tensordict.copy(), self.actor_network_params, num_actions=num
+        )
+        next_td, next_log_pi = self._get_policy_actions(
+            tensordict.get("next").copy(), self.actor_network_params, num_actions=num
+        )
+        if self.penalty_layout == "calql":  # Q(s, a'_π), as in the Cal-QL / CQL code
+            next_td = curr_td.clone(False).set(action_key, next_td.get(action_key))
+        random_td = curr_td.clone(False).set(action_key, random_actions)
+        q = [
+            self._vmap_qvalue_networkN0(td, self.qvalue_network_params)
+            .get(self.tensor_keys.state_action_value)
+            .squeeze(-1)
+            for td in (random_td, curr_td, next_td)
+        ]
+        return (*q, curr_log_pi.detach(), next_log_pi.detach())
+
+    def cql_loss(self, tensordict: TensorDictBase) -> tuple[Tensor, dict]:
+        """Cal-QL's penalty (steps 1-3 of the class docstring); needs :meth:`q_loss` first."""
+        if tensordict.get(self.tensor_keys.pred_q1, None) is None:
+            raise KeyError(
+                f"cql_loss reads {self.tensor_keys.pred_q1!r}, which q_loss writes: call "
+                "q_loss(tensordict) first (forward does)."
+            )
+        pred_q = torch.stack(
+            [tensordict.get(self.tensor_keys.pred_q1), tensordict.get(self.tensor_keys.pred_q2)]
+        ).squeeze(-1)  # [2, *B]
+        bound = read_loss_input(tensordict, self.tensor_keys.mc_return, "mc_return")
+        if bound.numel() != tensordict.numel():
+            raise ValueError(
+                f"{self.tensor_keys.mc_return!r} has shape {list(bound.shape)} for a batch of "
+                f"{list(tensordict.shape)}; it must be [*B, 1] or [*B], one return per "
+                "transition (torchrl_dual.data.monte_carlo_returns)."
+            )
+        num = self.num_random
+        q_random, q_curr, q_next, curr_log_pi, next_log_pi = self._policy_q(tensordict, num)
+        bound = bound.reshape(*tensordict.shape).repeat_interleave(num, dim=-1).to(q_curr)
+        raised = torch.stack([q_curr < bound, q_next < bound]).float()  # [2 kinds, 2 nets, .]
+        q_curr = torch.maximum(q_curr, bound)  # Cal-QL, Alg. 1: max(Q, G(s))
+        q_next = torch.maximum(q_next, bound)
+        random_density = np.log(0.5 ** tensordict.get(self.tensor_keys.action).shape[-1])
+        terms = torch.stack(
+            [q_random - random_density, q_next - next_log_pi, q_curr - curr_log_pi], -1
+        )  # [2, *B·num, 3]
+        shape = (2, *tensordict.shape, num, 3)
+        if self.penalty_layout == "calql":
+            lse = torch.logsumexp(terms.reshape(*shape).flatten(-2) / self.temperature, -1)
+        else:
+            lse = torch.logsumexp(terms / self.temperature, -1).reshape(shape[:-1]).mean(-1)
+        cql_q = (lse * self.temperature - pred_q) * self.min_q_weight  # [2, *B]
+        tensordict.set(self.tensor_keys.cql_q1_loss, cql_q[0])
+        tensordict.set(self.tensor_keys.cql_q2_loss, cql_q[1])
+        rate = raised.reshape(4, *tensordict.shape, num).mean((0, -1))
+        tensordict.set(self.tensor_keys.bound_rate, rate)
+        loss = self._reduce_loss(cql_q.sum(0), tensordict=tensordict)
+        self._clear_weakrefs(
+            tensordict,
+            "actor_network_params",
+            "qvalue_network_params",
+            "target_actor_network_params",
+            "target_qvalue_network_params",
+        )
+        return loss, {"bound_rate": rate.mean().detach()}
