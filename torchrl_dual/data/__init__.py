@@ -1,5 +1,7 @@
-"""Offline data: transition layout, local generators, Minari loading, normalized scores."""
+"""Offline data: transition layout, local generators, Minari loading, normalized scores,
+and OFF2ON's balanced replay."""
 
+from torchrl_dual.data.balanced_replay import BalancedReplayBuffer
 from torchrl_dual.data.cache import (
     default_cache_dir,
     load_cached_dataset,
@@ -35,6 +37,7 @@ __all__ = [
     "FROZENLAKE_GENERATOR_VERSION",
     "MAZE_GENERATOR_VERSION",
     "TRANSITION_KEYS",
+    "BalancedReplayBuffer",
     "MazeWaypointController",
     "OfflineDataset",
     "collect_episodes",

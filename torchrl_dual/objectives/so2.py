@@ -1,5 +1,5 @@
 """SO2's ensemble critic loss (Zhang et al. 2024, "A Perspective of Q-value Estimation on
-Offline-to-Online Reinforcement Learning", AAAI 2024, arXiv:2312.07685).
+Offline-to-Online Reinforcement Learning", arXiv:2312.07685).
 
 SO2 fine-tunes an offline-pretrained Q ensemble (SAC-N / EDAC) online with two changes:
 
