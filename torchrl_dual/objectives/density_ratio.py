@@ -119,6 +119,7 @@ class DensityRatioLoss(LossModule):
 
     ratio_network: TensorDictModuleBase
     ratio_network_params: TensorDictParams
+    target_ratio_network_params: TensorDictParams
 
     def __init__(self, ratio_network: TensorDictModuleBase) -> None:
         super().__init__()
