@@ -21,10 +21,11 @@ update. Prints a Markdown table and the ratio.
 from __future__ import annotations
 
 import argparse
-import time
 from collections.abc import Callable
 
 import torch
+from ant_controller_cost import batch  # the scripts' directory is on sys.path
+from families import time_steps
 from tensordict import TensorDict
 from tensordict.nn import NormalParamExtractor, TensorDictModule
 from torch import nn
@@ -57,26 +58,7 @@ def qvalue(width: int, depth: int) -> ValueOperator:
 
 
 def transitions(size: int) -> TensorDict:
-    return TensorDict(
-        {
-            "observation": torch.randn(size, OBS_DIM),
-            "action": torch.rand(size, ACT_DIM) * 2 - 1,
-            ("next", "observation"): torch.randn(size, OBS_DIM),
-            ("next", "reward"): torch.randn(size, 1),
-            ("next", "done"): torch.zeros(size, 1, dtype=torch.bool),
-            ("next", "terminated"): torch.zeros(size, 1, dtype=torch.bool),
-        },
-        batch_size=[size],
-    )
-
-
-def milliseconds(step: Callable[[], None], repeats: int) -> float:
-    for _ in range(3):
-        step()
-    start = time.process_time()
-    for _ in range(repeats):
-        step()
-    return 1000.0 * (time.process_time() - start) / repeats
+    return batch(size, OBS_DIM, ACT_DIM)
 
 
 def optimise(loss_value: Callable[[], torch.Tensor], module: nn.Module, target=None):
@@ -147,9 +129,9 @@ def main() -> None:
     torch.set_num_threads(1)
     torch.manual_seed(0)
     data = transitions(args.batch_size)
-    so2_ms = milliseconds(so2_update(args, data), args.updates)
-    iql_ms = milliseconds(iql_update(args, data), args.updates)
-    extras_ms = milliseconds(balanced_replay_extras(args), args.updates)
+    so2_ms = time_steps(so2_update(args, data), args.updates)
+    iql_ms = time_steps(iql_update(args, data), args.updates)
+    extras_ms = time_steps(balanced_replay_extras(args), args.updates)
     size = f"{args.depth} x {args.width}, batch {args.batch_size}"
     print(f"CPU ms per update, one thread ({size}):\n")
     print("| update | ms | updates/s |")
