@@ -265,6 +265,16 @@ def test_soft_update_moves_the_targets_toward_the_ensemble():
 
 
 # ----------------------------------------------------------------------------- errors
+def test_in_keys_list_what_the_loss_reads():
+    assert _mock_loss().in_keys == [
+        "observation",
+        "action",
+        ("next", "observation"),
+        ("next", "reward"),
+        ("next", "terminated"),
+    ]
+
+
 def test_bad_settings_and_missing_entries_name_the_fix():
     with pytest.raises(ValueError, match="choose one of"):
         _mock_loss(target_reduction="max")

@@ -200,10 +200,12 @@ class SO2QLoss(LossModule):
 
     @property
     def in_keys(self) -> list[NestedKey]:
-        keys = {*self.qvalue_network.in_keys, *self.actor_network.in_keys}
+        action = self.tensor_keys.action
+        states = [k for k in self.qvalue_network.in_keys if k != action]
+        states = list(dict.fromkeys([*states, *self.actor_network.in_keys]))
         return [
-            *keys,
-            *(("next", k) for k in keys),
+            *dict.fromkeys([*self.qvalue_network.in_keys]),
+            *(("next", k) for k in states),
             ("next", self.tensor_keys.reward),
             ("next", self.tensor_keys.terminated),
         ]
