@@ -7,7 +7,7 @@ import torch
 from tensordict import TensorDict
 from tensordict.nn import NormalParamExtractor, TensorDictModule
 from torch import nn
-from torchrl.data import Bounded
+from torchrl.data import Bounded, Unbounded
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import SoftUpdate
 
@@ -280,6 +280,8 @@ def test_bad_settings_and_missing_entries_name_the_fix():
         _mock_loss(target_reduction="max")
     with pytest.raises(ValueError, match="choose one of"):
         _mock_loss(next_action="mode")
+    with pytest.raises(ValueError, match="bounded"):
+        _mock_loss(action_spec=Unbounded(shape=(ACT,)))
     batch = _mock_batch()
     del batch["next", "reward"]
     with pytest.raises(KeyError, match="set_keys"):

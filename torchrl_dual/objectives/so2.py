@@ -170,6 +170,7 @@ class SO2QLoss(LossModule):
         for name, value, options in (
             ("target_reduction", target_reduction, TARGET_REDUCTIONS),
             ("next_action", next_action, NEXT_ACTIONS),
+            ("loss_function", loss_function, ("l2", "l1", "smooth_l1")),
         ):
             if value not in options:
                 raise ValueError(f"Unknown {name} {value!r}; choose one of {options}.")
@@ -179,6 +180,8 @@ class SO2QLoss(LossModule):
             raise ValueError(
                 f"policy_noise and noise_clip must be >= 0, got {policy_noise} and {noise_clip}."
             )
+        # The actor belongs to the actor's loss: kept unregistered so the critic's
+        # optimizer and state_dict never see it.
         self.__dict__["actor_network"] = actor_network
         self.convert_to_functional(
             qvalue_network, "qvalue_network", num_qvalue_nets, create_target_params=True
@@ -186,7 +189,15 @@ class SO2QLoss(LossModule):
         self.num_qvalue_nets = num_qvalue_nets
         if isinstance(action_spec, Composite):
             action_spec = action_spec[self.tensor_keys.action]
-        low, high = action_spec.space.low, action_spec.space.high
+        low, high = (
+            getattr(action_spec.space, "low", None),
+            getattr(action_spec.space, "high", None),
+        )
+        if low is None or high is None:
+            raise ValueError(
+                f"SO2QLoss clips the smoothed action to the action box and needs a bounded "
+                f"action_spec (torchrl.data.Bounded); got {type(action_spec).__name__}."
+            )
         self.register_buffer("action_low", torch.as_tensor(low).clone())
         self.register_buffer("action_high", torch.as_tensor(high).clone())
         self.policy_noise, self.noise_clip = policy_noise, noise_clip
