@@ -37,7 +37,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase, TensorDictParams
 from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import NestedKey
-from torchrl.data import Composite, TensorSpec
+from torchrl.data import Bounded, Composite, TensorSpec
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.objectives.common import LossModule
 from torchrl.objectives.utils import _vmap_func, distance_loss
@@ -189,15 +189,12 @@ class SO2QLoss(LossModule):
         self.num_qvalue_nets = num_qvalue_nets
         if isinstance(action_spec, Composite):
             action_spec = action_spec[self.tensor_keys.action]
-        low, high = (
-            getattr(action_spec.space, "low", None),
-            getattr(action_spec.space, "high", None),
-        )
-        if low is None or high is None:
+        if not isinstance(action_spec, Bounded):
             raise ValueError(
-                f"SO2QLoss clips the smoothed action to the action box and needs a bounded "
+                "SO2QLoss clips the smoothed action to the action box and needs a bounded "
                 f"action_spec (torchrl.data.Bounded); got {type(action_spec).__name__}."
             )
+        low, high = action_spec.space.low, action_spec.space.high
         self.register_buffer("action_low", torch.as_tensor(low).clone())
         self.register_buffer("action_high", torch.as_tensor(high).clone())
         self.policy_noise, self.noise_clip = policy_noise, noise_clip
