@@ -53,12 +53,13 @@ def sac_loss(width: int, depth: int) -> tuple[SACLoss, torch.optim.Optimizer, So
     return loss, torch.optim.Adam(loss.parameters(), lr=3e-4), SoftUpdate(loss, tau=0.03)
 
 
-def batch(size: int) -> TensorDict:
+def batch(size: int, obs_dim: int = OBS_DIM, act_dim: int = ACT_DIM) -> TensorDict:
+    """``size`` random non-terminal transitions (also used by ``so2_cost.py``)."""
     return TensorDict(
         {
-            "observation": torch.randn(size, OBS_DIM),
-            "action": torch.rand(size, ACT_DIM) * 2 - 1,
-            ("next", "observation"): torch.randn(size, OBS_DIM),
+            "observation": torch.randn(size, obs_dim),
+            "action": torch.rand(size, act_dim) * 2 - 1,
+            ("next", "observation"): torch.randn(size, obs_dim),
             ("next", "reward"): torch.randn(size, 1),
             ("next", "done"): torch.zeros(size, 1, dtype=torch.bool),
             ("next", "terminated"): torch.zeros(size, 1, dtype=torch.bool),

@@ -311,3 +311,18 @@ def test_ant_controller_cost_projects_minaris_budget():
     proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "| Minari's train_ant.py | 30,000,000 | 1,875,000 |" in proc.stdout
+
+
+# ---------------------------------------------------------------- SO2 + balanced replay cost
+import so2_cost  # noqa: E402
+
+
+def test_so2_cost_prints_the_three_updates_and_the_ratio(monkeypatch, capsys):
+    argv = ["so2_cost.py", "--updates", "1", "--members", "2", "--width", "8"]
+    argv += ["--batch-size", "4", "--replay-size", "16"]
+    monkeypatch.setattr(sys, "argv", argv)
+    so2_cost.main()
+    out = capsys.readouterr().out
+    for row in ("| SO2 critic, E = 2 |", "| IQL critic (twin Q + V) |", "N = 16 |"):
+        assert row in out
+    assert "SO2 / IQL critic update:" in out

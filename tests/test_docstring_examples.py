@@ -40,7 +40,10 @@ MUST_HAVE_EXAMPLES = (
     "torchrl_dual.modules.planner.planner_policy",
     "torchrl_dual.modules.planner.transition_model",
     "torchrl_dual.objectives.calql",
+    "torchrl_dual.data.balanced_replay",
+    "torchrl_dual.objectives.density_ratio",
     "torchrl_dual.objectives.distillation",
+    "torchrl_dual.objectives.so2",
     "torchrl_dual.objectives.update_loop",
 )
 

@@ -1,6 +1,7 @@
 """Offline data: transition layout, local generators, Minari loading, normalized scores,
-Monte-Carlo returns-to-go (Cal-QL's bound)."""
+Monte-Carlo returns-to-go (Cal-QL's bound) and OFF2ON's balanced replay."""
 
+from torchrl_dual.data.balanced_replay import BalancedReplayBuffer
 from torchrl_dual.data.cache import (
     default_cache_dir,
     load_cached_dataset,
@@ -37,6 +38,7 @@ __all__ = [
     "FROZENLAKE_GENERATOR_VERSION",
     "MAZE_GENERATOR_VERSION",
     "TRANSITION_KEYS",
+    "BalancedReplayBuffer",
     "MazeWaypointController",
     "OfflineDataset",
     "collect_episodes",

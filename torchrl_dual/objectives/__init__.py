@@ -1,8 +1,11 @@
-"""TorchRL loss modules of DUAL and the drivers that train with them."""
+"""TorchRL loss modules of DUAL, of the critics it is paired with, and the drivers that
+train with them."""
 
 from torchrl_dual.objectives.calql import PENALTY_LAYOUTS, CalQLLoss
+from torchrl_dual.objectives.density_ratio import DensityRatioLoss, make_density_ratio_network
 from torchrl_dual.objectives.diffusion_planner import DiffusionPlannerLoss, train_planner
 from torchrl_dual.objectives.distillation import DistillationLoss, progressive_distillation
+from torchrl_dual.objectives.so2 import SO2QLoss
 from torchrl_dual.objectives.update_loop import ExponentialMovingAverage, run_updates
 from torchrl_dual.objectives.weighted_map_actor import WEIGHTINGS, WeightedMAPActorLoss
 
@@ -10,10 +13,13 @@ __all__ = [
     "PENALTY_LAYOUTS",
     "WEIGHTINGS",
     "CalQLLoss",
+    "DensityRatioLoss",
     "DiffusionPlannerLoss",
     "DistillationLoss",
     "ExponentialMovingAverage",
+    "SO2QLoss",
     "WeightedMAPActorLoss",
+    "make_density_ratio_network",
     "progressive_distillation",
     "run_updates",
     "train_planner",
