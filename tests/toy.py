@@ -31,9 +31,13 @@ LEFT_FRACTION = 0.3
 
 
 def tanh_normal_actor(
-    obs_dim: int, action_dim: int, spec: TensorSpec | None = None
+    obs_dim: int,
+    action_dim: int,
+    spec: TensorSpec | None = None,
+    return_log_prob: bool = False,
 ) -> ProbabilisticActor:
-    """A TorchRL ``TanhNormal`` actor on ``observation``, one hidden layer of 8 cells."""
+    """A TorchRL ``TanhNormal`` actor on ``observation``, one hidden layer of 8 cells
+    (writing ``action_log_prob`` too with ``return_log_prob``)."""
     net = nn.Sequential(
         MLP(in_features=obs_dim, out_features=2 * action_dim, num_cells=[8]), NormalParamExtractor()
     )
@@ -42,6 +46,7 @@ def tanh_normal_actor(
         in_keys=["loc", "scale"],
         spec=spec,
         distribution_class=TanhNormal,
+        return_log_prob=return_log_prob,
     )
 
 

@@ -5,11 +5,12 @@ from __future__ import annotations
 import pytest
 import torch
 from tensordict import TensorDict
-from tensordict.nn import NormalParamExtractor, TensorDictModule
+from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.data import Bounded, Unbounded
-from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
+from torchrl.modules import MLP, ProbabilisticActor, ValueOperator
 from torchrl.objectives import SoftUpdate
+from toy import tanh_normal_actor
 
 from torchrl_dual.objectives.so2 import TARGET_REDUCTIONS, SO2QLoss
 
@@ -46,15 +47,7 @@ def _mock_actor(seed: int = 0) -> TensorDictModule:
 
 def _mock_sac_actor(seed: int = 0) -> ProbabilisticActor:
     torch.manual_seed(seed)
-    net = nn.Sequential(
-        MLP(in_features=OBS, out_features=2 * ACT, num_cells=[8]), NormalParamExtractor()
-    )
-    return ProbabilisticActor(
-        TensorDictModule(net, in_keys=["observation"], out_keys=["loc", "scale"]),
-        in_keys=["loc", "scale"],
-        distribution_class=TanhNormal,
-        return_log_prob=True,
-    )
+    return tanh_normal_actor(OBS, ACT, return_log_prob=True)
 
 
 def _mock_qvalue(seed: int = 0, width: int = 8) -> ValueOperator:
