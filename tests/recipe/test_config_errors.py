@@ -34,8 +34,8 @@ CASES = [
     ("budget=tiny", "budget=tiny: unknown option; choose one of default, default_v1, paper, smoke"),
     (
         "algo=nope",
-        "algo=nope: unknown option; choose one of dacer, diffql, diffql_la, diffuser, dual, edis, "
-        "iql, iql_la",
+        "algo=nope: unknown option; choose one of calql, dacer, diffql, diffql_la, diffuser, dual, "
+        "edis, iql, iql_la",
     ),
     ("algo=iql actor.temperature=-1", "actor.temperature=-1: must be a number >= 0"),
     ("algo=iql actor.hiden=3", "unknown key 'actor.hiden'; did you mean actor.hidden?"),

@@ -8,6 +8,7 @@ learner module, a config file and one line here.
 from __future__ import annotations
 
 from torchrl_dual.recipe.algorithm import Algorithm
+from torchrl_dual.recipe.calql import CALQL
 from torchrl_dual.recipe.dacer import DACER
 from torchrl_dual.recipe.diffql import DIFFQL, DIFFQL_LA
 from torchrl_dual.recipe.diffuser import DIFFUSER
@@ -25,5 +26,6 @@ ALGORITHMS: dict[str, Algorithm] = {
     "diffuser": DIFFUSER,
     "dacer": DACER,
     "edis": EDIS,
+    "calql": CALQL,
 }
 """``algo`` -> :class:`Algorithm`."""

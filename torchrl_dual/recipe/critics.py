@@ -1,7 +1,8 @@
 """The recipe's critics ``Q_φ`` and ``V`` (Alg. 1 lines 7 and 15): a table by ``critic.name``.
 
-Only TorchRL's IQL critics today (``critic/iql.yaml``); Cal-QL joins as a second entry
-of :data:`CRITICS`.
+TorchRL's IQL critics (``critic/iql.yaml``, every algorithm) and Cal-QL's
+(``critic/calql.yaml``: :class:`~torchrl_dual.objectives.CalQLLoss`, TorchRL's ``CQLLoss``
+with the Monte-Carlo bound; the ``calql`` baseline so far).
 """
 
 from __future__ import annotations
@@ -18,7 +19,8 @@ from torch import nn
 from torchrl.modules import MLP, ProbabilisticActor, ValueOperator
 from torchrl.objectives import IQLLoss, SoftUpdate
 
-from torchrl_dual.recipe.rules import Integer, Real, Text, key
+from torchrl_dual.objectives import PENALTY_LAYOUTS, CalQLLoss
+from torchrl_dual.recipe.rules import Choice, Integer, Maybe, Real, Text, key
 
 
 @dataclass
@@ -35,10 +37,30 @@ class IQLCriticSettings:
 
 
 @dataclass
-class Critic:
-    """TorchRL's IQL critics and what updates them."""
+class CalQLCriticSettings:
+    """``critic/calql.yaml``: Cal-QL's twin Q networks (TorchRL ``CQLLoss`` + MC bound)."""
 
-    loss: IQLLoss
+    name: str = key(Text(), "the CRITICS entry")
+    hidden: int = key(Integer(1), "MLP width of Q")
+    depth: int = key(Integer(1), "hidden layers of Q")
+    lr: float = key(Real(0, low_open=True), "Adam learning rate of Q")
+    discount: float = key(Real(0, 1, low_open=True), "γ (also of the Monte-Carlo bound)")
+    target_update_tau: float = key(Real(0, 1, low_open=True), "soft target update rate")
+    min_q_weight: float = key(Real(0), "weight of the conservative penalty")
+    num_random: int = key(Integer(1), "uniform and policy actions per state in the penalty")
+    temperature: float = key(Real(0, low_open=True), "temperature of the penalty's logsumexp")
+    penalty_layout: str = key(Choice(PENALTY_LAYOUTS), "logsumexp grouping (CalQLLoss)")
+    sparse_failure_reward: Any = key(
+        Maybe(Real()), "r_fail of Cal-QL's sparse-reward bound r_fail / (1 - γ); null: off"
+    )
+
+
+@dataclass
+class Critic:
+    """A critic loss (TorchRL ``IQLLoss`` or :class:`~torchrl_dual.objectives.CalQLLoss`),
+    the optimizer of its Q (and V) networks and its target-network updater."""
+
+    loss: IQLLoss | CalQLLoss
     optimizer: torch.optim.Optimizer
     target_updater: SoftUpdate
 
@@ -49,14 +71,19 @@ class Critic:
 
     def step(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """One critic update of Alg. 1 (lines 7 and 15): one gradient step on IQL's
-        Q loss (TD to ``r + γ V(s')``) plus its expectile V loss, then the soft update
-        of the target Q networks. Returns the two losses ``(q_loss, v_loss)``, detached.
+        Q loss (TD to ``r + γ V(s')``) plus its expectile V loss (Cal-QL: the TD loss plus
+        the bounded conservative penalty), then the soft update of the target Q networks.
+        Returns the two losses ``(q_loss, v_loss)`` (Cal-QL: ``(q_loss, cql_loss)``), detached.
 
         The IQL baseline does not call it: its update sums the actor loss into the same
         backward pass (:meth:`~torchrl_dual.recipe.IQLLearner.update`).
         """
-        q_loss, _ = self.loss.qvalue_loss(batch)
-        v_loss, _ = self.loss.value_loss(batch)
+        if isinstance(self.loss, CalQLLoss):  # Bellman loss + Cal-QL's bounded penalty
+            q_loss, _ = self.loss.q_loss(batch)
+            v_loss, _ = self.loss.cql_loss(batch)
+        else:
+            q_loss, _ = self.loss.qvalue_loss(batch)
+            v_loss, _ = self.loss.value_loss(batch)
         self.optimizer.zero_grad(set_to_none=True)
         (q_loss + v_loss).backward()
         self.optimizer.step()
@@ -140,8 +167,46 @@ def make_iql_critic(
     return Critic(loss, optimizer, SoftUpdate(loss, tau=c.target_update_tau))
 
 
+def make_calql_critic(
+    cfg: DictConfig,
+    obs_dim: int,
+    action_dim: int,
+    actor: ProbabilisticActor | None = None,
+    temperature: float = 1.0,
+) -> Critic:
+    """Cal-QL's twin Q networks in a :class:`~torchrl_dual.objectives.CalQLLoss` on
+    ``actor`` (a TorchRL ``TanhNormal`` actor: the penalty and the SAC actor loss sample
+    it); ``temperature`` is unused (Cal-QL's actor loss is SAC's, not AWR). The critic's
+    optimizer holds the Q networks only; the learner steps the actor and ``log_alpha``."""
+    if actor is None:
+        raise ValueError("critic=calql needs the actor it samples (a TanhNormal actor).")
+    c = cfg.critic
+    qvalue = ValueOperator(
+        MLP(
+            in_features=obs_dim + action_dim,
+            out_features=1,
+            num_cells=[c.hidden] * c.depth,
+            activation_class=nn.ReLU,
+        ),
+        in_keys=["observation", "action"],
+    )
+    loss = CalQLLoss(
+        actor,
+        qvalue,
+        penalty_layout=c.penalty_layout,
+        min_q_weight=c.min_q_weight,
+        num_random=c.num_random,
+        temperature=c.temperature,
+        action_spec=actor.spec,
+    ).to(cfg.device)
+    loss.make_value_estimator(gamma=c.discount)
+    optimizer = torch.optim.Adam(loss.qvalue_network_params.values(True, True), lr=c.lr)
+    return Critic(loss, optimizer, SoftUpdate(loss, tau=c.target_update_tau))
+
+
 CRITICS: dict[str, tuple[type, Callable[..., Critic]]] = {
     "iql": (IQLCriticSettings, make_iql_critic),
+    "calql": (CalQLCriticSettings, make_calql_critic),
 }
 """``critic.name`` -> (schema of ``critic.*``, ``(cfg, obs_dim, action_dim, actor=None,
 temperature=1.0) -> Critic``)."""

@@ -71,6 +71,11 @@ class Learner(ABC):
         what depends on :attr:`online_keys` (e.g. DUAL's M posterior draws)."""
         return self.modules()
 
+    def online_transitions(self, transitions: TensorDictBase) -> TensorDictBase:
+        """What of the collected ``transitions`` enters ``D_online`` now (Alg. 1 l. 13);
+        all of them by default. Cal-QL holds an episode until it ends to label it."""
+        return transitions
+
     def batch_metrics(self, batch: TensorDictBase) -> dict[str, float]:
         """Metrics of a collected batch beyond ``reward_per_step`` (logged under ``online/``)."""
         return {}

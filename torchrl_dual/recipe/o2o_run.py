@@ -292,7 +292,9 @@ class O2ORun:
         keys = [k for k in TRANSITION_KEYS if k != "episode"]
         online = batch.select(*keys).clone()
         online.set("episode", episode)
-        self.replay.extend(online.cpu())
+        online = self.learner.online_transitions(online)
+        if len(online):
+            self.replay.extend(online.cpu())
         self.frames += batch.numel()
         return {
             "reward_per_step": float(batch["next", "reward"].mean()),

@@ -1,0 +1,163 @@
+"""The ``calql`` baseline: Cal-QL (Nakamoto et al. 2023) offline, then online.
+
+A tanh-Gaussian MLP actor (the ``iql`` baseline's, same sizes) trained by SAC's actor
+loss with automatic entropy tuning, on Cal-QL's twin Q networks
+(:class:`~torchrl_dual.objectives.CalQLLoss`, the ``calql`` entry of ``CRITICS``:
+TorchRL's ``CQLLoss`` whose conservative penalty bounds the policy Q-values from below
+by the data's Monte-Carlo return). Everything else (data, budget, replay, UTD, evaluation)
+is :class:`~torchrl_dual.recipe.O2ORun`'s.
+
+**The bound.** ``D_offline`` is labelled once, when the learner is built:
+``mc_return = monte_carlo_returns(data, critic.discount, sparse_failure_reward=...)``
+(Cal-QL's rule: the sum stops at an episode's last step, terminated or truncated; with
+``critic.sparse_failure_reward`` an episode that never left that reward is worth
+``r_fail / (1 - γ)`` everywhere). Online transitions are labelled when their episode
+ends, as Cal-QL's code adds whole trajectories: :meth:`CalQLLearner.online_transitions`
+holds the transitions of the episode in progress (checkpointed) and releases each
+finished episode with its returns-to-go; an episode still running when the budget ends
+never reaches the buffer, and one cut by an interruption ends at the cut (resume).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from omegaconf import DictConfig
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModule, TensorDictSequential
+
+from torchrl_dual.data import monte_carlo_returns
+from torchrl_dual.recipe.algorithm import Algorithm, OnlineSettings, check_nothing
+from torchrl_dual.recipe.critics import CRITICS
+from torchrl_dual.recipe.env_kits import env_kit
+from torchrl_dual.recipe.iql import make_iql_actor
+from torchrl_dual.recipe.learner import Learner
+from torchrl_dual.recipe.o2o_run import O2ORun, run_o2o
+from torchrl_dual.recipe.rules import Integer, Real, key
+
+MC_RETURN = "mc_return"
+"""The key of the Monte-Carlo bound in D_offline and D_online (``CalQLLoss``'s default)."""
+
+
+@dataclass
+class CalQLActorSettings:
+    """``algo/calql.yaml``'s ``actor``: the tanh-Gaussian MLP actor (SAC actor loss)."""
+
+    hidden: int = key(Integer(1), "MLP width of the actor")
+    depth: int = key(Integer(1), "hidden layers of the actor")
+    lr: float = key(Real(0, low_open=True), "Adam learning rate of the actor and of log α")
+
+
+def label_transitions(transitions: TensorDictBase, cfg: DictConfig) -> TensorDictBase:
+    """``transitions`` with their Monte-Carlo returns-to-go under :data:`MC_RETURN`."""
+    transitions.set(
+        MC_RETURN,
+        monte_carlo_returns(
+            transitions,
+            cfg.critic.discount,
+            sparse_failure_reward=cfg.critic.sparse_failure_reward,
+        ).to(transitions["next", "reward"].dtype),
+    )
+    return transitions
+
+
+class CalQLLearner(Learner):
+    """Cal-QL: one ``budget.offline_updates`` stage offline, then the same update online."""
+
+    title = "Cal-QL"
+    shared_stages = ("actor_critic",)  # offline_cache: shared by every online shift
+
+    def __init__(self, run: O2ORun) -> None:
+        self.run = run
+        cfg = run.cfg
+        self.actor = make_iql_actor(cfg, run.data.obs_dim, run.env.action_spec)
+        self.critic = CRITICS[cfg.critic.name][1](
+            cfg, run.data.obs_dim, run.data.action_dim, actor=self.actor
+        )
+        # D_offline with its bound; the run's offline buffer is rebuilt from it (the
+        # replay buffer that mixes it with D_online is built after the learner)
+        label_transitions(run.data.transitions, cfg)
+        run.offline_buffer = run._offline_buffer()
+        loss = self.critic.loss
+        self.actor_optimizer = torch.optim.Adam(
+            [*loss.actor_network_params.values(True, True), loss.log_alpha], lr=cfg.actor.lr
+        )
+        self.pending: TensorDictBase | None = None  # the online episode in progress
+        projection = env_kit(cfg).action_projection
+        self.evaluation_policy = self.actor
+        self.exploration_policy = (
+            self.actor
+            if projection is None
+            else TensorDictSequential(
+                self.actor,
+                TensorDictModule(projection, in_keys=["action"], out_keys=["action"]),
+            )
+        )
+
+    def modules(self) -> dict:
+        """The Cal-QL loss holds the actor, both Q, the target Q networks and ``log α``."""
+        return {**self.critic.modules(), "actor_optimizer": self.actor_optimizer}
+
+    def offline_stages(self) -> list:
+        return [("actor_critic", self.run.pretrain_updates)]
+
+    def online_transitions(self, transitions: TensorDictBase) -> TensorDictBase:
+        """The finished episodes among the held and the new ``transitions``, labelled with
+        their returns-to-go; the unfinished tail is held until its episode ends."""
+        if self.pending is not None:
+            transitions = torch.cat([self.pending, transitions])
+        done = transitions["next", "done"].reshape(-1)
+        if not done.any():
+            self.pending = transitions
+            return transitions[:0]
+        end = int(done.nonzero().max()) + 1
+        self.pending = transitions[end:] if end < len(transitions) else None
+        return label_transitions(transitions[:end].clone(), self.run.cfg)
+
+    def update(self, batch: TensorDictBase) -> dict:
+        """Cal-QL's losses on one batch: the critics on TD + bounded penalty, the actor
+        and ``log α`` on SAC's losses (which read the Q networks detached); one step of
+        each optimizer, then the soft target update."""
+        out = self.critic.loss(batch)
+        critic_loss = out["loss_qvalue"] + out["loss_cql"]
+        self.critic.optimizer.zero_grad(set_to_none=True)
+        self.actor_optimizer.zero_grad(set_to_none=True)
+        (critic_loss + out["loss_actor"] + out["loss_alpha"]).backward()
+        self.critic.optimizer.step()
+        self.actor_optimizer.step()
+        self.critic.target_updater.step()
+        return {
+            "loss_qvalue": out["loss_qvalue"].item(),
+            "loss_cql": out["loss_cql"].item(),
+            "loss_actor": out["loss_actor"].item(),
+            "alpha": float(out["alpha"]),
+            "entropy": float(out["entropy"]),
+            "bound_rate": float(out["bound_rate"]),
+        }
+
+    def state_dict(self) -> dict:
+        return {"pending": self.pending}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restores the held episode, cut: a resumed run's collector starts a new episode,
+        so the held one ends at its last transition (marked truncated and done, and
+        released with the next finished episode; ``monte_carlo_returns`` splits at the flag
+        even where the new episode reuses its id)."""
+        self.pending = state.get("pending")
+        if self.pending is not None:
+            for flag in ("truncated", "done"):
+                self.pending["next", flag][-1] = True
+
+
+def run_calql(cfg: DictConfig) -> O2ORun:
+    """Runs (or resumes) the Cal-QL baseline for a validated ``cfg``."""
+    return run_o2o(cfg, CalQLLearner)
+
+
+CALQL = Algorithm(
+    sections={"actor": CalQLActorSettings, "online": OnlineSettings},
+    critics=("calql",),
+    check=check_nothing,
+    learner=CalQLLearner,
+)
