@@ -181,13 +181,22 @@ def fmt(interval: tuple[float, float]) -> str:
     return f"{mean:.1f}" if math.isnan(half) else f"{mean:.1f} ± {half:.1f}"
 
 
+def _offline_unshifted(result: dict) -> float:
+    """The offline policy's score without the cell's shift (NaN if not recorded)."""
+    offline = next((h for h in result["history"] if h["label"] == "offline"), {})
+    return float(offline.get("normalized_score_unshifted", math.nan))
+
+
 def cell_table(variants: dict[str, list[dict]], order: Sequence[str]) -> str:
     """Markdown table of one cell: mean ± 95 % t half-width per variant, and which
-    variants separate from ``dual`` (final score / AUC)."""
+    variants separate from ``dual`` (final score / AUC). Under an online shift it adds
+    the offline policy's score without the shift (the shift's bite)."""
+    shifted = any(r.get("shift", "none") != "none" for rs in variants.values() for r in rs)
+    extra = " offline, no shift |" if shifted else ""
     lines = [
-        "| variant | n | offline score | final online score | AUC (online) | wall min "
+        f"| variant | n | offline score |{extra} final online score | AUC (online) | wall min "
         "| CPU min | vs dual: final / AUC |",
-        "|---|---:|---|---|---|---:|---:|---|",
+        "|---|---:|---|" + ("---|" if shifted else "") + "---|---|---:|---:|---|",
     ]
     stats = {
         v: {k: t_interval([r[k] for r in rs]) for k in ("offline_score", "final_score", "auc")}
@@ -205,8 +214,12 @@ def cell_table(variants: dict[str, list[dict]], order: Sequence[str]) -> str:
             if clock_of(rs) == "cpu"
             else "—"
         )
+        unshifted = ""
+        if shifted:
+            values = [_offline_unshifted(r) for r in rs]
+            unshifted = " — |" if any(map(math.isnan, values)) else f" {fmt(t_interval(values))} |"
         lines.append(
-            f"| `{v}` | {len(rs)} | {fmt(s['offline_score'])} | {fmt(s['final_score'])} "
+            f"| `{v}` | {len(rs)} | {fmt(s['offline_score'])} |{unshifted} {fmt(s['final_score'])} "
             f"| {fmt(s['auc'])} | {wall:.1f} | {cpu} | {marker} |"
         )
     return "\n".join(lines)

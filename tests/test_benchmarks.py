@@ -326,3 +326,18 @@ def test_so2_cost_prints_the_three_updates_and_the_ratio(monkeypatch, capsys):
     for row in ("| SO2 critic, E = 2 |", "| IQL critic (twin Q + V) |", "N = 16 |"):
         assert row in out
     assert "SO2 / IQL critic update:" in out
+
+
+def test_shift_cells_report_the_offline_score_without_the_shift():
+    runs = []
+    for seed, (shifted, plain) in enumerate([(4.0, 20.0), (6.0, 40.0)]):
+        result = _result("dual", seed, [shifted, 10.0, 30.0], cell="umaze_rotation")
+        result["shift"] = "rotation"
+        result["history"][0]["normalized_score_unshifted"] = plain
+        runs.append(result)
+    table = lr.cell_table({"dual": runs}, ["dual"])
+    assert "| offline score | offline, no shift | final online score |" in table
+    half = 12.706 * (20.0 / math.sqrt(2)) / math.sqrt(2)  # t_0.975(1) * s / sqrt(n)
+    assert f"| 5.0 ± {12.706 * 1.0:.1f} | 30.0 ± {half:.1f} |" in table
+    plain = lr.cell_table({"dual": [_result("dual", 0, [1.0, 2.0, 3.0])]}, ["dual"])
+    assert "no shift" not in plain
