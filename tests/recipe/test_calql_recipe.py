@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import pytest
 import torch
+from tensordict import TensorDict
 from test_diffql import CONFIG_DIR, POINTMAZE, checkpoint_state, common_overrides
 
 from torchrl_dual.data import make_transitions, monte_carlo_returns
 from torchrl_dual.recipe import ConfigError, compose_checked, run
-from torchrl_dual.recipe.calql import MC_RETURN
+from torchrl_dual.recipe.mc_labels import MC_RETURN
 
 
 @pytest.fixture(scope="module")
@@ -56,7 +57,7 @@ def test_online_episodes_enter_the_buffer_labelled_when_they_end(calql_run):
 
 def test_an_unfinished_episode_is_held_until_it_ends(calql_run):
     _, result = calql_run
-    learner = result.learner
+    learner = result.learner.labels
     learner.pending = None
     gamma = result.cfg.critic.discount
 
@@ -92,7 +93,17 @@ def test_an_unfinished_episode_is_held_until_it_ends(calql_run):
     "overrides, message",
     [
         (["algo=calql", "critic=iql"], "critic=iql: calql supports calql"),
-        (["algo=dual", "critic=calql"], "critic=calql: dual supports iql"),
+        (["algo=diffql", "critic=calql"], "critic=calql: diffql supports iql"),
+        (
+            ["algo=dual", "critic=calql", "actor.weighting=advantage"],
+            "actor.weighting=advantage: needs IQL's value network V; critic=calql has none: "
+            "use actor.weighting=sac (Cal-QL's actor loss, the paper's Cal-QL rows) or uniform",
+        ),
+        (
+            ["algo=dual", "critic=calql", "augment.kind=planner"],
+            "augment.kind=planner: adds generated transitions without Cal-QL's Monte-Carlo "
+            "bound; use augment.kind=none with critic=calql",
+        ),
     ],
 )
 def test_critic_and_algorithm_must_match(tmp_path, overrides, message):
@@ -111,7 +122,7 @@ def test_the_episode_in_progress_survives_an_interruption_cut(tmp_path):
     assert len(checkpoint_state(tmp_path)["learner"]["pending"]) == 10
     finished = run(compose_checked(CONFIG_DIR, [*overrides, "resume=true"]))
     online = finished.replay.online_buffer[:]
-    assert (finished.frames, len(online), len(finished.learner.pending)) == (100, 90, 10)
+    assert (finished.frames, len(online), len(finished.learner.labels.pending)) == (100, 90, 10)
     ends = online["next", "done"].squeeze(-1).nonzero().squeeze(-1).tolist()
     assert ends == [39, 49, 89]
     assert bool(online["next", "truncated"][49])  # the cut
@@ -122,3 +133,42 @@ def test_the_episode_in_progress_survives_an_interruption_cut(tmp_path):
         for k, r in enumerate(online["next", "reward"][40:50].squeeze(-1))
     )
     assert float(online[MC_RETURN][40]) == pytest.approx(by_hand, rel=1e-5)
+
+
+# ----------------------------------------------------------------------------- DUAL on Cal-QL
+def test_dual_on_the_calql_critic_runs_resumes_and_saves_each_weight_once(tmp_path):
+    """``algo=dual critic=calql``: Eq. 7 with the critic's preset ``sac`` weighting on
+    Cal-QL's Q, the penalty sampling N(μ(s), σ̄²) of DUAL's own actor, the bound on both
+    data sets; interrupted and resumed."""
+    overrides = [
+        "algo=dual",
+        "critic=calql",
+        *POINTMAZE,
+        *common_overrides(tmp_path, tmp_path / "d"),
+    ]
+    overrides += ["env.max_episode_steps=40"]
+    cfg = compose_checked(CONFIG_DIR, overrides)
+    assert cfg.actor.weighting == "sac"
+    run(compose_checked(CONFIG_DIR, [*overrides, "interrupt_at_frames=50"]))
+    state = checkpoint_state(tmp_path)
+    assert not any(k.startswith("actor_network_params") for k in state["critic"])
+    assert any(k.startswith("qvalue_network_params") for k in state["critic"])
+    assert len(state["learner"]["mc_labels"]["pending"]) == 10
+    finished = run(compose_checked(CONFIG_DIR, [*overrides, "resume=true"]))
+    learner = finished.learner
+    # the penalty samples DUAL's actor itself (same parameters), not a copy
+    actor_ptrs = {t.data_ptr() for t in TensorDict.from_module(learner.actor).values(True, True)}
+    loss_params = learner.critic.loss.actor_network_params.values(True, True)
+    assert actor_ptrs == {t.data_ptr() for t in loss_params}  # weights and buffers
+    assert learner.actor_loss.weighting == "sac" and learner.actor_loss.value_network is None
+    online = finished.replay.online_buffer[:]
+    assert (finished.frames, len(online)) == (100, 90)
+    expected = monte_carlo_returns(online, finished.cfg.critic.discount)
+    assert torch.allclose(online[MC_RETURN], expected.float())
+    assert torch.allclose(
+        finished.data.transitions[MC_RETURN],
+        monte_carlo_returns(finished.data.transitions, finished.cfg.critic.discount).float(),
+    )
+    scalars = tmp_path / "logs" / "dual" / "scalars"
+    assert (scalars / "offline" / "loss_cql.csv").is_file()
+    assert not (scalars / "offline" / "loss_value.csv").exists()

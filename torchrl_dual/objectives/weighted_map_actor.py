@@ -134,19 +134,23 @@ class WeightedMAPActorLoss(LossModule):
 
     @classmethod
     def from_iql(cls, actor: LastLayerActor, iql_loss, **kwargs) -> WeightedMAPActorLoss:
-        """Builds the advantage-weighted loss on the critics of a TorchRL ``IQLLoss``."""
+        """Builds the loss on the critics of a TorchRL ``IQLLoss`` (the target twin Q and
+        V), or of any critic loss with ``qvalue_network`` and target Q parameters, e.g.
+        :class:`~torchrl_dual.objectives.CalQLLoss` (no V: ``weighting="sac"`` or
+        ``"uniform"`` only)."""
+        value_network = getattr(iql_loss, "value_network", None)
         loss = cls(
             actor,
             qvalue_network=iql_loss.qvalue_network,
-            value_network=iql_loss.value_network,
+            value_network=value_network,
             qvalue_params=iql_loss.target_qvalue_network_params,
-            value_params=iql_loss.value_network_params,
+            value_params=getattr(iql_loss, "value_network_params", None),
             **kwargs,
         )
-        loss.set_keys(
-            state_action_value=iql_loss.tensor_keys.state_action_value,
-            value=iql_loss.tensor_keys.value,
-        )
+        keys = {"state_action_value": iql_loss.tensor_keys.state_action_value}
+        if value_network is not None:
+            keys["value"] = iql_loss.tensor_keys.value
+        loss.set_keys(**keys)
         return loss
 
     def _forward_value_estimator_keys(self, **kwargs) -> None:

@@ -7,15 +7,8 @@ TorchRL's ``CQLLoss`` whose conservative penalty bounds the policy Q-values from
 by the data's Monte-Carlo return). Everything else (data, budget, replay, UTD, evaluation)
 is :class:`~torchrl_dual.recipe.O2ORun`'s.
 
-**The bound.** ``D_offline`` is labelled once, when the learner is built:
-``mc_return = monte_carlo_returns(data, critic.discount, sparse_failure_reward=...)``
-(Cal-QL's rule: the sum stops at an episode's last step, terminated or truncated; with
-``critic.sparse_failure_reward`` an episode that never left that reward is worth
-``r_fail / (1 - γ)`` everywhere). Online transitions are labelled when their episode
-ends, as Cal-QL's code adds whole trajectories: :meth:`CalQLLearner.online_transitions`
-holds the transitions of the episode in progress (checkpointed) and releases each
-finished episode with its returns-to-go; an episode still running when the budget ends
-never reaches the buffer, and one cut by an interruption ends at the cut (resume).
+**The bound** (``mc_return``) on ``D_offline`` and on each finished online episode:
+:class:`~torchrl_dual.recipe.mc_labels.MonteCarloLabels`.
 """
 
 from __future__ import annotations
@@ -27,17 +20,14 @@ from omegaconf import DictConfig
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule, TensorDictSequential
 
-from torchrl_dual.data import monte_carlo_returns
 from torchrl_dual.recipe.algorithm import Algorithm, OnlineSettings, check_nothing
 from torchrl_dual.recipe.critics import CRITICS
 from torchrl_dual.recipe.env_kits import env_kit
 from torchrl_dual.recipe.iql import make_iql_actor
 from torchrl_dual.recipe.learner import Learner
+from torchrl_dual.recipe.mc_labels import MonteCarloLabels
 from torchrl_dual.recipe.o2o_run import O2ORun, run_o2o
 from torchrl_dual.recipe.rules import Integer, Real, key
-
-MC_RETURN = "mc_return"
-"""The key of the Monte-Carlo bound in D_offline and D_online (``CalQLLoss``'s default)."""
 
 
 @dataclass
@@ -47,19 +37,6 @@ class CalQLActorSettings:
     hidden: int = key(Integer(1), "MLP width of the actor")
     depth: int = key(Integer(1), "hidden layers of the actor")
     lr: float = key(Real(0, low_open=True), "Adam learning rate of the actor and of log α")
-
-
-def label_transitions(transitions: TensorDictBase, cfg: DictConfig) -> TensorDictBase:
-    """``transitions`` with their Monte-Carlo returns-to-go under :data:`MC_RETURN`."""
-    transitions.set(
-        MC_RETURN,
-        monte_carlo_returns(
-            transitions,
-            cfg.critic.discount,
-            sparse_failure_reward=cfg.critic.sparse_failure_reward,
-        ).to(transitions["next", "reward"].dtype),
-    )
-    return transitions
 
 
 class CalQLLearner(Learner):
@@ -75,15 +52,11 @@ class CalQLLearner(Learner):
         self.critic = CRITICS[cfg.critic.name][1](
             cfg, run.data.obs_dim, run.data.action_dim, actor=self.actor
         )
-        # D_offline with its bound; the run's offline buffer is rebuilt from it (the
-        # replay buffer that mixes it with D_online is built after the learner)
-        label_transitions(run.data.transitions, cfg)
-        run.offline_buffer = run._offline_buffer()
+        self.labels = MonteCarloLabels(run)  # D_offline's bound; D_online's per episode
         loss = self.critic.loss
         self.actor_optimizer = torch.optim.Adam(
             [*loss.actor_network_params.values(True, True), loss.log_alpha], lr=cfg.actor.lr
         )
-        self.pending: TensorDictBase | None = None  # the online episode in progress
         projection = env_kit(cfg).action_projection
         self.evaluation_policy = self.actor
         self.exploration_policy = (
@@ -103,17 +76,7 @@ class CalQLLearner(Learner):
         return [("actor_critic", self.run.pretrain_updates)]
 
     def online_transitions(self, transitions: TensorDictBase) -> TensorDictBase:
-        """The finished episodes among the held and the new ``transitions``, labelled with
-        their returns-to-go; the unfinished tail is held until its episode ends."""
-        if self.pending is not None:
-            transitions = torch.cat([self.pending, transitions])
-        done = transitions["next", "done"].reshape(-1)
-        if not done.any():
-            self.pending = transitions
-            return transitions[:0]
-        end = int(done.nonzero().max()) + 1
-        self.pending = transitions[end:] if end < len(transitions) else None
-        return label_transitions(transitions[:end].clone(), self.run.cfg)
+        return self.labels.online_transitions(transitions)
 
     def update(self, batch: TensorDictBase) -> dict:
         """Cal-QL's losses on one batch: the critics on TD + bounded penalty, the actor
@@ -137,17 +100,10 @@ class CalQLLearner(Learner):
         }
 
     def state_dict(self) -> dict:
-        return {"pending": self.pending}
+        return self.labels.state_dict()
 
     def load_state_dict(self, state: dict) -> None:
-        """Restores the held episode, cut: a resumed run's collector starts a new episode,
-        so the held one ends at its last transition (marked truncated and done, and
-        released with the next finished episode; ``monte_carlo_returns`` splits at the flag
-        even where the new episode reuses its id)."""
-        self.pending = state.get("pending")
-        if self.pending is not None:
-            for flag in ("truncated", "done"):
-                self.pending["next", flag][-1] = True
+        self.labels.load_state_dict(state)
 
 
 def run_calql(cfg: DictConfig) -> O2ORun:

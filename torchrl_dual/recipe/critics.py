@@ -16,10 +16,10 @@ from omegaconf import DictConfig
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from torch import nn
-from torchrl.modules import MLP, ProbabilisticActor, ValueOperator
+from torchrl.modules import MLP, IndependentNormal, ProbabilisticActor, ValueOperator
 from torchrl.objectives import IQLLoss, SoftUpdate
 
-from torchrl_dual.objectives import PENALTY_LAYOUTS, CalQLLoss
+from torchrl_dual.objectives import PENALTY_LAYOUTS, WEIGHTINGS, CalQLLoss
 from torchrl_dual.recipe.rules import Choice, Integer, Maybe, Real, Text, key
 
 
@@ -34,6 +34,7 @@ class IQLCriticSettings:
     expectile: float = key(Real(0, 1, low_open=True, high_open=True), "IQL expectile τ")
     discount: float = key(Real(0, 1, low_open=True), "γ")
     target_update_tau: float = key(Real(0, 1, low_open=True), "soft target update rate")
+    actor_weighting: str = key(Choice(WEIGHTINGS), "preset of DUAL's actor.weighting")
 
 
 @dataclass
@@ -53,6 +54,7 @@ class CalQLCriticSettings:
     sparse_failure_reward: Any = key(
         Maybe(Real()), "r_fail of Cal-QL's sparse-reward bound r_fail / (1 - γ); null: off"
     )
+    actor_weighting: str = key(Choice(WEIGHTINGS), "preset of DUAL's actor.weighting")
 
 
 @dataclass
@@ -64,10 +66,15 @@ class Critic:
     optimizer: torch.optim.Optimizer
     target_updater: SoftUpdate
 
+    saves_actor: bool = True
+    """``False`` when the loss samples a :func:`policy_view` of the learner's actor, which
+    the learner saves itself: the checkpoint then holds each weight once."""
+
     def modules(self) -> dict[str, Any]:
         """What a learner's checkpoint holds of the critics (:meth:`Learner.modules`): the
         loss (V, both Q and the target Q networks) and its optimizer."""
-        return {"critic": self.loss, "critic_optimizer": self.optimizer}
+        loss = self.loss if self.saves_actor else _WithoutActor(self.loss)
+        return {"critic": loss, "critic_optimizer": self.optimizer}
 
     def step(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """One critic update of Alg. 1 (lines 7 and 15): one gradient step on IQL's
@@ -89,6 +96,27 @@ class Critic:
         self.optimizer.step()
         self.target_updater.step()
         return q_loss.detach(), v_loss.detach()
+
+
+class _WithoutActor:
+    """A critic loss's ``state_dict`` without the actor weights it samples (saved by the
+    learner as its actor's)."""
+
+    def __init__(self, loss: nn.Module) -> None:
+        self.loss = loss
+
+    def state_dict(self) -> dict[str, Any]:
+        return {k: v for k, v in self.loss.state_dict().items() if not _is_actor(k)}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        missing, unexpected = self.loss.load_state_dict(state, strict=False)
+        wrong = [k for k in missing if not _is_actor(k)] + list(unexpected)
+        if wrong:
+            raise RuntimeError(f"critic state does not fit: {wrong[:5]}")
+
+
+def _is_actor(name: str) -> bool:
+    return name.startswith(("actor_network_params", "target_actor_network_params"))
 
 
 class _NoActor(nn.Module):
@@ -201,8 +229,38 @@ def make_calql_critic(
     ).to(cfg.device)
     loss.make_value_estimator(gamma=c.discount)
     optimizer = torch.optim.Adam(loss.qvalue_network_params.values(True, True), lr=c.lr)
-    return Critic(loss, optimizer, SoftUpdate(loss, tau=c.target_update_tau))
+    saves_actor = not any(isinstance(m, _MeanAndStd) for m in actor.modules())  # policy_view
+    return Critic(loss, optimizer, SoftUpdate(loss, tau=c.target_update_tau), saves_actor)
 
+
+class _MeanAndStd(nn.Module):
+    """``observation -> (μ(s), σ̄)`` of a last-layer actor (DUAL's ``N(μ(s), σ̄²)``)."""
+
+    def __init__(self, actor: nn.Module) -> None:
+        super().__init__()
+        self.actor = actor
+
+    def forward(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        loc = self.actor(observation)
+        return loc, self.actor.std.expand_as(loc)
+
+
+def policy_view(actor: nn.Module, action_spec) -> ProbabilisticActor:
+    """A TorchRL ``ProbabilisticActor`` sampling ``N(μ(s), σ̄²)`` from DUAL's last-layer
+    actor (the policy of Eq. 7's ``sac`` weighting), for a critic whose loss samples the
+    policy (Cal-QL's penalty and target actions). It holds the actor's own parameters:
+    the critic's optimizer never steps them and :meth:`Critic.modules` does not save them."""
+    return ProbabilisticActor(
+        TensorDictModule(_MeanAndStd(actor), in_keys=["observation"], out_keys=["loc", "scale"]),
+        in_keys=["loc", "scale"],
+        spec=action_spec,
+        distribution_class=IndependentNormal,  # log π sums over the action dims
+    )
+
+
+POLICY_CRITICS = ("calql",)
+"""Critics whose loss samples the policy: a learner with its own actor passes them
+:func:`policy_view` of it (``actor=``)."""
 
 CRITICS: dict[str, tuple[type, Callable[..., Critic]]] = {
     "iql": (IQLCriticSettings, make_iql_critic),

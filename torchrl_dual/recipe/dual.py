@@ -15,8 +15,9 @@ from tensordict import TensorDictBase
 
 from torchrl_dual.objectives import progressive_distillation
 from torchrl_dual.recipe import networks
-from torchrl_dual.recipe.critics import CRITICS
+from torchrl_dual.recipe.critics import CRITICS, POLICY_CRITICS, policy_view
 from torchrl_dual.recipe.learner import Learner
+from torchrl_dual.recipe.mc_labels import MonteCarloLabels
 from torchrl_dual.recipe.o2o_run import O2ORun, run_o2o
 from torchrl_dual.recipe.planner_augment import augment_capacity, make_augmenter
 from torchrl_dual.recipe.planner_stage import offline_windows, pretrain_planner
@@ -41,7 +42,11 @@ class DualLearner(Learner):
         self.actor = networks.make_actor(cfg, self.teacher)
         self.transition = networks.make_transition_model(cfg, self.teacher, self.actor)
         make_critic = CRITICS[cfg.critic.name][1]
-        self.critic = make_critic(cfg, data.obs_dim, data.action_dim)
+        samples_policy = cfg.critic.name in POLICY_CRITICS  # Cal-QL: N(μ(s), σ̄²) of π_θ
+        view = policy_view(self.actor, run.env.action_spec) if samples_policy else None
+        self.critic = make_critic(cfg, data.obs_dim, data.action_dim, actor=view)
+        # critic=calql: the Monte-Carlo bound on D_offline now, on D_online per episode
+        self.labels = MonteCarloLabels(run) if cfg.critic.name == "calql" else None
         self.actor_loss = networks.make_actor_loss(cfg, self.actor, self.critic)
         self.actor_optimizer = torch.optim.Adam(self.actor_loss.parameters(), lr=cfg.actor.lr)
         self.policy = networks.make_policy(cfg, self.actor, run.env.action_spec, self.transition)
@@ -85,12 +90,20 @@ class DualLearner(Learner):
         state = {"updates_since_refit": self.updates_since_refit}
         if self.augmenter:
             state["augment"] = self.augmenter.state_dict()
+        if self.labels:
+            state["mc_labels"] = self.labels.state_dict()
         return state
 
     def load_state_dict(self, state: dict) -> None:
         self.updates_since_refit = state["updates_since_refit"]
         if self.augmenter:
             self.augmenter.load_state_dict(state["augment"])
+        if self.labels:
+            self.labels.load_state_dict(state["mc_labels"])
+
+    def online_transitions(self, transitions: TensorDictBase) -> TensorDictBase:
+        """All of them; with ``critic=calql``, whole episodes with their bound."""
+        return transitions if self.labels is None else self.labels.online_transitions(transitions)
 
     def offline_stages(self) -> list:
         return [
@@ -101,8 +114,9 @@ class DualLearner(Learner):
         ]
 
     def update(self, batch: TensorDictBase) -> dict:
-        """One critic (IQL) and one actor (Eq. 7) gradient step, Alg. 1 lines 7-8 / 15-16."""
-        q_loss, v_loss = self.critic.step(batch)
+        """One critic (IQL, or Cal-QL's TD + bounded penalty) and one actor (Eq. 7)
+        gradient step, Alg. 1 lines 7-8 / 15-16."""
+        q_loss, second = self.critic.step(batch)
         out = self.actor_loss(batch)
         self.actor_optimizer.zero_grad(set_to_none=True)
         out["loss_actor"].backward()
@@ -110,7 +124,7 @@ class DualLearner(Learner):
         self.updates_since_refit += 1
         return {
             "loss_qvalue": q_loss.item(),
-            "loss_value": v_loss.item(),
+            ("loss_cql" if self.labels else "loss_value"): second.item(),
             **{k: v.item() for k, v in out.items()},
         }
 

@@ -102,11 +102,32 @@ def check_dual(cfg: DictConfig) -> None:
     check_ablations(cfg)
     check_planner_window(cfg)
     check_augment(cfg)
+    check_calql(cfg)
     if cfg.actor.latent == "sample" and p.schedule != "cosine":
         raise ConfigError(
             "actor.latent",
             "sample",
             f"needs planner.schedule=cosine, which ends in pure noise (got {p.schedule})",
+        )
+
+
+def check_calql(cfg: DictConfig) -> None:
+    """``critic=calql`` (the paper's Cal-QL rows): Eq. 7 on Q alone, whole episodes online."""
+    if cfg.critic.name != "calql":
+        return
+    if cfg.actor.weighting == "advantage":
+        raise ConfigError(
+            "actor.weighting",
+            "advantage",
+            "needs IQL's value network V; critic=calql has none: use actor.weighting=sac "
+            "(Cal-QL's actor loss, the paper's Cal-QL rows) or uniform",
+        )
+    if cfg.augment.kind != "none":
+        raise ConfigError(
+            "augment.kind",
+            cfg.augment.kind,
+            "adds generated transitions without Cal-QL's Monte-Carlo bound; use "
+            "augment.kind=none with critic=calql",
         )
 
 
@@ -155,7 +176,7 @@ DUAL = Algorithm(
         "online": OnlineSettings,
         "augment": AugmentSettings,
     },
-    critics=("iql",),
+    critics=("iql", "calql"),
     check=check_dual,
     learner=DualLearner,
 )
