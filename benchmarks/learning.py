@@ -65,14 +65,15 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     "edis": ("algo=edis",),
     "dual_augment": ("algo=dual", "augment.kind=planner"),
     "calql": ("algo=calql",),  # Cal-QL (critic/calql), the base critic of the paper's Table 2
+    "dual_calql": ("algo=dual", "critic=calql"),  # DUAL on Cal-QL's critic (Table 2)
 }
 """Variant name -> recipe overrides."""
 
 ABLATION_VARIANTS = ("dual_no_planner", "dual_no_distillation", "dual_latent_uq")
 """The paper's other ablation rows (beyond the issue's grid)."""
 
-PAPER_BASELINES = ("diffuser", "dacer", "edis", "dual_augment", "calql")
-"""The paper's other baselines, "DUAL + EDIS" and Cal-QL (beyond the issue's grid)."""
+PAPER_BASELINES = ("diffuser", "dacer", "edis", "dual_augment", "calql", "dual_calql")
+"""The paper's other baselines, "DUAL + EDIS", Cal-QL and DUAL on it (beyond the issue's grid)."""
 
 SHIFT_VARIANTS = ("dual", "iql", "dual_lambda0")
 
@@ -99,7 +100,8 @@ CELLS: dict[str, Cell] = {
     ),
     "umaze_baselines": Cell(
         ("env=pointmaze_umaze",), PAPER_BASELINES, 3,
-        "PointMaze U-maze: Diffuser, DACER, EDIS (IQL + planner augmentation), DUAL + EDIS, Cal-QL",
+        "PointMaze U-maze: Diffuser, DACER, EDIS (IQL + planner augmentation), DUAL + EDIS, "
+        "Cal-QL, DUAL on Cal-QL",
     ),
     "umaze_rotation": Cell(
         ("env=pointmaze_umaze", "env.shift=rotation"), SHIFT_VARIANTS, 3,
