@@ -18,11 +18,10 @@ from dataclasses import dataclass
 import torch
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
-from tensordict.nn import TensorDictModule, TensorDictSequential
 
 from torchrl_dual.recipe.algorithm import Algorithm, OnlineSettings, check_nothing
 from torchrl_dual.recipe.critics import CRITICS
-from torchrl_dual.recipe.env_kits import env_kit
+from torchrl_dual.recipe.env_kits import projected_policy
 from torchrl_dual.recipe.iql import make_iql_actor
 from torchrl_dual.recipe.learner import Learner
 from torchrl_dual.recipe.mc_labels import MonteCarloLabels
@@ -57,16 +56,8 @@ class CalQLLearner(Learner):
         self.actor_optimizer = torch.optim.Adam(
             [*loss.actor_network_params.values(True, True), loss.log_alpha], lr=cfg.actor.lr
         )
-        projection = env_kit(cfg).action_projection
         self.evaluation_policy = self.actor
-        self.exploration_policy = (
-            self.actor
-            if projection is None
-            else TensorDictSequential(
-                self.actor,
-                TensorDictModule(projection, in_keys=["action"], out_keys=["action"]),
-            )
-        )
+        self.exploration_policy = projected_policy(cfg, self.actor)
 
     def modules(self) -> dict:
         """The Cal-QL loss holds the actor, both Q, the target Q networks and ``log α``."""

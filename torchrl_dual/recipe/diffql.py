@@ -66,7 +66,7 @@ from torchrl_dual.recipe.algorithm import (
     check_nothing,
 )
 from torchrl_dual.recipe.critics import CRITICS
-from torchrl_dual.recipe.env_kits import env_kit
+from torchrl_dual.recipe.env_kits import projected_policy
 from torchrl_dual.recipe.laplace_refits import LaplaceRefits
 from torchrl_dual.recipe.learner import Learner
 from torchrl_dual.recipe.o2o_run import O2ORun
@@ -180,12 +180,7 @@ class DiffQLLearner(Learner):
 
     def projected(self, policy: nn.Module) -> nn.Module:
         """``policy`` followed by the env kit's ``action_projection``, if it has one."""
-        projection = env_kit(self.cfg).action_projection
-        if projection is None:
-            return policy
-        return TensorDictSequential(
-            policy, TensorDictModule(projection, in_keys=["action"], out_keys=["action"])
-        )
+        return projected_policy(self.cfg, policy)
 
     def modules(self) -> dict:
         return {

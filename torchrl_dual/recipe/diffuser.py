@@ -24,7 +24,6 @@ from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDictBase
-from tensordict.nn import TensorDictModule, TensorDictSequential
 
 from torchrl_dual.diffusion import WindowReplayBuffer
 from torchrl_dual.diffusion.model import SAMPLERS
@@ -34,7 +33,7 @@ from torchrl_dual.objectives.update_loop import run_updates
 from torchrl_dual.recipe import networks
 from torchrl_dual.recipe.algorithm import Algorithm, OnlineSettings
 from torchrl_dual.recipe.dual_settings import PlannerSettings
-from torchrl_dual.recipe.env_kits import env_kit
+from torchrl_dual.recipe.env_kits import projected_policy
 from torchrl_dual.recipe.learner import Learner
 from torchrl_dual.recipe.o2o_run import O2ORun
 from torchrl_dual.recipe.planner_stage import check_planner_window, offline_windows
@@ -74,15 +73,8 @@ class DiffuserLearner(Learner):
             action_low=space.low.to(cfg.device),
             action_high=space.high.to(cfg.device),
         )
-        projection = env_kit(cfg).action_projection
         self.evaluation_policy = policy  # the zero-latent DDIM plan under DETERMINISTIC
-        self.exploration_policy = (
-            policy
-            if projection is None
-            else TensorDictSequential(
-                policy, TensorDictModule(projection, in_keys=["action"], out_keys=["action"])
-            )
-        )
+        self.exploration_policy = projected_policy(cfg, policy)
 
     def modules(self) -> dict:
         return {"planner": self.planner, "planner_optimizer": self.optimizer}

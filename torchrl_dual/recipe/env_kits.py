@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 import torch
 from omegaconf import DictConfig
+from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
 from torchrl.envs import EnvBase
 
@@ -228,6 +229,17 @@ def make_offline_dataset(cfg: DictConfig) -> OfflineDataset:
             "entry in the cache to regenerate it.",
         ) from err
     return data
+
+
+def projected_policy(cfg: DictConfig, policy: nn.Module) -> nn.Module:
+    """``policy`` followed by the env kit's ``action_projection`` (the executed action the
+    replay buffer stores, e.g. Frozen-Lake's one-hot argmax), or ``policy`` itself."""
+    projection = env_kit(cfg).action_projection
+    if projection is None:
+        return policy
+    return TensorDictSequential(
+        policy, TensorDictModule(projection, in_keys=["action"], out_keys=["action"])
+    )
 
 
 def make_train_env(cfg: DictConfig, data: OfflineDataset | None = None) -> EnvBase:

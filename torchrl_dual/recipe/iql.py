@@ -18,14 +18,14 @@ from dataclasses import dataclass
 import torch
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
-from tensordict.nn import NormalParamExtractor, TensorDictModule, TensorDictSequential
+from tensordict.nn import NormalParamExtractor, TensorDictModule
 from torch import nn
 from torchrl.envs.utils import ExplorationType
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal
 
 from torchrl_dual.recipe.algorithm import Algorithm, OnlineSettings, check_nothing
 from torchrl_dual.recipe.critics import CRITICS
-from torchrl_dual.recipe.env_kits import env_kit
+from torchrl_dual.recipe.env_kits import projected_policy
 from torchrl_dual.recipe.learner import Learner
 from torchrl_dual.recipe.o2o_run import O2ORun, run_o2o
 from torchrl_dual.recipe.rules import Integer, Real, key
@@ -88,16 +88,8 @@ class IQLLearner(Learner):
             temperature=cfg.actor.temperature,
         )
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor.lr)
-        projection = env_kit(cfg).action_projection
         self.evaluation_policy = self.actor
-        self.exploration_policy = (
-            self.actor
-            if projection is None
-            else TensorDictSequential(
-                self.actor,
-                TensorDictModule(projection, in_keys=["action"], out_keys=["action"]),
-            )
-        )
+        self.exploration_policy = projected_policy(cfg, self.actor)
 
     def modules(self) -> dict:
         """The IQL loss holds the actor, V, both Q and the target Q networks."""
