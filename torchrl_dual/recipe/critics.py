@@ -24,29 +24,30 @@ from torchrl_dual.recipe.rules import Choice, Integer, Maybe, Real, Text, key
 
 
 @dataclass
-class IQLCriticSettings:
-    """``critic/iql.yaml``: TorchRL ``IQLLoss`` expectile value network and twin Q networks."""
+class CriticSettings:
+    """The ``critic.*`` keys every critic has (its networks, optimizer and targets)."""
 
     name: str = key(Text(), "the CRITICS entry")
-    hidden: int = key(Integer(1), "MLP width of V and Q")
-    depth: int = key(Integer(1), "hidden layers of V and Q")
-    lr: float = key(Real(0, low_open=True), "Adam learning rate of V and Q")
-    expectile: float = key(Real(0, 1, low_open=True, high_open=True), "IQL expectile τ")
+    hidden: int = key(Integer(1), "MLP width of the critic networks")
+    depth: int = key(Integer(1), "hidden layers of the critic networks")
+    lr: float = key(Real(0, low_open=True), "Adam learning rate of the critic networks")
     discount: float = key(Real(0, 1, low_open=True), "γ")
     target_update_tau: float = key(Real(0, 1, low_open=True), "soft target update rate")
     actor_weighting: str = key(Choice(WEIGHTINGS), "preset of DUAL's actor.weighting")
 
 
 @dataclass
-class CalQLCriticSettings:
-    """``critic/calql.yaml``: Cal-QL's twin Q networks (TorchRL ``CQLLoss`` + MC bound)."""
+class IQLCriticSettings(CriticSettings):
+    """``critic/iql.yaml``: TorchRL ``IQLLoss`` expectile value network and twin Q networks."""
 
-    name: str = key(Text(), "the CRITICS entry")
-    hidden: int = key(Integer(1), "MLP width of Q")
-    depth: int = key(Integer(1), "hidden layers of Q")
-    lr: float = key(Real(0, low_open=True), "Adam learning rate of Q")
-    discount: float = key(Real(0, 1, low_open=True), "γ (also of the Monte-Carlo bound)")
-    target_update_tau: float = key(Real(0, 1, low_open=True), "soft target update rate")
+    expectile: float = key(Real(0, 1, low_open=True, high_open=True), "IQL expectile τ")
+
+
+@dataclass
+class CalQLCriticSettings(CriticSettings):
+    """``critic/calql.yaml``: Cal-QL's twin Q networks (TorchRL ``CQLLoss`` + MC bound;
+    ``discount`` is also the bound's)."""
+
     min_q_weight: float = key(Real(0), "weight of the conservative penalty")
     num_random: int = key(Integer(1), "uniform and policy actions per state in the penalty")
     temperature: float = key(Real(0, low_open=True), "temperature of the penalty's logsumexp")
@@ -54,7 +55,6 @@ class CalQLCriticSettings:
     sparse_failure_reward: Any = key(
         Maybe(Real()), "r_fail of Cal-QL's sparse-reward bound r_fail / (1 - γ); null: off"
     )
-    actor_weighting: str = key(Choice(WEIGHTINGS), "preset of DUAL's actor.weighting")
 
 
 @dataclass
