@@ -97,7 +97,7 @@ def test_an_unfinished_episode_is_held_until_it_ends(calql_run):
         (
             ["algo=dual", "critic=calql", "actor.weighting=advantage"],
             "actor.weighting=advantage: needs IQL's value network V; critic=calql has none: "
-            "use actor.weighting=sac (Cal-QL's actor loss, the paper's Cal-QL rows) or uniform",
+            "use actor.weighting=sac (Q - alpha log pi, the paper's Cal-QL and SO2 rows) or uniform",
         ),
         (
             ["algo=dual", "critic=calql", "augment.kind=planner"],

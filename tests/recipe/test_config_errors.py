@@ -35,7 +35,7 @@ CASES = [
     (
         "algo=nope",
         "algo=nope: unknown option; choose one of calql, dacer, diffql, diffql_la, diffuser, dual, "
-        "edis, iql, iql_la",
+        "edis, iql, iql_la, so2",
     ),
     ("algo=iql actor.temperature=-1", "actor.temperature=-1: must be a number >= 0"),
     ("algo=iql actor.hiden=3", "unknown key 'actor.hiden'; did you mean actor.hidden?"),

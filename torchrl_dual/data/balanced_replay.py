@@ -182,9 +182,10 @@ class BalancedReplayBuffer:
     def update_priority(self, index: torch.Tensor, priority: torch.Tensor) -> None:
         """Sets ``p_i`` (clipped to ``priority_range``) at ``index`` (offline then online
         numbering, as in :meth:`sample`); raises the running maximum."""
-        priority = torch.as_tensor(priority, dtype=self._priority.dtype).flatten()
+        device = self._priority.device
+        priority = torch.as_tensor(priority, dtype=self._priority.dtype).flatten().to(device)
         priority = priority.clamp(*self.priority_range)
-        self._priority[torch.as_tensor(index).flatten()] = priority
+        self._priority[torch.as_tensor(index).flatten().to(device)] = priority
         self.max_priority = max(self.max_priority, float(priority.max()))
 
     @torch.no_grad()

@@ -16,6 +16,7 @@ from torchrl_dual.recipe.dual_settings import DUAL
 from torchrl_dual.recipe.edis import EDIS
 from torchrl_dual.recipe.iql import IQL
 from torchrl_dual.recipe.iql_la import IQL_LA
+from torchrl_dual.recipe.so2 import SO2
 
 ALGORITHMS: dict[str, Algorithm] = {
     "dual": DUAL,
@@ -27,5 +28,6 @@ ALGORITHMS: dict[str, Algorithm] = {
     "dacer": DACER,
     "edis": EDIS,
     "calql": CALQL,
+    "so2": SO2,
 }
 """``algo`` -> :class:`Algorithm`."""

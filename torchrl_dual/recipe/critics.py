@@ -1,14 +1,17 @@
 """The recipe's critics ``Q_φ`` and ``V`` (Alg. 1 lines 7 and 15): a table by ``critic.name``.
 
-TorchRL's IQL critics (``critic/iql.yaml``, every algorithm) and Cal-QL's
+TorchRL's IQL critics (``critic/iql.yaml``, every algorithm), Cal-QL's
 (``critic/calql.yaml``: :class:`~torchrl_dual.objectives.CalQLLoss`, TorchRL's ``CQLLoss``
-with the Monte-Carlo bound; the ``calql`` baseline so far).
+with the Monte-Carlo bound; ``algo=calql`` and ``algo=dual``) and SO2's
+(``critic/so2.yaml``: :class:`~torchrl_dual.objectives.SO2QLoss`, a Q ensemble on
+policy-smoothed targets; ``algo=so2`` and ``algo=dual``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 import torch
@@ -19,7 +22,8 @@ from torch import nn
 from torchrl.modules import MLP, IndependentNormal, ProbabilisticActor, ValueOperator
 from torchrl.objectives import IQLLoss, SoftUpdate
 
-from torchrl_dual.objectives import PENALTY_LAYOUTS, WEIGHTINGS, CalQLLoss
+from torchrl_dual.objectives import PENALTY_LAYOUTS, WEIGHTINGS, CalQLLoss, SO2QLoss
+from torchrl_dual.objectives.so2 import TARGET_REDUCTIONS
 from torchrl_dual.recipe.rules import Choice, Integer, Maybe, Real, Text, key
 
 
@@ -58,44 +62,89 @@ class CalQLCriticSettings(CriticSettings):
 
 
 @dataclass
-class Critic:
-    """A critic loss (TorchRL ``IQLLoss`` or :class:`~torchrl_dual.objectives.CalQLLoss`),
-    the optimizer of its Q (and V) networks and its target-network updater."""
+class SO2CriticSettings(CriticSettings):
+    """``critic/so2.yaml``: SO2's Q ensemble (:class:`~torchrl_dual.objectives.SO2QLoss`).
 
-    loss: IQLLoss | CalQLLoss
+    Offline it is SAC-N (the target is the ensemble's minimum, no smoothing noise, one
+    critic step per update); online, SO2's changes: each member's own target at the
+    noise-smoothed next action, ``online_steps_per_update`` critic steps per update."""
+
+    num_qvalue_nets: int = key(Integer(1), "ensemble size E (SO2: 10)")
+    policy_noise: float = key(Real(0), "σ of the target action's smoothing noise (online)")
+    noise_clip: float = key(Real(0), "c: the smoothing noise is clipped to [-c, c]")
+    target_reduction: str = key(Choice(TARGET_REDUCTIONS), "online targets per member or reduced")
+    offline_target_reduction: str = key(Choice(TARGET_REDUCTIONS), "offline (SAC-N: min)")
+    entropy_coef: float = key(Real(0), "α of the targets' and the SAC actor's entropy term")
+    online_steps_per_update: int = key(Integer(1), "critic steps per update online (SO2: 10)")
+
+
+CriticLoss = IQLLoss | CalQLLoss | SO2QLoss
+
+
+@dataclass
+class Critic:
+    """A critic loss (TorchRL ``IQLLoss``, :class:`~torchrl_dual.objectives.CalQLLoss` or
+    :class:`~torchrl_dual.objectives.SO2QLoss`), the optimizer of its Q (and V) networks,
+    its target-network updater and its loss terms (:data:`CRITIC_TERMS`)."""
+
+    loss: CriticLoss
     optimizer: torch.optim.Optimizer
     target_updater: SoftUpdate
+    terms: Callable[[Any, TensorDictBase], dict[str, torch.Tensor]]
+    """``(loss, batch) -> {name: loss term}``: what one critic step minimises (the sum)."""
 
     saves_actor: bool = True
     """``False`` when the loss samples a :func:`policy_view` of the learner's actor, which
     the learner saves itself: the checkpoint then holds each weight once."""
 
+    online_steps_per_update: int = 1
+    """Critic steps per learner update online (SO2: 10, each on its own batch)."""
+
+    phases: Callable[..., None] | None = None
+    """``(loss, online=bool) -> None``: sets the loss's offline or online settings (SO2)."""
+
     def modules(self) -> dict[str, Any]:
         """What a learner's checkpoint holds of the critics (:meth:`Learner.modules`): the
-        loss (V, both Q and the target Q networks) and its optimizer."""
+        loss (V, the Q and the target Q networks) and its optimizer."""
         loss = self.loss if self.saves_actor else _WithoutActor(self.loss)
         return {"critic": loss, "critic_optimizer": self.optimizer}
 
-    def step(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
-        """One critic update of Alg. 1 (lines 7 and 15): one gradient step on IQL's
-        Q loss (TD to ``r + γ V(s')``) plus its expectile V loss (Cal-QL: the TD loss plus
-        the bounded conservative penalty), then the soft update of the target Q networks.
-        Returns the two losses ``(q_loss, v_loss)`` (Cal-QL: ``(q_loss, cql_loss)``), detached.
+    def step(self, batch: TensorDictBase, *, online: bool = False) -> dict[str, torch.Tensor]:
+        """Critic updates of Alg. 1 (lines 7 and 15): per batch (``[B]``, or each of a
+        stacked ``[k, B]``), one gradient step on the sum of :attr:`terms` (IQL: TD to
+        ``r + γ V(s')`` plus the expectile V loss; Cal-QL: TD plus the bounded
+        conservative penalty; SO2: the ensemble's TD), then the soft update of the target
+        Q networks. ``online`` selects the critic's online settings (SO2's smoothed,
+        per-member targets). Returns the last step's terms, detached.
 
-        The IQL baseline does not call it: its update sums the actor loss into the same
-        backward pass (:meth:`~torchrl_dual.recipe.IQLLearner.update`).
+        The IQL and Cal-QL baselines do not call it: their updates sum the actor loss into
+        the same backward pass (e.g. :meth:`~torchrl_dual.recipe.IQLLearner.update`).
         """
-        if isinstance(self.loss, CalQLLoss):  # Bellman loss + Cal-QL's bounded penalty
-            q_loss, _ = self.loss.q_loss(batch)
-            v_loss, _ = self.loss.cql_loss(batch)
-        else:
-            q_loss, _ = self.loss.qvalue_loss(batch)
-            v_loss, _ = self.loss.value_loss(batch)
-        self.optimizer.zero_grad(set_to_none=True)
-        (q_loss + v_loss).backward()
-        self.optimizer.step()
-        self.target_updater.step()
-        return q_loss.detach(), v_loss.detach()
+        if self.phases is not None:
+            self.phases(self.loss, online=online)
+        terms: dict[str, torch.Tensor] = {}
+        for one in batch.unbind(0) if batch.ndim > 1 else (batch,):
+            terms = self.terms(self.loss, one)
+            self.optimizer.zero_grad(set_to_none=True)
+            sum(terms.values()).backward()
+            self.optimizer.step()
+            self.target_updater.step()
+        return {name: term.detach() for name, term in terms.items()}
+
+
+def iql_terms(loss: IQLLoss, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+    """IQL: the Q loss (TD to ``r + γ V(s')``) and the expectile V loss."""
+    return {"loss_qvalue": loss.qvalue_loss(batch)[0], "loss_value": loss.value_loss(batch)[0]}
+
+
+def calql_terms(loss: CalQLLoss, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+    """Cal-QL: the Bellman loss and the conservative penalty with the Monte-Carlo bound."""
+    return {"loss_qvalue": loss.q_loss(batch)[0], "loss_cql": loss.cql_loss(batch)[0]}
+
+
+def so2_terms(loss: SO2QLoss, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+    """SO2: the ensemble's TD loss on policy-smoothed targets."""
+    return {"loss_qvalue": loss.qvalue_loss(batch)[0].mean()}
 
 
 class _WithoutActor:
@@ -192,7 +241,7 @@ def make_iql_critic(
         loss.value_network_params.values(True, True)
     )
     optimizer = torch.optim.Adam(params, lr=c.lr)
-    return Critic(loss, optimizer, SoftUpdate(loss, tau=c.target_update_tau))
+    return Critic(loss, optimizer, SoftUpdate(loss, tau=c.target_update_tau), iql_terms)
 
 
 def make_calql_critic(
@@ -209,15 +258,7 @@ def make_calql_critic(
     if actor is None:
         raise ValueError("critic=calql needs the actor it samples (a TanhNormal actor).")
     c = cfg.critic
-    qvalue = ValueOperator(
-        MLP(
-            in_features=obs_dim + action_dim,
-            out_features=1,
-            num_cells=[c.hidden] * c.depth,
-            activation_class=nn.ReLU,
-        ),
-        in_keys=["observation", "action"],
-    )
+    qvalue = q_network(cfg, obs_dim, action_dim)
     loss = CalQLLoss(
         actor,
         qvalue,
@@ -230,7 +271,61 @@ def make_calql_critic(
     loss.make_value_estimator(gamma=c.discount)
     optimizer = torch.optim.Adam(loss.qvalue_network_params.values(True, True), lr=c.lr)
     saves_actor = not any(isinstance(m, _MeanAndStd) for m in actor.modules())  # policy_view
-    return Critic(loss, optimizer, SoftUpdate(loss, tau=c.target_update_tau), saves_actor)
+    updater = SoftUpdate(loss, tau=c.target_update_tau)
+    return Critic(loss, optimizer, updater, calql_terms, saves_actor)
+
+
+def make_so2_critic(
+    cfg: DictConfig,
+    obs_dim: int,
+    action_dim: int,
+    actor: ProbabilisticActor | None = None,
+    temperature: float = 1.0,
+) -> Critic:
+    """SO2's ensemble of ``critic.num_qvalue_nets`` Q networks in a
+    :class:`~torchrl_dual.objectives.SO2QLoss` whose targets sample ``actor`` (with its
+    log-probability: ``return_log_prob=True``); ``temperature`` is unused. Built in the
+    offline (SAC-N) setting: :func:`so2_phase` switches to SO2's online one."""
+    if actor is None:
+        raise ValueError("critic=so2 needs the actor its targets sample.")
+    c = cfg.critic
+    loss = SO2QLoss(
+        actor,
+        q_network(cfg, obs_dim, action_dim),
+        action_spec=actor.spec,
+        num_qvalue_nets=c.num_qvalue_nets,
+        policy_noise=c.policy_noise,
+        noise_clip=c.noise_clip,
+        target_reduction=c.offline_target_reduction,
+        entropy_coef=c.entropy_coef,
+        gamma=c.discount,
+    ).to(cfg.device)
+    phases = partial(so2_phase, cfg=cfg)
+    phases(loss, online=False)
+    optimizer = torch.optim.Adam(loss.qvalue_network_params.values(True, True), lr=c.lr)
+    updater = SoftUpdate(loss, tau=c.target_update_tau)
+    return Critic(loss, optimizer, updater, so2_terms, True, c.online_steps_per_update, phases)
+
+
+def so2_phase(loss: SO2QLoss, *, cfg: DictConfig, online: bool) -> None:
+    """Offline: SAC-N's targets (``critic.offline_target_reduction``, no noise); online:
+    SO2's (``critic.target_reduction`` at the action smoothed by ``critic.policy_noise``)."""
+    c = cfg.critic
+    loss.target_reduction = c.target_reduction if online else c.offline_target_reduction
+    loss.policy_noise = c.policy_noise if online else 0.0
+
+
+def q_network(cfg: DictConfig, obs_dim: int, action_dim: int) -> ValueOperator:
+    """``Q(s, a)``: an MLP on the concatenated ``(s, a)``, ``critic.depth`` hidden layers of
+    ``critic.hidden`` units (Cal-QL's and SO2's critics)."""
+    c = cfg.critic
+    mlp = MLP(
+        in_features=obs_dim + action_dim,
+        out_features=1,
+        num_cells=[c.hidden] * c.depth,
+        activation_class=nn.ReLU,
+    )
+    return ValueOperator(mlp, in_keys=["observation", "action"])
 
 
 class _MeanAndStd(nn.Module):
@@ -255,16 +350,18 @@ def policy_view(actor: nn.Module, action_spec) -> ProbabilisticActor:
         in_keys=["loc", "scale"],
         spec=action_spec,
         distribution_class=IndependentNormal,  # log π sums over the action dims
+        return_log_prob=True,  # SO2's targets read log π(a'|s')
     )
 
 
-POLICY_CRITICS = ("calql",)
+POLICY_CRITICS = ("calql", "so2")
 """Critics whose loss samples the policy: a learner with its own actor passes them
 :func:`policy_view` of it (``actor=``)."""
 
 CRITICS: dict[str, tuple[type, Callable[..., Critic]]] = {
     "iql": (IQLCriticSettings, make_iql_critic),
     "calql": (CalQLCriticSettings, make_calql_critic),
+    "so2": (SO2CriticSettings, make_so2_critic),
 }
 """``critic.name`` -> (schema of ``critic.*``, ``(cfg, obs_dim, action_dim, actor=None,
 temperature=1.0) -> Critic``)."""

@@ -194,17 +194,13 @@ class DiffQLLearner(Learner):
 
     def update(self, batch: TensorDictBase) -> dict:
         """One IQL critic step, then one actor step on ``L_bc + η · loss_q``."""
-        q_loss, v_loss = self.critic.step(batch)
+        critic = self.critic.step(batch)
         losses = self.actor_loss(batch)
         self.actor_optimizer.zero_grad(set_to_none=True)
         losses["loss_actor"].backward()
         nn.utils.clip_grad_norm_(self.actor.parameters(), self.cfg.actor.max_grad_norm)
         self.actor_optimizer.step()
-        return {
-            "loss_qvalue": q_loss.item(),
-            "loss_value": v_loss.item(),
-            **{k: v.item() for k, v in losses.items()},
-        }
+        return {k: v.item() for k, v in {**critic, **losses}.items()}
 
 
 class DiffQLLALearner(LaplaceRefits, DiffQLLearner):

@@ -45,6 +45,7 @@ class DualLearner(Learner):
         samples_policy = cfg.critic.name in POLICY_CRITICS  # Cal-QL: N(μ(s), σ̄²) of π_θ
         view = policy_view(self.actor, run.env.action_spec) if samples_policy else None
         self.critic = make_critic(cfg, data.obs_dim, data.action_dim, actor=view)
+        self.online_batches_per_update = self.critic.online_steps_per_update  # SO2: 10
         # critic=calql: the Monte-Carlo bound on D_offline now, on D_online per episode
         self.labels = MonteCarloLabels(run) if cfg.critic.name == "calql" else None
         self.actor_loss = networks.make_actor_loss(cfg, self.actor, self.critic)
@@ -114,19 +115,16 @@ class DualLearner(Learner):
         ]
 
     def update(self, batch: TensorDictBase) -> dict:
-        """One critic (IQL, or Cal-QL's TD + bounded penalty) and one actor (Eq. 7)
-        gradient step, Alg. 1 lines 7-8 / 15-16."""
-        q_loss, second = self.critic.step(batch)
-        out = self.actor_loss(batch)
+        """One critic (IQL, Cal-QL's TD + bounded penalty, or SO2's ensemble TD: one step
+        per batch of a stacked ``[k, B]``) and one actor (Eq. 7) gradient step, Alg. 1
+        lines 7-8 / 15-16."""
+        critic = self.critic.step(batch, online=self.run.frames > 0)
+        out = self.actor_loss(batch[-1] if batch.ndim > 1 else batch)  # SO2: [k, B]
         self.actor_optimizer.zero_grad(set_to_none=True)
         out["loss_actor"].backward()
         self.actor_optimizer.step()
         self.updates_since_refit += 1
-        return {
-            "loss_qvalue": q_loss.item(),
-            ("loss_cql" if self.labels else "loss_value"): second.item(),
-            **{k: v.item() for k, v in out.items()},
-        }
+        return {k: v.item() for k, v in {**critic, **out}.items()}
 
     def after_updates(self) -> None:
         """Alg. 1 line 17: refit the posterior once ``budget.laplace_refit_every`` updates

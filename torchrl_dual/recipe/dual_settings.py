@@ -102,7 +102,7 @@ def check_dual(cfg: DictConfig) -> None:
     check_ablations(cfg)
     check_planner_window(cfg)
     check_augment(cfg)
-    check_calql(cfg)
+    check_critic(cfg)
     if cfg.actor.latent == "sample" and p.schedule != "cosine":
         raise ConfigError(
             "actor.latent",
@@ -111,18 +111,18 @@ def check_dual(cfg: DictConfig) -> None:
         )
 
 
-def check_calql(cfg: DictConfig) -> None:
-    """``critic=calql`` (the paper's Cal-QL rows): Eq. 7 on Q alone, whole episodes online."""
-    if cfg.critic.name != "calql":
-        return
-    if cfg.actor.weighting == "advantage":
+def check_critic(cfg: DictConfig) -> None:
+    """Eq. 7 on a critic without V (``critic=calql`` or ``so2``, the paper's Cal-QL and
+    SO2 rows) weighs by Q alone; Cal-QL labels whole episodes online."""
+    name = cfg.critic.name
+    if name != "iql" and cfg.actor.weighting == "advantage":
         raise ConfigError(
             "actor.weighting",
             "advantage",
-            "needs IQL's value network V; critic=calql has none: use actor.weighting=sac "
-            "(Cal-QL's actor loss, the paper's Cal-QL rows) or uniform",
+            f"needs IQL's value network V; critic={name} has none: use actor.weighting=sac "
+            "(Q - alpha log pi, the paper's Cal-QL and SO2 rows) or uniform",
         )
-    if cfg.augment.kind != "none":
+    if name == "calql" and cfg.augment.kind != "none":
         raise ConfigError(
             "augment.kind",
             cfg.augment.kind,
@@ -176,7 +176,7 @@ DUAL = Algorithm(
         "online": OnlineSettings,
         "augment": AugmentSettings,
     },
-    critics=("iql", "calql"),
+    critics=("iql", "calql", "so2"),
     check=check_dual,
     learner=DualLearner,
 )

@@ -41,8 +41,11 @@ class IQLActorSettings:
     temperature: float = key(Real(0), "β of exp(β (Q - V)), clipped at 100 by IQLLoss")
 
 
-def make_iql_actor(cfg: DictConfig, obs_dim: int, action_spec) -> ProbabilisticActor:
-    """``π(a|s) = TanhNormal(loc(s), scale(s))`` on the action box of ``action_spec``."""
+def make_iql_actor(
+    cfg: DictConfig, obs_dim: int, action_spec, *, return_log_prob: bool = False
+) -> ProbabilisticActor:
+    """``π(a|s) = TanhNormal(loc(s), scale(s))`` on the action box of ``action_spec``
+    (writing ``"action_log_prob"`` too with ``return_log_prob``)."""
     a = cfg.actor
     action_dim = action_spec.shape[-1]
     net = nn.Sequential(
@@ -65,6 +68,7 @@ def make_iql_actor(cfg: DictConfig, obs_dim: int, action_spec) -> ProbabilisticA
             "high": space.high.to(cfg.device),
         },
         default_interaction_type=ExplorationType.RANDOM,
+        return_log_prob=return_log_prob,
     ).to(cfg.device)
 
 

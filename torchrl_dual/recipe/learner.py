@@ -48,6 +48,11 @@ class Learner(ABC):
     augmentation, :func:`~torchrl_dual.recipe.planner_augment.augment_capacity`): the
     online buffer holds ``budget.online_frames`` plus these, so none overwrites another."""
 
+    online_batches_per_update: int = 1
+    """Batches each online update gets: ``k > 1`` passes ``[k, B]`` (``k`` batches of
+    D_offline ∪ D_online stacked) to :meth:`update`, e.g. SO2's ``k`` critic steps per
+    actor step (``critic.online_steps_per_update``); offline updates always get ``[B]``."""
+
     @abstractmethod
     def modules(self) -> dict[str, Any]:
         """Name -> object with ``state_dict``/``load_state_dict`` (networks, losses,

@@ -13,7 +13,6 @@ of :data:`~torchrl_dual.recipe.ALGORITHMS` is a learner class and a config file.
 from __future__ import annotations
 
 import random
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -23,12 +22,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDictBase
 from torchrl.collectors import Collector
-from torchrl.data import (
-    LazyTensorStorage,
-    OfflineToOnlineReplayBuffer,
-    RandomSampler,
-    ReplayBuffer,
-)
+from torchrl.data import LazyTensorStorage, RandomSampler, ReplayBuffer
 from torchrl.envs.utils import ExplorationType
 from torchrl.record.loggers import get_logger
 from tqdm.auto import tqdm
@@ -40,7 +34,9 @@ from torchrl_dual.recipe.errors import ConfigError, UserError
 from torchrl_dual.recipe.learner import Learner
 from torchrl_dual.recipe.offline_cache import run_offline_stages
 from torchrl_dual.recipe.plots import plot_learning_curve
+from torchrl_dual.recipe.replays import REPLAYS
 from torchrl_dual.recipe.run_summary import score_text, write_summary
+from torchrl_dual.recipe.stage_clock import StageClock
 
 # Settings that may change when a run is resumed; everything else must match.
 RESUMABLE_KEYS = (
@@ -116,12 +112,7 @@ class O2ORun:
         self.offline_buffer = self._offline_buffer()
         # ---- the algorithm's networks, losses and policies
         self.learner = make_learner(self)
-        self.replay = OfflineToOnlineReplayBuffer(
-            self.offline_buffer,
-            online_capacity=max(cfg.budget.online_frames + self.learner.extra_online_capacity, 1),
-            offline_fraction=cfg.online.offline_fraction,
-            batch_size=cfg.online.batch_size,
-        )
+        self.replay = REPLAYS[cfg.replay.name][1](self)  # D_offline ∪ D_online (replays.py)
         # ---- counters
         self.stages_done: list[str] = []
         self.stage_seconds: dict[str, float] = {}  # wall-clock seconds per stage
@@ -163,11 +154,13 @@ class O2ORun:
         return buffer
 
     def state(self, modules: dict[str, Any] | None = None) -> dict[str, Any]:
-        """Everything needed to continue: ``modules`` (default: the learner's), counters,
-        online data, RNG and logger state."""
+        """Everything needed to continue: ``modules`` (default: the learner's, and then the
+        replay's state too), counters, online data, RNG and logger state. A shared offline
+        phase passes its ``modules`` and leaves the replay out: the replay is online-only."""
         online = self.replay.online_buffer
+        state = {} if modules is not None else {"replay": self.replay.state_dict()}
         modules = self.learner.modules() if modules is None else modules
-        state = {name: module.state_dict() for name, module in modules.items()}
+        state.update({name: module.state_dict() for name, module in modules.items()})
         state.update({name: getattr(self, name) for name in _COUNTERS})
         state.update(
             learner=self.learner.state_dict(),
@@ -209,6 +202,8 @@ class O2ORun:
             self.replay.extend(state["online_data"])
             # The collector starts a new episode on resume: never reuse the cut one's id.
             self.next_episode = int(state["online_data"]["episode"].max()) + 1
+        if "replay" in state:  # after the online data: the priorities follow it
+            self.replay.load_state_dict(state["replay"])
         set_rng_state(state["rng"])
         return state["logger"]
 
@@ -301,12 +296,24 @@ class O2ORun:
             **self.learner.batch_metrics(batch),
         }
 
+    def online_batch(self) -> TensorDictBase:
+        """One update's sample of D_offline ∪ D_online on the run's device: a ``[B]`` batch,
+        or ``[k, B]`` (``k`` batches stacked) for a learner with
+        :attr:`~torchrl_dual.recipe.Learner.online_batches_per_update` ``k > 1``."""
+        k = self.learner.online_batches_per_update
+        if k == 1:
+            return self.replay.sample().to(self.cfg.device)
+        return torch.stack([self.replay.sample() for _ in range(k)]).to(self.cfg.device)
+
     def train_online(self, num_frames: int) -> dict:
-        """``online.utd_ratio`` updates per collected frame on D_offline ∪ D_online."""
+        """``online.utd_ratio`` updates per collected frame on D_offline ∪ D_online, each
+        followed by the replay's own step (balanced replay: density ratio, priorities)."""
         self.update_credit += self.cfg.online.utd_ratio * num_frames
         metrics: dict = {}
         while self.update_credit >= 1:
-            metrics = self.update(self.replay.sample().to(self.cfg.device))
+            batch = self.online_batch()
+            metrics = self.update(batch)
+            metrics.update(self.replay.after_update(batch))
             self.update_credit -= 1
         return metrics
 
@@ -378,25 +385,3 @@ def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORu
     clock.tick()
     run.finish()
     return run
-
-
-class StageClock:
-    """Adds the wall-clock and CPU seconds since its creation to ``run.stage_seconds[name]``
-    and ``run.stage_cpu_seconds[name]`` (on top of what a resumed run had already spent).
-
-    CPU seconds are this process's (``time.process_time``, all its threads). Other jobs
-    on the same cores inflate them far less than wall time (measured on a 2-core machine
-    under heavy load: a stage's CPU seconds ×1.2-1.4, its wall seconds ×2.9), so runs of
-    the learning suite that ran side by side stay roughly comparable (``num_threads=1``:
-    CPU ≈ wall on an idle core).
-    """
-
-    def __init__(self, run: O2ORun, name: str) -> None:
-        self.run, self.name = run, name
-        self.before = (run.stage_seconds.get(name, 0.0), run.stage_cpu_seconds.get(name, 0.0))
-        self.start = (time.perf_counter(), time.process_time())
-
-    def tick(self) -> None:
-        wall, cpu = self.before
-        self.run.stage_seconds[self.name] = wall + time.perf_counter() - self.start[0]
-        self.run.stage_cpu_seconds[self.name] = cpu + time.process_time() - self.start[1]

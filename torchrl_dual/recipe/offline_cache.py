@@ -49,6 +49,7 @@ ONLINE_KEYS: tuple[str, ...] = (
     "budget.checkpoint_every",
     "online.offline_fraction",
     "online.utd_ratio",
+    "replay",
     "env.shift",
     "env.shift_angle",
     "env.shift_scale",

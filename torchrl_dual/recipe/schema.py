@@ -3,8 +3,8 @@
 The schema of a composed config is put together from tables: the top-level keys
 (:class:`RunSettings`), ``budget`` (:class:`BudgetSettings`), ``logger``
 (:class:`LoggerSettings`), ``env`` (the schema of its ``ENV_KITS`` entry), the sections
-of the chosen ``algo`` (its ``ALGORITHMS`` entry) and ``critic`` (its ``CRITICS``
-entry). Every key is checked against its rule, then the combinations across keys, then
+of the chosen ``algo`` (its ``ALGORITHMS`` entry), ``critic`` (its ``CRITICS``
+entry) and ``replay`` (its ``REPLAYS`` entry). Every key is checked against its rule, then the combinations across keys, then
 what the machine must provide (the device, the logger's package, a usable output_dir).
 """
 
@@ -23,6 +23,7 @@ from torchrl_dual.recipe.critics import CRITICS
 from torchrl_dual.recipe.env_kits import ENV_KITS
 from torchrl_dual.recipe.errors import ConfigError
 from torchrl_dual.recipe.o2o_run import check_output_dir
+from torchrl_dual.recipe.replays import REPLAYS
 from torchrl_dual.recipe.rules import (
     Choice,
     Flag,
@@ -113,11 +114,13 @@ def validate_config(cfg: DictConfig) -> DictConfig:
     algorithm = _choice(cfg, "algo", ALGORITHMS, "the algorithm")
     kit = _choice(cfg, "env.kind", ENV_KITS, "which environment kit builds the env and data")
     critic_schema, _ = _choice(cfg, "critic.name", CRITICS, "the critic")
+    replay_schema, _ = _choice(cfg, "replay.name", REPLAYS, "the online replay")
     sections = {
         "env": kit.settings,
         "budget": BudgetSettings,
         **algorithm.sections,
         "critic": critic_schema,
+        "replay": replay_schema,
         "logger": LoggerSettings,
     }
     known = dotted_keys(RunSettings, "")
