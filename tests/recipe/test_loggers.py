@@ -235,3 +235,31 @@ def test_the_online_signals_cover_the_whole_online_phase_across_a_resume(wandb_r
     assert resumed.online_signals[0] == first.online_signals[0]
     assert resumed.online_signals[0] == pytest.approx(uninterrupted.online_signals[0])
     assert png_size(out / "learning_curve.png") == (720, 960)
+
+
+# ----------------------------------------------------------------------------- offline_cache
+def test_a_shared_offline_phase_keeps_the_runs_own_wandb_run(tmp_path):
+    """A run loading a shared offline phase (``offline_cache``) takes the snapshot's logger
+    counters but logs on to its own W&B run; the snapshot stores no W&B files."""
+    from omegaconf import OmegaConf
+
+    from torchrl_dual.recipe.loggers import make_logger
+    from torchrl_dual.recipe.offline_cache import OfflinePhaseCache
+
+    cfg = OmegaConf.create(
+        {"logger": {"backend": "wandb", "project": "p", "entity": None, "mode": "offline"}}
+    )
+    first = make_logger(cfg, tmp_path / "first" / "logs", "dual")
+    first.log_scalar("planner/loss_diffusion", 1.0, step=60)
+    snapshot = first.state_dict()
+    first.shutdown()
+    cache = OfflinePhaseCache(tmp_path / "cache", {"seed": 0}, "v1")
+    cache.save({"logger": snapshot}, tmp_path / "first" / "logs")
+    assert not (cache.directory / "logs" / "wandb").exists()
+
+    own = make_logger(cfg, tmp_path / "second" / "logs", "dual")
+    loaded = make_logger(cfg, tmp_path / "second" / "logs", "dual", snapshot, previous=own)
+    assert loaded.experiment.id == own.experiment.id != snapshot["local"]["id"]
+    assert loaded.state_dict()["local"]["step_registry"] == {"planner/step": 60}
+    assert Path(loaded.state_dict()["log_dir"]) == (tmp_path / "second" / "logs").resolve()
+    loaded.shutdown()
