@@ -9,6 +9,7 @@ docs/recipe.md lists these inputs with their messages.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import subprocess
 import sys
@@ -131,6 +132,11 @@ CASES = [
         "logger.backend=nope",
         "logger.backend=nope: unknown option; choose one of csv, tensorboard, wandb, mlflow, trackio",
     ),
+    (
+        "logger=wandb logger.mode=cloud",
+        "logger.mode=cloud: unknown option; choose one of offline, online, disabled",
+    ),
+    ("logger.project=dual", "unknown key 'logger.project'"),
 ]
 
 
@@ -184,9 +190,10 @@ def test_an_existing_checkpoint_without_resume_fails(tmp_path):
 
 
 def test_resume_with_a_logger_that_cannot_resume_fails(tmp_path, monkeypatch):
-    from torchrl_dual.recipe import schema
+    from torchrl_dual.recipe.loggers import LOGGERS
 
-    monkeypatch.setitem(schema.LOGGER_BACKENDS, "mlflow", None)  # as if installed
+    as_if_installed = dataclasses.replace(LOGGERS["mlflow"], package=None)
+    monkeypatch.setitem(LOGGERS, "mlflow", as_if_installed)
     with pytest.raises(ConfigError) as err:
         compose(tmp_path, "resume=true", "logger.backend=mlflow")
     assert str(err.value) == (

@@ -10,6 +10,8 @@
   next to its learner: ``dual`` (``dual_settings``), ``iql``, ``iql_la``, ``diffql``,
   ``diffql_la`` (``diffql``), ``diffuser``, ``dacer``, ``edis``;
 * :data:`CRITICS` (``critics``) — one entry per ``critic.name``;
+* :data:`~torchrl_dual.recipe.loggers.LOGGERS` (``loggers``) — one entry per
+  ``logger.backend`` (CSV, TensorBoard, W&B, ...); ``plots`` draws the end-of-run plot;
 * :func:`validate_config` (``schema``) — the schema of every config group, checked
   before any data or network; errors are :class:`UserError` (``errors``), reported as
   one ``error:`` line and exit code 2;

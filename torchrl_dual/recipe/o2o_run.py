@@ -24,7 +24,6 @@ from tensordict import TensorDictBase
 from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, RandomSampler, ReplayBuffer
 from torchrl.envs.utils import ExplorationType
-from torchrl.record.loggers import get_logger
 from tqdm.auto import tqdm
 
 from torchrl_dual.checkpoint import CheckpointError, RunCheckpoint, rng_state, set_rng_state
@@ -32,8 +31,9 @@ from torchrl_dual.data import TRANSITION_KEYS
 from torchrl_dual.recipe import env_kits
 from torchrl_dual.recipe.errors import ConfigError, UserError
 from torchrl_dual.recipe.learner import Learner
+from torchrl_dual.recipe.loggers import logs_text, make_logger
 from torchrl_dual.recipe.offline_cache import run_offline_stages
-from torchrl_dual.recipe.plots import plot_learning_curve
+from torchrl_dual.recipe.plots import online_signals, plot_learning_curve
 from torchrl_dual.recipe.replays import REPLAYS
 from torchrl_dual.recipe.run_summary import score_text, write_summary
 from torchrl_dual.recipe.stage_clock import StageClock
@@ -61,6 +61,7 @@ _COUNTERS = (
     "update_credit",
     "next_episode",
     "history",
+    "online_signals",
 )
 
 
@@ -123,14 +124,15 @@ class O2ORun:
         self.update_credit = 0.0
         self.next_episode = int(self.data.transitions["episode"].max()) + 1
         self.history: list[dict] = []
+        self.online_signals: list[dict] = []  # per collected batch (plots.online_signals)
         logger_state = self.load(saved) if saved is not None else None
         self.make_logger(logger_state)
 
     def make_logger(self, state: dict | None = None) -> None:
-        """The TorchRL logger under ``output_dir/logs`` (continuing ``state``, if given)."""
-        self.logger = get_logger(
-            self.cfg.logger.backend, str(self.output_dir / "logs"), self.name, state_dict=state
-        )
+        """The ``cfg.logger`` backend's TorchRL logger under ``output_dir/logs`` (continuing
+        ``state``, if given; it replaces and closes the current one)."""
+        previous = getattr(self, "logger", None)
+        self.logger = make_logger(self.cfg, self.output_dir / "logs", self.name, state, previous)
 
     # ------------------------------------------------------------------ bookkeeping
     @staticmethod
@@ -196,8 +198,8 @@ class O2ORun:
                 f"the checkpoint {self.checkpoint.path} does not fit this run's networks "
                 f"({err}). Resume with the settings that wrote it, or use another output_dir.",
             ) from err
-        for name in _COUNTERS:
-            setattr(self, name, state[name])
+        for name in _COUNTERS:  # online_signals may be absent (checkpoints from before it)
+            setattr(self, name, state[name] if name != "online_signals" else state.get(name, []))
         if state["online_data"] is not None:
             self.replay.extend(state["online_data"])
             # The collector starts a new episode on resume: never reuse the cut one's id.
@@ -318,13 +320,16 @@ class O2ORun:
         return metrics
 
     def finish(self) -> None:
-        """Writes the learning curve and ``summary.json``; prints where everything is."""
+        """Writes the learning curve and ``summary.json``, closes the logger; prints where
+        everything is."""
         self.save()
+        self.logger.shutdown()
         write_summary(self, self.output_dir / "summary.json")
         png = plot_learning_curve(
             self.history,
             self.output_dir / "learning_curve.png",
             title=f"{self.learner.title} on {self.cfg.env.name}",
+            signals=self.online_signals,
         )
         offline = next((h for h in self.history if h["label"] == "offline"), None)
         final = self.history[-1] if self.history else None
@@ -338,7 +343,7 @@ class O2ORun:
                 "normalized score at the end of the online phase: "
                 + score_text(final["normalized_score"])
             )
-        self.say(f"metrics CSV: {self.output_dir / 'logs' / self.name / 'scalars'}")
+        self.say(logs_text(self.cfg, self.output_dir / "logs", self.name))
         self.say(f"learning curve: {png}")
 
 
@@ -363,6 +368,8 @@ def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORu
             losses = run.train_online(batch.numel())  # UTD-ratio updates
             run.learner.after_updates()  # DUAL: refit the Laplace posterior when due
             run.log({**stats, **losses}, run.frames, "online/")
+            if (signals := online_signals(run.frames, stats)) is not None:
+                run.online_signals.append(signals)  # the plot's epistemic std and d_t
             if run.frames >= next_eval:
                 run.evaluate("online")
                 next_eval += budget.eval_every
@@ -375,6 +382,7 @@ def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORu
     except KeyboardInterrupt:
         clock.tick()
         run.save()
+        run.logger.shutdown()
         run.say(
             f"interrupted at {run.frames} online frames; checkpoint saved. "
             "Continue with resume=true."

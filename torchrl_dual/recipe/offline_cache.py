@@ -122,7 +122,8 @@ class OfflinePhaseCache:
         if logs_dir is not None and logs_dir.exists():
             target = self.directory / "logs"
             shutil.rmtree(target, ignore_errors=True)
-            shutil.copytree(logs_dir, target)
+            # a W&B run's files are its own: the next run logs to its own W&B run
+            shutil.copytree(logs_dir, target, ignore=shutil.ignore_patterns("wandb"))
         (self.directory / "config.json").write_text(
             json.dumps(self._key_config, indent=1, sort_keys=True, default=str)
         )
@@ -175,12 +176,8 @@ def _restore(run: O2ORun, cache: OfflinePhaseCache, modules: dict[str, Any]) -> 
             "directory to recompute it",
         ) from err
     cache.copy_logs(run.output_dir / "logs")
-    logger_state = run.load(snapshot, modules)
-    own = run.logger.state_dict() if hasattr(run.logger, "state_dict") else None
-    if isinstance(logger_state, dict) and isinstance(own, dict):
-        # the snapshot's logger wrote into the first run's directory: keep writing into ours
-        logger_state = {**logger_state, **{k: own[k] for k in ("log_dir", "exp_name") if k in own}}
-    run.make_logger(logger_state)
+    # the snapshot's logger state, writing into this run's directory (and W&B run)
+    run.make_logger(run.load(snapshot, modules))
     run.shared_offline = True
     run.say(f"offline stages {', '.join(run.stages_done)}: loaded from {cache.directory}")
     run.save()

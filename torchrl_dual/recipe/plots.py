@@ -1,36 +1,83 @@
-"""Learning-curve plot of a run's evaluation history."""
+"""The end-of-run plot: the learning curve and the online signals DUAL acts on.
+
+The top panel is the normalized score against online frames (the offline score at 0).
+Below it, one panel per online signal the learner reports for each collected batch
+(:meth:`~torchrl_dual.recipe.Learner.batch_metrics`), averaged over the batch: the
+epistemic standard deviation ``σ_θ(s)`` of the Laplace ensemble policy (the square root
+of the variance of Eq. 9 over sub-policies drawn from the posterior of Eq. 8) and DUAL's
+shift distance ``d_t = |p̂(s'|s, a) - s'|`` between the transition model's prediction
+and the observed next state, which widens the exploration noise of Eq. 10. Algorithms that
+report neither (``iql``, ``calql``, ...) get the score panel only.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import matplotlib
 
-def plot_learning_curve(history: list[dict], path: Path, *, title: str = "") -> Path | None:
-    """Normalized score against online frames; the offline score is the point at 0.
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402  (after choosing the file-only backend)
 
-    Returns the PNG path, or ``None`` (with a note) when matplotlib is not installed.
+ONLINE_SIGNALS: dict[str, str] = {
+    "epistemic_std": "epistemic std",
+    "shift_distance": "shift distance $d_t$",
+}
+"""Per-batch metrics of the online phase that the plot draws (key: panel label)."""
+
+
+def online_signals(frames: int, metrics: dict) -> dict | None:
+    """The :data:`ONLINE_SIGNALS` among one collected batch's ``metrics``, with the online
+    frames at the end of the batch; ``None`` when the learner reports none.
+
+    Examples:
+        >>> online_signals(200, {"reward_per_step": 0.1, "shift_distance": 0.5})
+        {'frames': 200, 'shift_distance': 0.5}
+        >>> online_signals(200, {"reward_per_step": 0.1}) is None
+        True
     """
-    try:
-        import matplotlib
+    signals = {name: float(metrics[name]) for name in ONLINE_SIGNALS if name in metrics}
+    return {"frames": int(frames), **signals} if signals else None
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        print(
-            "[dual] matplotlib is not installed: no learning-curve PNG "
-            "(pip install 'torchrl-dual[plots]')."
-        )
-        return None
-    frames = [h["frames"] for h in history]
-    scores = [h["normalized_score"] for h in history]
-    fig, ax = plt.subplots(figsize=(6, 4))
-    ax.plot(frames, scores, marker="o")
-    ax.axvline(0, color="grey", linestyle=":", label="offline → online")
-    ax.set_xlabel("online environment frames")
-    ax.set_ylabel("normalized score")
-    ax.set_title(title)
-    ax.legend(loc="best")
-    ax.grid(alpha=0.3)
+
+def plot_learning_curve(
+    history: list[dict], path: Path, *, title: str = "", signals: list[dict] | None = None
+) -> Path:
+    """Writes the normalized score against online frames (the offline score is the point
+    at 0) and, below it on the same frame axis, each :data:`ONLINE_SIGNALS` series found
+    in ``signals`` (records of :func:`online_signals`). Returns ``path``.
+
+    Examples:
+        >>> import tempfile
+        >>> history = [{"frames": 0, "normalized_score": 10.0}, {"frames": 100, "normalized_score": 30.0}]
+        >>> signals = [{"frames": 50, "epistemic_std": 0.2}, {"frames": 100, "epistemic_std": 0.1}]
+        >>> png = plot_learning_curve(history, Path(tempfile.mkdtemp()) / "c.png", signals=signals)
+        >>> png.read_bytes()[:4]
+        b'\\x89PNG'
+    """
+    signals = signals or []
+    panels = [name for name in ONLINE_SIGNALS if any(name in s for s in signals)]
+    fig, axes = plt.subplots(
+        1 + len(panels),
+        1,
+        figsize=(6, 4 + 2 * len(panels)),
+        sharex=True,
+        squeeze=False,
+        gridspec_kw={"height_ratios": [2] + [1] * len(panels)},
+    )
+    score = axes[0, 0]
+    score.plot([h["frames"] for h in history], [h["normalized_score"] for h in history], "o-")
+    score.set_ylabel("normalized score")
+    score.set_title(title)
+    for ax in axes[:, 0]:
+        ax.axvline(0, color="grey", linestyle=":", label="offline → online")
+        ax.grid(alpha=0.3)
+    score.legend(loc="best")
+    for ax, name in zip(axes[1:, 0], panels, strict=True):
+        series = [s for s in signals if name in s]
+        ax.plot([s["frames"] for s in series], [s[name] for s in series], ".-", color="C1")
+        ax.set_ylabel(ONLINE_SIGNALS[name])
+    axes[-1, 0].set_xlabel("online environment frames")
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -1,16 +1,16 @@
 """The recipe's config schema and :func:`validate_config`, run before any data or network.
 
 The schema of a composed config is put together from tables: the top-level keys
-(:class:`RunSettings`), ``budget`` (:class:`BudgetSettings`), ``logger``
-(:class:`LoggerSettings`), ``env`` (the schema of its ``ENV_KITS`` entry), the sections
-of the chosen ``algo`` (its ``ALGORITHMS`` entry), ``critic`` (its ``CRITICS``
-entry) and ``replay`` (its ``REPLAYS`` entry). Every key is checked against its rule, then the combinations across keys, then
-what the machine must provide (the device, the logger's package, a usable output_dir).
+(:class:`RunSettings`), ``budget`` (:class:`BudgetSettings`), ``env`` (the schema of its
+``ENV_KITS`` entry), the sections of the chosen ``algo`` (its ``ALGORITHMS`` entry),
+``critic`` (its ``CRITICS`` entry), ``replay`` (its ``REPLAYS`` entry) and ``logger``
+(its ``LOGGERS`` entry, ``loggers``).
+Every key is checked against its rule, then the combinations across keys, then what the
+machine must provide (the device, the logger's package, a usable output_dir).
 """
 
 from __future__ import annotations
 
-import importlib.util
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -22,6 +22,7 @@ from torchrl_dual.recipe.algorithms import ALGORITHMS
 from torchrl_dual.recipe.critics import CRITICS
 from torchrl_dual.recipe.env_kits import ENV_KITS
 from torchrl_dual.recipe.errors import ConfigError
+from torchrl_dual.recipe.loggers import LOGGERS, check_logger
 from torchrl_dual.recipe.o2o_run import check_output_dir
 from torchrl_dual.recipe.replays import REPLAYS
 from torchrl_dual.recipe.rules import (
@@ -36,16 +37,6 @@ from torchrl_dual.recipe.rules import (
     key,
     read_value,
 )
-
-# torchrl.record.loggers.get_logger's backends (torchrl 0.14.1) and the package each needs.
-LOGGER_BACKENDS = {
-    "csv": None,
-    "tensorboard": "tensorboard",
-    "wandb": "wandb",
-    "mlflow": "mlflow",
-    "trackio": "trackio",
-}
-RESUMABLE_LOGGERS = ("csv", "tensorboard", "wandb")  # get_logger(state_dict=...) accepts these
 
 
 @dataclass
@@ -84,13 +75,6 @@ class BudgetSettings:
     checkpoint_every: int = key(Integer(1), "online frames between checkpoints")
 
 
-@dataclass
-class LoggerSettings:
-    """``logger/*.yaml``: TorchRL logger backend."""
-
-    backend: str = key(Choice(tuple(LOGGER_BACKENDS)), "torchrl.record.loggers.get_logger type")
-
-
 def _choice(cfg: DictConfig, path: str, table: dict, what: str) -> Any:
     """The table entry a selector key (``env.kind``, ``critic.name``, ...) picks."""
     group, name = path.split(".") if "." in path else (None, path)
@@ -115,13 +99,14 @@ def validate_config(cfg: DictConfig) -> DictConfig:
     kit = _choice(cfg, "env.kind", ENV_KITS, "which environment kit builds the env and data")
     critic_schema, _ = _choice(cfg, "critic.name", CRITICS, "the critic")
     replay_schema, _ = _choice(cfg, "replay.name", REPLAYS, "the online replay")
+    logger = _choice(cfg, "logger.backend", LOGGERS, "the TorchRL logger backend")
     sections = {
         "env": kit.settings,
         "budget": BudgetSettings,
         **algorithm.sections,
         "critic": critic_schema,
         "replay": replay_schema,
-        "logger": LoggerSettings,
+        "logger": logger.settings,
     }
     known = dotted_keys(RunSettings, "")
     for name, schema in sections.items():
@@ -158,19 +143,7 @@ def check_machine(cfg: DictConfig) -> None:
         )
     if device.type not in ("cpu", "cuda"):
         raise ConfigError("device", cfg.device, "the recipe runs on cpu or cuda")
-    package = LOGGER_BACKENDS[cfg.logger.backend]
-    if package is not None and importlib.util.find_spec(package) is None:
-        raise ConfigError(
-            "logger.backend",
-            cfg.logger.backend,
-            f"needs the {package} package (pip install {package})",
-        )
-    if cfg.resume and cfg.logger.backend not in RESUMABLE_LOGGERS:
-        raise ConfigError(
-            "logger.backend",
-            cfg.logger.backend,
-            f"cannot resume (resume=true); use one of {', '.join(RESUMABLE_LOGGERS)}",
-        )
+    check_logger(cfg)
     check_output_dir(cfg)
     for name in ("data_cache_dir", "offline_cache"):
         if cfg[name] is not None and Path(cfg[name]).is_file():
