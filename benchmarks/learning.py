@@ -33,104 +33,12 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
+from learning_grid import CELLS, ONLINE_ONLY, VARIANTS, Cell  # noqa: F401 - the grid
 from learning_plots import latency_points, plot_cell_curves, plot_latency_vs_score
 from learning_report import compact_result, load_results, render_section, replace_section
 from tqdm.auto import tqdm
 
 REPO = Path(__file__).resolve().parents[1]
-
-VARIANTS: dict[str, tuple[str, ...]] = {
-    "dual": ("algo=dual",),
-    "iql": ("algo=iql",),
-    "iql_la": ("algo=iql_la",),
-    "diffql": ("algo=diffql",),
-    "diffql_la": ("algo=diffql_la",),
-    "dual_no_uq": ("algo=dual", "laplace.num_samples=0"),
-    "dual_lambda0": ("algo=dual", "exploration.shift_weight=0"),
-    # IQL given DUAL's wall time: its offline stage runs the updates DUAL's planner and
-    # distillation take the time of (measured: DUAL ≈ 17.6 min, IQL ≈ 7.2 min per run at
-    # 25 IQL updates/s on one core: + 15000 offline updates); same online frames and UTD
-    "iql_equal_wall": ("algo=iql", "budget.offline_updates=20000"),
-    "dual_no_planner": ("algo=dual", "actor.init=scratch"),
-    "dual_no_distillation": (
-        "algo=dual",
-        "distillation.final_steps=8",
-        "budget.distill_updates=[100,100]",
-    ),
-    "dual_latent_uq": ("algo=dual", "laplace.uq=latent"),
-    "diffuser": ("algo=diffuser",),
-    "dacer": ("algo=dacer",),
-    # planner augmentation (Algorithm 1 line 14, EDIS): IQL + guided planner transitions,
-    # and DUAL + the same step ("DUAL + EDIS", the paper's Fig. 4(b))
-    "edis": ("algo=edis",),
-    "dual_augment": ("algo=dual", "augment.kind=planner"),
-    "calql": ("algo=calql",),  # Cal-QL (critic/calql), the base critic of the paper's Table 2
-    "dual_calql": ("algo=dual", "critic=calql"),  # DUAL on Cal-QL's critic (Table 2)
-}
-"""Variant name -> recipe overrides."""
-
-ABLATION_VARIANTS = ("dual_no_planner", "dual_no_distillation", "dual_latent_uq")
-"""The paper's other ablation rows (beyond the issue's grid)."""
-
-PAPER_BASELINES = ("diffuser", "dacer", "edis", "dual_augment", "calql", "dual_calql")
-"""The paper's other baselines, "DUAL + EDIS", Cal-QL and DUAL on it (beyond the issue's grid)."""
-
-SHIFT_VARIANTS = ("dual", "iql", "dual_lambda0")
-
-
-@dataclass(frozen=True)
-class Cell:
-    """One environment setting of the grid: its overrides, variants and seed count."""
-
-    overrides: tuple[str, ...]
-    variants: tuple[str, ...]
-    seeds: int
-    about: str
-
-
-CELLS: dict[str, Cell] = {
-    "umaze": Cell(
-        ("env=pointmaze_umaze",),
-        tuple(v for v in VARIANTS if v not in (*ABLATION_VARIANTS, *PAPER_BASELINES)), 5,
-        "PointMaze U-maze",
-    ),
-    "umaze_ablations": Cell(
-        ("env=pointmaze_umaze",), ABLATION_VARIANTS, 3,
-        "PointMaze U-maze: w/o planner, w/o distillation (N = 8), latent UQ",
-    ),
-    "umaze_baselines": Cell(
-        ("env=pointmaze_umaze",), PAPER_BASELINES, 3,
-        "PointMaze U-maze: Diffuser, DACER, EDIS (IQL + planner augmentation), DUAL + EDIS, "
-        "Cal-QL, DUAL on Cal-QL",
-    ),
-    "umaze_rotation": Cell(
-        ("env=pointmaze_umaze", "env.shift=rotation"), SHIFT_VARIANTS, 3,
-        "U-maze, online actions rotated by `env.shift_angle` (60°)",
-    ),
-    "umaze_damping": Cell(
-        ("env=pointmaze_umaze", "env.shift=damping"), SHIFT_VARIANTS, 3,
-        "U-maze, online damping × 150",
-    ),
-    "umaze_mass": Cell(
-        ("env=pointmaze_umaze", "env.shift=mass"), SHIFT_VARIANTS, 3, "U-maze, online mass × 20"
-    ),
-    "medium": Cell(("env=pointmaze_medium",), SHIFT_VARIANTS, 3, "PointMaze Medium"),
-    "frozenlake8x8_slip": Cell(
-        ("env=frozenlake", "env.map_name=8x8", "env.shift=biased_slip"), SHIFT_VARIANTS, 3,
-        "Frozen-Lake 8x8, slips biased counter-clockwise online",
-    ),
-}  # fmt: skip
-"""Cell name -> :class:`Cell` (the issue's grid)."""
-
-# Overrides that only the online phase reads: runs differing only in these share the
-# offline phase (torchrl_dual.recipe.offline_cache.ONLINE_KEYS).
-ONLINE_ONLY = (
-    "env.shift=",
-    "laplace.num_samples=",
-    "laplace.uq=",
-    "exploration.shift_weight=",
-    "augment.",
-)
 
 
 @dataclass(frozen=True)

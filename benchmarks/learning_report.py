@@ -331,6 +331,19 @@ def render_section(
             "stage under heavy load, against ×2.9 in wall time).",
             table,
         ]
+    from learning_pairs import critic_pairs_table  # it reads this module's statistics
+
+    pairs = critic_pairs_table(cells, cell_order)
+    if pairs.count("\n") > 1:
+        parts += [
+            "### DUAL on each critic against the critic alone",
+            "The paper's Table 2 comparison on the suite's runs: each base critic's own "
+            "algorithm (`iql`, `calql`, `so2`) against DUAL on that critic (`dual`, "
+            "`dual_calql`, `dual_so2`), on the seeds both ran (same data and env seeds). "
+            "*DUAL − base*: the mean of the per-seed differences ± its 95 % t half-width; "
+            "▲ / ▼ when that interval excludes 0, ≈ when it holds 0 (inside the noise).",
+            pairs,
+        ]
     if "latency" in figures:
         parts += [
             "### Action latency vs final score",

@@ -341,3 +341,31 @@ def test_shift_cells_report_the_offline_score_without_the_shift():
     assert f"| 5.0 ± {12.706 * 1.0:.1f} | 30.0 ± {half:.1f} |" in table
     plain = lr.cell_table({"dual": [_result("dual", 0, [1.0, 2.0, 3.0])]}, ["dual"])
     assert "no shift" not in plain
+
+
+def test_dual_against_its_base_critic_is_a_paired_difference_over_common_seeds():
+    import learning_pairs
+
+    def runs(variant, scores, seeds):
+        return [_result(variant, s, [0.0, v, v]) for s, v in zip(seeds, scores, strict=True)]
+
+    cells = {
+        "umaze": {
+            "calql": runs("calql", [10.0, 20.0, 30.0, 99.0], [0, 1, 2, 3]),
+            "dual_calql": runs("dual_calql", [14.0, 21.0, 38.0], [0, 1, 2]),
+            "so2": runs("so2", [5.0], [0]),
+        }
+    }
+    table = learning_pairs.critic_pairs_table(cells, ["umaze"]).splitlines()
+    assert len(table) == 3  # SO2 has no DUAL side: no row
+    # seed 3 of calql has no partner: the base's mean is over seeds 0-2 (20.0)
+    diffs = [4.0, 1.0, 8.0]
+    mean, sd = sum(diffs) / 3, math.sqrt(sum((d - 13 / 3) ** 2 for d in diffs) / 2)
+    half = 4.3027 * sd / math.sqrt(3)
+    assert _student_t_cdf(4.3027, 2) == pytest.approx(0.975, abs=1e-4)
+    assert table[-1].startswith("| umaze | Cal-QL | 3 | 20.0 ± ")
+    assert table[-1].endswith(f"| +{mean:.1f} ± {half:.1f} ≈ |")  # the interval holds 0
+    n, (m, h), marker = learning_pairs.paired_difference(
+        runs("d", [12.0, 13.0, 15.0], [0, 1, 2]), runs("b", [10.0, 10.5, 12.0], [0, 1, 2])
+    )
+    assert (n, marker) == (3, "▲") and m - h > 0

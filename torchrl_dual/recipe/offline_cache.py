@@ -50,6 +50,9 @@ ONLINE_KEYS: tuple[str, ...] = (
     "online.offline_fraction",
     "online.utd_ratio",
     "replay",
+    "critic.online_steps_per_update",  # SO2's online critic steps; its offline phase is SAC-N
+    "critic.policy_noise",
+    "critic.target_reduction",
     "env.shift",
     "env.shift_angle",
     "env.shift_scale",
