@@ -37,7 +37,8 @@ from torchrl_dual.recipe.env_kits import ENV_KITS, EnvKit
 from torchrl_dual.recipe.errors import ConfigError, UserError, user_errors
 from torchrl_dual.recipe.iql import IQLLearner, run_iql
 from torchrl_dual.recipe.learner import Learner
-from torchrl_dual.recipe.o2o_run import O2ORun, run_o2o
+from torchrl_dual.recipe.o2o_loop import run_o2o
+from torchrl_dual.recipe.o2o_run import O2ORun
 from torchrl_dual.recipe.plots import plot_learning_curve
 from torchrl_dual.recipe.schema import validate_config
 

@@ -15,7 +15,8 @@ from omegaconf import DictConfig
 
 from torchrl_dual.recipe.errors import ConfigError
 from torchrl_dual.recipe.learner import Learner
-from torchrl_dual.recipe.o2o_run import O2ORun, run_o2o
+from torchrl_dual.recipe.o2o_loop import run_o2o
+from torchrl_dual.recipe.o2o_run import O2ORun
 from torchrl_dual.recipe.rules import Integer, Real, key
 
 

@@ -25,7 +25,8 @@ from torchrl_dual.recipe.env_kits import projected_policy
 from torchrl_dual.recipe.iql import make_iql_actor
 from torchrl_dual.recipe.learner import Learner
 from torchrl_dual.recipe.mc_labels import MonteCarloLabels
-from torchrl_dual.recipe.o2o_run import O2ORun, run_o2o
+from torchrl_dual.recipe.o2o_loop import run_o2o
+from torchrl_dual.recipe.o2o_run import O2ORun
 from torchrl_dual.recipe.rules import Integer, Real, key
 
 

@@ -18,7 +18,8 @@ from torchrl_dual.recipe import networks
 from torchrl_dual.recipe.critics import CRITICS, POLICY_CRITICS, policy_view
 from torchrl_dual.recipe.learner import Learner
 from torchrl_dual.recipe.mc_labels import MonteCarloLabels
-from torchrl_dual.recipe.o2o_run import O2ORun, run_o2o
+from torchrl_dual.recipe.o2o_loop import run_o2o
+from torchrl_dual.recipe.o2o_run import O2ORun
 from torchrl_dual.recipe.planner_augment import augment_capacity, make_augmenter
 from torchrl_dual.recipe.planner_stage import offline_windows, pretrain_planner
 

@@ -32,8 +32,7 @@ from torchrl_dual.recipe import env_kits
 from torchrl_dual.recipe.errors import ConfigError, UserError
 from torchrl_dual.recipe.learner import Learner
 from torchrl_dual.recipe.loggers import logs_text, make_logger
-from torchrl_dual.recipe.offline_cache import run_offline_stages
-from torchrl_dual.recipe.plots import online_signals, plot_learning_curve
+from torchrl_dual.recipe.plots import plot_learning_curve
 from torchrl_dual.recipe.replays import REPLAYS
 from torchrl_dual.recipe.run_summary import score_text, write_summary
 from torchrl_dual.recipe.stage_clock import StageClock
@@ -345,51 +344,3 @@ class O2ORun:
             )
         self.say(logs_text(self.cfg, self.output_dir / "logs", self.name))
         self.say(f"learning curve: {png}")
-
-
-def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORun:
-    """Runs (or resumes) one offline-to-online run of ``make_learner``'s algorithm for a
-    validated ``cfg``: its offline stages, the offline evaluation, then the online phase
-    (collect, store, update, the learner's hook, evaluate, checkpoint); returns the run."""
-    run = O2ORun(cfg, make_learner)
-
-    # ---- Offline phase (its shared stages possibly from offline_cache)
-    run_offline_stages(run)
-    run.stage("offline_eval", lambda: run.evaluate("offline"))
-
-    # ---- Online phase
-    budget = cfg.budget
-    next_eval = (run.frames // budget.eval_every + 1) * budget.eval_every
-    next_save = run.frames + budget.checkpoint_every
-    clock = StageClock(run, "online")
-    try:
-        for batch in run.collector() if run.frames < budget.online_frames else ():
-            stats = run.store(batch)  # act with the exploration policy, store in D_online
-            losses = run.train_online(batch.numel())  # UTD-ratio updates
-            run.learner.after_updates()  # DUAL: refit the Laplace posterior when due
-            run.log({**stats, **losses}, run.frames, "online/")
-            if (signals := online_signals(run.frames, stats)) is not None:
-                run.online_signals.append(signals)  # the plot's epistemic std and d_t
-            if run.frames >= next_eval:
-                run.evaluate("online")
-                next_eval += budget.eval_every
-            if run.frames >= next_save:
-                clock.tick()
-                run.save()
-                next_save += budget.checkpoint_every
-            if cfg.interrupt_at_frames is not None and run.frames >= cfg.interrupt_at_frames:
-                raise KeyboardInterrupt
-    except KeyboardInterrupt:
-        clock.tick()
-        run.save()
-        run.logger.shutdown()
-        run.say(
-            f"interrupted at {run.frames} online frames; checkpoint saved. "
-            "Continue with resume=true."
-        )
-        return run
-    if not run.history or run.history[-1]["frames"] != run.frames:
-        run.evaluate("online")
-    clock.tick()
-    run.finish()
-    return run
