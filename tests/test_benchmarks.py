@@ -369,3 +369,19 @@ def test_dual_against_its_base_critic_is_a_paired_difference_over_common_seeds()
         runs("d", [12.0, 13.0, 15.0], [0, 1, 2]), runs("b", [10.0, 10.5, 12.0], [0, 1, 2])
     )
     assert (n, marker) == (3, "▲") and m - h > 0
+
+
+def test_every_cell_and_variant_of_the_grid_is_a_valid_recipe_config(tmp_path):
+    """A broken variant would otherwise surface hours into the suite."""
+    from torchrl_dual.recipe import compose_checked
+
+    checked = 0
+    for name, cell in learning.CELLS.items():
+        for variant in cell.variants:
+            overrides = [*cell.overrides, *learning.VARIANTS[variant], "budget=default"]
+            cfg = compose_checked(
+                REPO / "recipes" / "config", [*overrides, f"output_dir={tmp_path}"]
+            )
+            assert cfg.algo == learning.VARIANTS[variant][0].split("=")[1], (name, variant)
+            checked += 1
+    assert checked == sum(len(c.variants) for c in learning.CELLS.values()) > 30
