@@ -67,7 +67,10 @@ def run_recipe(
     when its ``checkpoint.pt`` does (decided here, when the run starts: a retried Ray task
     resumes what the lost one checkpointed). ``command[0]`` is replaced by this node's
     Python. A ``KeyboardInterrupt`` (Ctrl-C, ``ray.cancel``) is passed to the recipe as
-    SIGINT, which checkpoints before it exits.
+    SIGINT (unblocked in the child: Ray workers block it), which checkpoints before it
+    exits; on Linux the recipe also gets SIGINT when the calling process dies (a Ray
+    worker killed with its driver), so no orphan keeps writing the run directory that a
+    retry or a resubmission continues.
 
     Args:
         command (list of str): ``[python, "recipes/o2o.py", overrides...]``.
@@ -98,7 +101,14 @@ def run_recipe(
         env = {**os.environ, "OMP_NUM_THREADS": "1", "HYDRA_FULL_ERROR": "0"}
         with open(path / "stdout.txt", "w") as out, open(path / "stderr.txt", "w") as err:
             python = [sys.executable, *command[1:]]  # this node's interpreter
-            proc = subprocess.Popen(python, cwd=cwd, env=env, stdout=out, stderr=err)
+            proc = subprocess.Popen(
+                python,
+                cwd=cwd,
+                env=env,
+                stdout=out,
+                stderr=err,
+                preexec_fn=_recipe_preexec(),
+            )
             try:
                 code = proc.wait()
             except KeyboardInterrupt:
@@ -110,6 +120,26 @@ def run_recipe(
             outcome["error"] = f"exit {code}, no summary.json; stderr tail:\n{tail}"
     outcome["seconds"] = time.monotonic() - start
     return outcome
+
+
+def _recipe_preexec() -> Callable[[], None]:
+    """For ``Popen(preexec_fn=)``: SIGINT reaches the recipe (a Ray worker blocks it, and
+    a child inherits the mask) and, on Linux, is sent to it when the thread that started
+    it dies (``prctl(PR_SET_PDEATHSIG)``)."""
+    prctl, parent = None, os.getpid()
+    if sys.platform == "linux":
+        import ctypes
+
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+
+    def preexec() -> None:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        if prctl is not None:
+            prctl(1, signal.SIGINT)  # PR_SET_PDEATHSIG
+            if os.getppid() != parent:  # the parent died before prctl
+                os.kill(os.getpid(), signal.SIGINT)
+
+    return preexec
 
 
 def _token_matches(path: str, text: str) -> bool:

@@ -92,15 +92,21 @@ def test_ray_backend_writes_the_runs_and_table_of_the_local_backend(ray_runtime,
 # worker, as a lost node would); the next must be started with resume=true and finishes.
 FAKE_RECIPE = textwrap.dedent(
     """
-    import json, os, signal, sys
+    import json, os, signal, sys, time
     from pathlib import Path
     run = Path(sys.argv[1])
     with open(run.parent / "attempts.txt", "a") as log:
         log.write(" ".join(sys.argv[2:]) + "\\n")
     if not (run / "checkpoint.pt").exists():
         (run / "checkpoint.pt").write_bytes(b"state")
+        def stopped(*_):  # the recipe's SIGINT: checkpoint and exit
+            with open(run.parent / "attempts.txt", "a") as log:
+                log.write("SIGINT after the worker died\\n")
+            sys.exit(130)
+        signal.signal(signal.SIGINT, stopped)
         os.kill(os.getppid(), signal.SIGKILL)
-        sys.exit(1)
+        time.sleep(20)
+        sys.exit(1)  # no SIGINT: an orphan
     assert "resume=true" in sys.argv
     history = [{"label": "offline", "frames": 0, "normalized_score": 1.0, "return": 0.0},
                {"label": "online", "frames": 50, "normalized_score": 3.0, "return": 0.0}]
@@ -123,6 +129,7 @@ def test_a_task_lost_with_its_worker_is_retried_and_resumes_from_the_checkpoint(
     run_dir = tmp_path / "out" / "smoke" / "frozenlake8x8_slip" / "iql" / "seed0"
     assert (run_dir.parent / "attempts.txt").read_text().splitlines() == [
         "seed=0",
+        "SIGINT after the worker died",
         "seed=0 resume=true",
     ]
     result = json.loads(
