@@ -110,7 +110,7 @@ def run_recipe(
                 preexec_fn=_recipe_preexec(),
             )
             try:
-                code = proc.wait()
+                code = _wait(proc)
             except KeyboardInterrupt:
                 proc.send_signal(signal.SIGINT)
                 proc.wait()
@@ -120,6 +120,16 @@ def run_recipe(
             outcome["error"] = f"exit {code}, no summary.json; stderr tail:\n{tail}"
     outcome["seconds"] = time.monotonic() - start
     return outcome
+
+
+def _wait(proc: subprocess.Popen) -> int:
+    """``proc.wait()`` that returns to Python every second: ``ray.cancel`` raises its
+    ``KeyboardInterrupt`` in the worker only while Python code runs."""
+    while True:
+        try:
+            return proc.wait(timeout=1.0)
+        except subprocess.TimeoutExpired:
+            pass
 
 
 def _recipe_preexec() -> Callable[[], None]:
@@ -176,6 +186,14 @@ def connect_ray(address: str | None) -> Any:
     return ray
 
 
+def ray_task(ray: Any, max_retries: int) -> Any:
+    """:func:`run_recipe` as a Ray task of one CPU, run again up to ``max_retries`` times
+    when its worker or node is lost."""
+    # by value: the workers need not find benchmarks/ on their sys.path
+    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    return ray.remote(num_cpus=1, max_retries=max_retries)(run_recipe)
+
+
 def ray_backend(suite: Suite, runs: list[Run]) -> Iterator[tuple[Run, Outcome]]:
     """One Ray task per run (one CPU each), submitted in the queue's order; yields the
     runs as their tasks finish. A task whose node is lost is retried ``--ray-retries``
@@ -184,9 +202,7 @@ def ray_backend(suite: Suite, runs: list[Run]) -> Iterator[tuple[Run, Outcome]]:
     token = (str(suite.args.out / SHARED_TOKEN), uuid.uuid4().hex)
     Path(token[0]).parent.mkdir(parents=True, exist_ok=True)
     Path(token[0]).write_text(token[1])
-    # by value: the workers need not find benchmarks/ on their sys.path
-    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
-    task = ray.remote(num_cpus=1, max_retries=suite.args.ray_retries)(run_recipe)
+    task = ray_task(ray, suite.args.ray_retries)
     cwd = str(REPO)
     refs = {
         task.remote(suite.command(run), str(suite.run_dir(run)), cwd, token): run for run in runs

@@ -8,6 +8,7 @@ import doctest
 import json
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 import pytest
@@ -89,7 +90,8 @@ def test_ray_backend_writes_the_runs_and_table_of_the_local_backend(ray_runtime,
 
 
 # A stand-in recipe: the first attempt writes a checkpoint and kills its parent (the Ray
-# worker, as a lost node would); the next must be started with resume=true and finishes.
+# worker, as a lost node would), then would sleep as an orphan (it gets SIGINT, or Ray
+# kills it); the next attempt must be started with resume=true and finishes.
 FAKE_RECIPE = textwrap.dedent(
     """
     import json, os, signal, sys, time
@@ -99,6 +101,7 @@ FAKE_RECIPE = textwrap.dedent(
         log.write(" ".join(sys.argv[2:]) + "\\n")
     if not (run / "checkpoint.pt").exists():
         (run / "checkpoint.pt").write_bytes(b"state")
+        (run.parent / "first.pid").write_text(str(os.getpid()))
         def stopped(*_):  # the recipe's SIGINT: checkpoint and exit
             with open(run.parent / "attempts.txt", "a") as log:
                 log.write("SIGINT after the worker died\\n")
@@ -106,7 +109,7 @@ FAKE_RECIPE = textwrap.dedent(
         signal.signal(signal.SIGINT, stopped)
         os.kill(os.getppid(), signal.SIGKILL)
         time.sleep(20)
-        sys.exit(1)  # no SIGINT: an orphan
+        sys.exit(1)
     assert "resume=true" in sys.argv
     history = [{"label": "offline", "frames": 0, "normalized_score": 1.0, "return": 0.0},
                {"label": "online", "frames": 50, "normalized_score": 3.0, "return": 0.0}]
@@ -115,6 +118,14 @@ FAKE_RECIPE = textwrap.dedent(
     (run / "summary.json").write_text(json.dumps(summary))
     """
 )
+
+
+def running(pid: int) -> bool:
+    """Whether process ``pid`` exists and is not a zombie (Linux ``/proc``)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] not in "ZX"
+    except FileNotFoundError:
+        return False
 
 
 def test_a_task_lost_with_its_worker_is_retried_and_resumes_from_the_checkpoint(
@@ -127,11 +138,14 @@ def test_a_task_lost_with_its_worker_is_retried_and_resumes_from_the_checkpoint(
     flags = suite_flags(tmp_path, *GRID, "--seeds", "0", "--backend", "ray", "--ray-retries", "1")
     assert learning.main(flags) == 0, capsys.readouterr()
     run_dir = tmp_path / "out" / "smoke" / "frozenlake8x8_slip" / "iql" / "seed0"
-    assert (run_dir.parent / "attempts.txt").read_text().splitlines() == [
-        "seed=0",
-        "SIGINT after the worker died",
-        "seed=0 resume=true",
-    ]
+    attempts = (run_dir.parent / "attempts.txt").read_text().splitlines()
+    assert [a for a in attempts if not a.startswith("SIGINT")] == ["seed=0", "seed=0 resume=true"]
+    # the first attempt is no orphan writing the run dir: SIGINT (if it wins the race)
+    # or Ray's clean-up of the dead worker's processes has stopped it
+    first, deadline = int((run_dir.parent / "first.pid").read_text()), time.monotonic() + 10
+    while running(first):
+        assert time.monotonic() < deadline, "the lost attempt's recipe still runs"
+        time.sleep(0.2)
     result = json.loads(
         (tmp_path / "results" / "smoke/frozenlake8x8_slip/iql/seed0.json").read_text()
     )
@@ -145,6 +159,32 @@ def test_a_task_lost_with_its_worker_is_retried_and_resumes_from_the_checkpoint(
     printed = capsys.readouterr()
     assert "FAILED frozenlake8x8_slip/iql/seed0: Ray task failed:" in printed.out
     assert "1 runs failed: frozenlake8x8_slip/iql/seed0" in printed.err
+
+
+def test_a_cancelled_task_passes_sigint_to_the_recipe(ray_runtime, tmp_path):
+    # Ctrl-C on the driver cancels the tasks; the recipe must get SIGINT to checkpoint
+    log = tmp_path / "log.txt"
+    recipe = textwrap.dedent(
+        f"""
+        import signal, sys, time
+        def stopped(*_):
+            open({str(log)!r}, "a").write("SIGINT\\n")
+            sys.exit(130)
+        signal.signal(signal.SIGINT, stopped)
+        open({str(log)!r}, "a").write("up\\n")
+        time.sleep(60)
+        """
+    )
+    task = learning_backends.ray_task(ray_runtime, max_retries=0)
+    ref = task.remote([sys.executable, "-c", recipe], str(tmp_path / "run"), str(tmp_path))
+    deadline = time.monotonic() + 30
+    while not log.exists() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    ray_runtime.cancel(ref)
+    ready, _ = ray_runtime.wait([ref], timeout=30)
+    assert ready and log.read_text() == "up\nSIGINT\n"
+    with pytest.raises(ray_runtime.exceptions.TaskCancelledError):
+        ray_runtime.get(ref)
 
 
 def test_a_run_fails_with_the_fix_when_out_is_not_shared_with_its_node(tmp_path):
