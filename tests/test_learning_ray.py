@@ -80,6 +80,8 @@ def test_ray_backend_writes_the_runs_and_table_of_the_local_backend(ray_runtime,
             k: v for k, v in b.items() if k not in timing
         }
         assert len(a["history"]) == 3 and b["wall_seconds"] > 0
+        # not a trivial equality: the scores without the shift move over the run
+        assert len({h["normalized_score_unshifted"] for h in a["history"]}) == 3
     assert table_without_times(local / "results.md") == table_without_times(ray / "results.md")
     assert any(
         row[0] == "`iql`" and row[1] == "1" for row in table_without_times(ray / "results.md")
