@@ -182,7 +182,13 @@ def connect_ray(address: str | None) -> Any:
     import ray
 
     if not ray.is_initialized():
-        ray.init(address=address, log_to_driver=False)
+        try:
+            ray.init(address=address, log_to_driver=False)
+        except ConnectionError as error:
+            raise SystemExit(
+                f"error: --ray-address {address}: {error} Start a cluster (ray start --head) "
+                "or leave --ray-address out to run on a local Ray runtime."
+            ) from None
     return ray
 
 

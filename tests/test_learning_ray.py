@@ -204,11 +204,20 @@ def test_a_run_fails_with_the_fix_when_out_is_not_shared_with_its_node(tmp_path)
     )["error"].startswith("exit 0, no summary.json")
 
 
-def test_ray_flags_need_the_ray_backend(capsys):
+def test_ray_flags_need_the_ray_backend(capsys, monkeypatch):
     with pytest.raises(SystemExit) as stop:
         learning.main(["--ray-address", "auto", "--dry-run"])
     assert stop.value.code == 2
     assert "error: --ray-address needs --backend ray" in capsys.readouterr().err
+    # where Ray does not install, --backend ray names the extra to install
+    monkeypatch.setattr(
+        learning_backends.importlib.util, "find_spec", lambda name: None if name == "ray" else 1
+    )
+    with pytest.raises(SystemExit):
+        learning.main(["--backend", "ray", "--dry-run"])
+    assert "--backend ray needs Ray, which is not installed: pip install 'torchrl-dual[ray]'" in (
+        capsys.readouterr().err
+    )
 
 
 def test_backend_docstring_examples_run():
