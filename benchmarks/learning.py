@@ -5,6 +5,7 @@
     python benchmarks/learning.py --cells umaze --variants dual iql --seeds 0 1 --jobs 2
     python benchmarks/learning.py --report-only --latency-json latency.json
     python benchmarks/learning.py --budget smoke --seeds 0 budget.online_frames=200  # extra overrides
+    python benchmarks/learning.py --backend ray --ray-address auto --out /shared/suite  # a Ray cluster
 
 Each run is ``python recipes/o2o.py budget=<budget> <cell overrides> <variant overrides>
 seed=<k> num_threads=1 offline_cache=<out>/offline_cache output_dir=<out>/<budget>/<cell>/
@@ -15,7 +16,9 @@ exists is skipped; a run directory with a checkpoint but no summary is continued
 online keys differ) are queued so that the first of each group starts before the others.
 At the end the section between the ``learning-suite`` markers of ``docs/results.md`` and
 its PNGs under ``docs/figures/`` are regenerated (``learning_report.py``,
-``learning_plots.py``). Exit code 1 if any run failed.
+``learning_plots.py``). Exit code 1 if any run failed. ``--backend`` picks where the runs
+execute: this machine (``local``, ``--jobs`` at a time) or a Ray cluster (``ray``, one
+task per run; ``learning_backends.py``, ``docs/scale-out.md``).
 """
 
 from __future__ import annotations
@@ -23,16 +26,15 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import shlex
 import subprocess
 import sys
-import time
-from concurrent.futures import ThreadPoolExecutor, as_completed
+from contextlib import closing
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
+from learning_backends import BACKENDS, Outcome, add_arguments, check_arguments, machine
 from learning_grid import CELLS, ONLINE_ONLY, VARIANTS, Cell  # noqa: F401 - the grid
 from learning_plots import latency_points, plot_cell_curves, plot_latency_vs_score
 from learning_report import compact_result, load_results, render_section, replace_section
@@ -87,16 +89,6 @@ def order_for_sharing(runs: list[Run]) -> list[Run]:
     return leaders + followers
 
 
-def machine() -> str:
-    import torch
-    import torchrl
-
-    return (
-        f"{platform.platform()}, {os.cpu_count()} CPUs, torch {torch.__version__}, "
-        f"torchrl {torchrl.__version__}"
-    )
-
-
 def git_commit() -> str:
     proc = subprocess.run(
         ["git", "rev-parse", "--short=12", "HEAD"], cwd=REPO, capture_output=True, text=True
@@ -111,11 +103,13 @@ class Suite:
         self.args, self.extra = args, extra
         self.meta: dict[str, str] = {}
 
-    def run_meta(self) -> dict[str, str]:
-        """Commit, machine (read once, when needed) and date recorded in a run's JSON."""
+    def run_meta(self, node: str) -> dict[str, str]:
+        """Commit (read once, when needed), the machine the run ran on (``node``) and the
+        date, recorded in a run's JSON."""
         if not self.meta:
-            self.meta = {"commit": git_commit(), "machine": machine()}
-        return {**self.meta, "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")}
+            self.meta = {"commit": git_commit()}
+        date = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+        return {**self.meta, "machine": node, "date": date}
 
     def run_dir(self, run: Run) -> Path:
         return self.args.out / self.args.budget / run.cell / run.variant / f"seed{run.seed}"
@@ -142,54 +136,42 @@ class Suite:
             *self.extra,
         ]
 
-    def execute(self, run: Run) -> tuple[dict | None, str, float]:
-        """Runs (or continues) one recipe run; (result, error text, minutes)."""
-        run_dir = self.run_dir(run)
-        run_dir.mkdir(parents=True, exist_ok=True)
-        start = time.monotonic()
-        if not (run_dir / "summary.json").exists():  # else: finished, only the JSON is missing
-            env = {**os.environ, "OMP_NUM_THREADS": "1", "HYDRA_FULL_ERROR": "0"}
-            with open(run_dir / "stdout.txt", "w") as out, open(run_dir / "stderr.txt", "w") as err:
-                proc = subprocess.run(self.command(run), cwd=REPO, env=env, stdout=out, stderr=err)
-            if proc.returncode != 0 or not (run_dir / "summary.json").exists():
-                tail = (run_dir / "stderr.txt").read_text()[-2000:]
-                return None, f"exit {proc.returncode}, no summary.json; stderr tail:\n{tail}", 0.0
-        summary = json.loads((run_dir / "summary.json").read_text())
+    def record(self, run: Run, outcome: Outcome) -> dict:
+        """Writes the compact JSON of a finished run from its ``summary.json``."""
+        summary = json.loads((self.run_dir(run) / "summary.json").read_text())
         overrides = [*run.overrides, *self.extra]
+        meta = self.run_meta(outcome["machine"])
         result = compact_result(
-            summary, variant=run.variant, cell=run.cell, overrides=overrides, meta=self.run_meta()
+            summary, variant=run.variant, cell=run.cell, overrides=overrides, meta=meta
         )
         path = self.result_path(run)
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(result, indent=1) + "\n")
-        return result, "", (time.monotonic() - start) / 60
+        return result
 
     def run_all(self, runs: list[Run]) -> list[str]:
-        """Runs the queue with ``--jobs`` processes; returns the failed runs' names."""
+        """Runs the queue on ``--backend``, writing each run's JSON as it finishes;
+        returns the failed runs' names."""
         failed = []
-        with ThreadPoolExecutor(max_workers=max(self.args.jobs, 1)) as pool:
-            futures = {pool.submit(self.execute, run): run for run in runs}
-            bar = tqdm(total=len(runs), desc="learning suite", unit="run")
-            try:
-                for future in as_completed(futures):
-                    run = futures[future]
-                    result, error, minutes = future.result()
-                    if result is None:
+        bar = tqdm(total=len(runs), desc="learning suite", unit="run")
+        try:
+            with closing(BACKENDS[self.args.backend](self, runs)) as finished:
+                for run, outcome in finished:
+                    if outcome["error"]:
                         failed.append(run.name())
-                        tqdm.write(f"FAILED {run.name()}: {error}")
+                        tqdm.write(f"FAILED {run.name()}: {outcome['error']}")
                     else:
+                        result = self.record(run, outcome)
                         tqdm.write(
                             f"{run.cell} {run.variant} seed{run.seed}: final score "
-                            f"{result['final_score']:.1f}, {minutes:.1f} min"
+                            f"{result['final_score']:.1f}, {outcome['seconds'] / 60:.1f} min"
                         )
                     bar.update()
-            except KeyboardInterrupt:  # the running recipes got Ctrl-C too and checkpoint
-                for future in futures:
-                    future.cancel()
-                tqdm.write("interrupted: start the suite again to continue (resume=true)")
-                raise SystemExit(130) from None
-            finally:
-                bar.close()
+        except KeyboardInterrupt:  # the backend passed Ctrl-C on: the recipes checkpoint
+            tqdm.write("interrupted: start the suite again to continue (resume=true)")
+            raise SystemExit(130) from None
+        finally:
+            bar.close()
         return failed
 
 
@@ -268,8 +250,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cells", nargs="+", choices=list(CELLS), default=list(CELLS))
     parser.add_argument("--variants", nargs="+", choices=list(VARIANTS))
     parser.add_argument("--seeds", nargs="+", type=int)
-    parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
-    parser.add_argument("--out", type=Path, default=Path("outputs/suite"), help="run dirs")
+    add_arguments(parser)  # --backend, --jobs, --ray-address, --ray-retries
+    parser.add_argument(
+        "--out", type=Path, default=Path("outputs/suite"), help="run dirs (ray: shared storage)"
+    )
     parser.add_argument("--results", type=Path, default=Path("benchmarks/results"))
     parser.add_argument("--docs", type=Path, default=Path("docs/results.md"))
     parser.add_argument("--figures", type=Path, default=Path("docs/figures"))
@@ -277,6 +261,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--report-only", action="store_true")
     parser.add_argument("--dry-run", action="store_true", help="print the queue and stop")
     args = parser.parse_args(flags)
+    check_arguments(parser, args)
     for name in ("out", "results", "docs", "figures"):
         setattr(args, name, (Path.cwd() / getattr(args, name)).resolve())
     command = "python benchmarks/learning.py " + shlex.join(argv)
