@@ -16,24 +16,15 @@ import struct
 from pathlib import Path
 
 import pytest
+from test_diffql import CONFIG_DIR, POINTMAZE
+from test_diffql import FAST as DIFFQL_FAST
 
 from torchrl_dual.recipe import ConfigError, compose_checked, run
 from torchrl_dual.recipe.loggers import LOGGERS
 from torchrl_dual.recipe.plots import plot_learning_curve
 
-CONFIG_DIR = Path(__file__).resolve().parents[2] / "recipes" / "config"
-# the smoke budget cut further: 10 offline updates, 100 online frames in 2 blocks of 50
-FAST = [
-    "budget.offline_updates=10",
-    "online.utd_ratio=0.2",
-    "budget.online_frames=100",
-    "budget.frames_per_batch=50",
-    "budget.eval_every=100",
-    "budget.checkpoint_every=100",
-    "budget.eval_episodes=2",
-    "budget.laplace_refit_every=10",
-    "env.max_episode_steps=50",
-]
+# the smoke budget cut further (test_diffql's FAST) on short PointMaze episodes
+FAST = [*DIFFQL_FAST, *POINTMAZE]
 
 
 @pytest.fixture(scope="module", autouse=True)
