@@ -13,12 +13,14 @@
 
 Every worker builds its env with :class:`TrainEnvFactory` (a picklable ``cfg -> env``, so
 its ``PreviousTransition`` and hence the shift signal ``d_t`` of Eq. (10) follow that
-worker's own trajectory). The workers' policy shares its tensors with the learner's
-exploration policy (TorchRL's ``SharedMemWeightSyncScheme``): the run calls
-:func:`push_weights` after every block of updates, which copies the current parameters
-*and buffers* (DUAL's Laplace posterior draws, refitted every
-``budget.laplace_refit_every`` updates) into the workers' copies; ``multi_sync``'s next
-batch acts with them, ``multi_async``'s batches in flight switch over mid-batch.
+worker's own trajectory). The workers act with an *acting copy* of the learner's
+exploration policy, whose tensors they share (TorchRL's ``SharedMemWeightSyncScheme``):
+the updates never touch it, so an asynchronous worker never reads a network mid-update or a
+Laplace posterior mid-refit. The run calls :func:`push_weights` after every block of
+updates, which copies the current parameters *and buffers* (DUAL's Laplace posterior
+draws, refitted every ``budget.laplace_refit_every`` updates) into the acting copy;
+``multi_sync``'s next batch acts with them, ``multi_async``'s batches in flight switch over
+mid-batch.
 
 Episode ids: :func:`assign_episodes` maps TorchRL's ``("collector", "traj_ids")`` (unique
 across the workers of one collector) to the run's episode ids, so that an episode that
@@ -31,12 +33,15 @@ episode ends: :func:`check_collector` refuses them with several workers.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import torch
 from omegaconf import DictConfig, OmegaConf
+from tensordict import TensorDict
+from torch import nn
 from torchrl.collectors import Collector, MultiAsyncCollector, MultiSyncCollector
 from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType
@@ -114,7 +119,7 @@ def make_multi(collector_class: type) -> Callable[[O2ORun, int], BaseCollector]:
         cfg = run.cfg
         collector = collector_class(
             [TrainEnvFactory(cfg)] * cfg.collector.num_workers,
-            run.learner.exploration_policy,
+            copy.deepcopy(run.learner.exploration_policy),  # the acting copy
             frames_per_batch=cfg.budget.frames_per_batch,
             total_frames=total_frames,
             exploration_type=ExplorationType.RANDOM,
@@ -173,11 +178,23 @@ def check_collector(cfg: DictConfig) -> None:
         )
 
 
-def push_weights(collector: BaseCollector) -> None:
-    """Copies the exploration policy's current parameters and buffers to the collector's
-    workers (nothing to do for ``single``, which acts with the policy itself)."""
-    if not isinstance(collector, Collector):
-        collector.update_policy_weights_()
+def push_weights(collector: BaseCollector, policy: nn.Module) -> None:
+    """Copies ``policy``'s current parameters and buffers into the collector's acting copy,
+    which its workers share (nothing to do for ``single``, which acts with ``policy``).
+
+    Raises:
+        RuntimeError: a worker process has died (its traceback is printed above); the
+            run's ``finally`` then shuts the others down.
+    """
+    if isinstance(collector, Collector):
+        return
+    for index, process in enumerate(collector.procs):
+        if not process.is_alive():  # it would never acknowledge the new weights
+            raise RuntimeError(
+                f"collector worker {index} exited with code {process.exitcode}; its error is "
+                "printed above"
+            )
+    collector.update_policy_weights_(TensorDict.from_module(policy).data)
 
 
 def assign_episodes(
@@ -224,4 +241,3 @@ def assign_episodes(
         if not end:
             open_episodes[traj] = episode
     return episode_of[position], next_episode
-

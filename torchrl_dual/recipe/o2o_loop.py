@@ -42,7 +42,7 @@ def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORu
             stats = run.store(batch)  # act with the exploration policy, store in D_online
             losses = run.train_online(batch.numel())  # UTD-ratio updates
             run.learner.after_updates()  # DUAL: refit the Laplace posterior when due
-            push_weights(collector)  # the workers act with the new weights and buffers
+            push_weights(collector, run.learner.exploration_policy)  # to the workers
             run.log({**stats, **losses}, run.frames, "online/")
             if (signals := online_signals(run.frames, stats)) is not None:
                 run.online_signals.append(signals)  # the plot's epistemic std and d_t
