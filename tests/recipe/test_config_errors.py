@@ -141,7 +141,10 @@ CASES = [
         "collector=ray",
         "collector=ray: unknown option; choose one of multi_async, multi_sync, single",
     ),
-    ("collector=multi_sync collector.num_workers=0", "collector.num_workers=0: must be an integer >= 1"),
+    (
+        "collector=multi_sync collector.num_workers=0",
+        "collector.num_workers=0: must be an integer >= 1",
+    ),
     (
         "+collector.num_workers=2",
         "collector.num_workers=2: collector=single collects in this process; choose "

@@ -82,8 +82,9 @@ class TrainEnvFactory:
 
     Examples:
         >>> import pickle
-        >>> from torchrl_dual.recipe import compose_checked
-        >>> cfg = compose_checked(["env.max_episode_steps=20"])
+        >>> env = {"kind": "pointmaze", "maze": "umaze", "max_episode_steps": 20}
+        >>> env.update(shift="none", shift_angle=0.0, shift_scale=None)
+        >>> cfg = OmegaConf.create({"seed": 0, "env": env})  # what the PointMaze kit reads
         >>> factory = pickle.loads(pickle.dumps(TrainEnvFactory(cfg)))
         >>> env = factory()
         >>> "previous_observation" in env.reset().keys()
@@ -127,7 +128,7 @@ def make_multi(collector_class: type) -> Callable[[O2ORun, int], BaseCollector]:
             num_threads=cfg.num_threads,  # this process's threads (TorchRL would lower them)
             auto_register_policy_transforms=False,
         )
-        try:  # worker i gets seed + 1 + frames + i
+        try:  # worker 0 gets seed + 1 + frames, the others TorchRL's chained seeds
             collector.set_seed(cfg.seed + 1 + run.frames)
         except BaseException:
             collector.shutdown()

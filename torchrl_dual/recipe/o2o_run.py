@@ -277,7 +277,10 @@ class O2ORun:
         """D_online ← D_online ∪ {(s_t, a_t, s_t+1, r_t)} with the executed action (l. 13)."""
         batch = batch.reshape(-1)  # [workers, T] (multi_sync) or [T]
         episode, self.next_episode = assign_episodes(
-            batch["collector", "traj_ids"], batch["next", "done"], self.open_episodes, self.next_episode
+            batch["collector", "traj_ids"],
+            batch["next", "done"],
+            self.open_episodes,
+            self.next_episode,
         )
         keys = [k for k in TRANSITION_KEYS if k != "episode"]
         online = batch.select(*keys).clone()
