@@ -6,7 +6,8 @@ id never used before (also across the resume), and each worker's ``previous_*`` 
 follow that worker's own trajectory. Workers act with the latest weights: a buffer
 *replaced* (not updated in place, so shared memory alone cannot carry it) reaches the
 workers' next batch after :func:`push_weights`, and not before. Episode ids of one worker
-are those of the former single-stream formula. No worker process outlives a run.
+are those of the former single-stream formula. No worker process outlives a run, and the
+run shuts its collector down on Ctrl-C and on an error.
 """
 
 from __future__ import annotations
@@ -208,3 +209,40 @@ def test_one_worker_s_episode_ids_are_the_single_stream_cumsum():
     assert torch.equal(torch.cat(ids), expected)
     assert next_episode == int(expected[-1]) + 1
     assert open_episodes == ({} if done[-1] else {int(traj[-1]): int(expected[-1])})
+
+
+class FailingCollector:
+    """Yields nothing but ``error``; records whether the run shut it down."""
+
+    def __init__(self, error: BaseException) -> None:
+        self.error, self.shut_down = error, False
+
+    def __iter__(self):
+        raise self.error
+        yield  # a generator
+
+    def shutdown(self) -> None:
+        self.shut_down = True
+
+
+@pytest.mark.parametrize("error", [KeyboardInterrupt(), RuntimeError("worker 1 died")])
+def test_the_collector_is_shut_down_on_ctrl_c_and_on_an_error(error, tmp_path, monkeypatch):
+    collector = FailingCollector(error)
+    monkeypatch.setattr(O2ORun, "collector", lambda self: collector)
+    overrides = [
+        "algo=iql",
+        "budget=smoke",
+        "budget.offline_updates=0",
+        "budget.eval_episodes=1",
+        "env.max_episode_steps=15",
+        "progress=false",
+        f"output_dir={tmp_path / 'run'}",
+        f"data_cache_dir={tmp_path / 'data'}",
+    ]
+    cfg = compose_checked(CONFIG_DIR, overrides)
+    if isinstance(error, KeyboardInterrupt):  # Ctrl-C: checkpoint, then the workers end
+        assert run(cfg).frames == 0
+    else:
+        with pytest.raises(RuntimeError, match="worker 1 died"):
+            run(cfg)
+    assert collector.shut_down
