@@ -137,6 +137,29 @@ CASES = [
         "logger.mode=cloud: unknown option; choose one of offline, online, disabled",
     ),
     ("logger.project=dual", "unknown key 'logger.project'"),
+    (
+        "collector=ray",
+        "collector=ray: unknown option; choose one of multi_async, multi_sync, single",
+    ),
+    (
+        "collector=multi_sync collector.num_workers=0",
+        "collector.num_workers=0: must be an integer >= 1",
+    ),
+    (
+        "+collector.num_workers=2",
+        "collector.num_workers=2: collector=single collects in this process; choose "
+        "collector=multi_sync or collector=multi_async for worker processes",
+    ),
+    (
+        "collector=multi_sync collector.num_workers=3",
+        "budget.frames_per_batch=500: collector=multi_sync splits each batch over "
+        "collector.num_workers=3: use a multiple of it",
+    ),
+    (
+        "algo=calql collector=multi_async",
+        "collector=multi_async: critic=calql labels one stream of online episodes with "
+        "Monte-Carlo returns; use collector=single with it",
+    ),
 ]
 
 

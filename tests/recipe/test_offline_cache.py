@@ -116,7 +116,12 @@ def key(*overrides: str) -> str:
 
 def test_online_keys_share_the_key_and_offline_keys_do_not():
     base = key()
-    for online in (*FOLLOWER, "online.utd_ratio=1.0", "budget.online_frames=100"):
+    for online in (
+        *FOLLOWER,
+        "online.utd_ratio=1.0",
+        "budget.online_frames=100",
+        "collector=multi_async",
+    ):
         assert key(online) == base, online
     for offline in ("planner.lr=0.001", "seed=1", "budget.offline_updates=7", "actor.init=scratch"):
         assert key(offline) != base, offline

@@ -3,7 +3,8 @@
 The offline stages of the :class:`~torchrl_dual.recipe.Learner` (shared through
 ``offline_cache`` when set), the offline evaluation, then the online loop of Algorithm 1
 (lines 10-18): collect a batch with the exploration policy, store it, run the UTD
-updates, the learner's hook (DUAL's Laplace refits), log, evaluate, checkpoint.
+updates, the learner's hook (DUAL's Laplace refits), the weight push to the collector's
+workers, log, evaluate, checkpoint; the collector is shut down however the loop ends.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from collections.abc import Callable
 
 from omegaconf import DictConfig
 
+from torchrl_dual.recipe.collectors import push_weights
 from torchrl_dual.recipe.learner import Learner
 from torchrl_dual.recipe.o2o_run import O2ORun
 from torchrl_dual.recipe.offline_cache import run_offline_stages
@@ -34,11 +36,13 @@ def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORu
     next_eval = (run.frames // budget.eval_every + 1) * budget.eval_every
     next_save = run.frames + budget.checkpoint_every
     clock = StageClock(run, "online")
+    collector = run.collector() if run.frames < budget.online_frames else None
     try:
-        for batch in run.collector() if run.frames < budget.online_frames else ():
+        for batch in collector if collector is not None else ():
             stats = run.store(batch)  # act with the exploration policy, store in D_online
             losses = run.train_online(batch.numel())  # UTD-ratio updates
             run.learner.after_updates()  # DUAL: refit the Laplace posterior when due
+            push_weights(collector, run.learner.exploration_policy)  # to the workers
             run.log({**stats, **losses}, run.frames, "online/")
             if (signals := online_signals(run.frames, stats)) is not None:
                 run.online_signals.append(signals)  # the plot's epistemic std and d_t
@@ -60,6 +64,9 @@ def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORu
             "Continue with resume=true."
         )
         return run
+    finally:  # the workers end with the loop, also on an interrupt or an error
+        if collector is not None:
+            collector.shutdown()
     if not run.history or run.history[-1]["frames"] != run.frames:
         run.evaluate("online")
     clock.tick()

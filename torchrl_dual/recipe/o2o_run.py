@@ -21,14 +21,14 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDictBase
-from torchrl.collectors import Collector
+from torchrl.collectors import BaseCollector
 from torchrl.data import LazyTensorStorage, RandomSampler, ReplayBuffer
-from torchrl.envs.utils import ExplorationType
 from tqdm.auto import tqdm
 
 from torchrl_dual.checkpoint import CheckpointError, RunCheckpoint, rng_state, set_rng_state
 from torchrl_dual.data import TRANSITION_KEYS
 from torchrl_dual.recipe import env_kits
+from torchrl_dual.recipe.collectors import COLLECTORS, assign_episodes
 from torchrl_dual.recipe.errors import ConfigError, UserError
 from torchrl_dual.recipe.learner import Learner
 from torchrl_dual.recipe.loggers import logs_text, make_logger
@@ -121,7 +121,8 @@ class O2ORun:
         self.frames = 0
         self.updates = 0
         self.update_credit = 0.0
-        self.next_episode = int(self.data.transitions["episode"].max()) + 1
+        self.next_episode = int(self.data.transitions["episode"].max()) + 1  # a fresh id
+        self.open_episodes: dict[int, int] = {}  # collector trajectory id -> its episode id
         self.history: list[dict] = []
         self.online_signals: list[dict] = []  # per collected batch (plots.online_signals)
         logger_state = self.load(saved) if saved is not None else None
@@ -265,26 +266,22 @@ class O2ORun:
         return result
 
     # ------------------------------------------------------------------ online phase
-    def collector(self) -> Collector:
-        """Acts with the learner's exploration policy in the online env (Alg. 1 l. 11-12)."""
-        remaining = self.cfg.budget.online_frames - self.frames
-        self.env.set_seed(self.cfg.seed + 1 + self.frames)
-        return Collector(
-            self.env,
-            self.learner.exploration_policy,
-            frames_per_batch=self.cfg.budget.frames_per_batch,
-            total_frames=max(remaining, 0),
-            exploration_type=ExplorationType.RANDOM,
-            device=self.cfg.device,
-            auto_register_policy_transforms=False,
-        )
+    def collector(self) -> BaseCollector:
+        """Acts with the learner's exploration policy in the online env (Alg. 1 l. 11-12):
+        the ``collector.name`` entry of :data:`~torchrl_dual.recipe.collectors.COLLECTORS`."""
+        remaining = max(self.cfg.budget.online_frames - self.frames, 0)
+        self.open_episodes = {}  # a new collector starts new trajectories
+        return COLLECTORS[self.cfg.collector.name][1](self, remaining)
 
     def store(self, batch: TensorDictBase) -> dict:
         """D_online ← D_online ∪ {(s_t, a_t, s_t+1, r_t)} with the executed action (l. 13)."""
-        batch = batch.reshape(-1)
-        done = batch["next", "done"].squeeze(-1).long()
-        episode = self.next_episode + torch.cumsum(done, 0) - done
-        self.next_episode = int(episode[-1]) + int(done[-1])
+        batch = batch.reshape(-1)  # [workers, T] (multi_sync) or [T]
+        episode, self.next_episode = assign_episodes(
+            batch["collector", "traj_ids"],
+            batch["next", "done"],
+            self.open_episodes,
+            self.next_episode,
+        )
         keys = [k for k in TRANSITION_KEYS if k != "episode"]
         online = batch.select(*keys).clone()
         online.set("episode", episode)

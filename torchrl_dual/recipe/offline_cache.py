@@ -50,6 +50,7 @@ ONLINE_KEYS: tuple[str, ...] = (
     "online.offline_fraction",
     "online.utd_ratio",
     "replay",
+    "collector",
     "critic.online_steps_per_update",  # SO2's online critic steps; its offline phase is SAC-N
     "critic.policy_noise",
     "critic.target_reduction",

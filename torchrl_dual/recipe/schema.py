@@ -3,8 +3,8 @@
 The schema of a composed config is put together from tables: the top-level keys
 (:class:`RunSettings`), ``budget`` (:class:`BudgetSettings`), ``env`` (the schema of its
 ``ENV_KITS`` entry), the sections of the chosen ``algo`` (its ``ALGORITHMS`` entry),
-``critic`` (its ``CRITICS`` entry), ``replay`` (its ``REPLAYS`` entry) and ``logger``
-(its ``LOGGERS`` entry, ``loggers``).
+``critic`` (its ``CRITICS`` entry), ``replay`` (its ``REPLAYS`` entry), ``collector`` (its
+``COLLECTORS`` entry) and ``logger`` (its ``LOGGERS`` entry, ``loggers``).
 Every key is checked against its rule, then the combinations across keys, then what the
 machine must provide (the device, the logger's package, a usable output_dir).
 """
@@ -19,6 +19,7 @@ import torch
 from omegaconf import DictConfig
 
 from torchrl_dual.recipe.algorithms import ALGORITHMS
+from torchrl_dual.recipe.collectors import COLLECTORS, check_collector, check_worker_count
 from torchrl_dual.recipe.critics import CRITICS
 from torchrl_dual.recipe.env_kits import ENV_KITS
 from torchrl_dual.recipe.errors import ConfigError
@@ -99,6 +100,8 @@ def validate_config(cfg: DictConfig) -> DictConfig:
     kit = _choice(cfg, "env.kind", ENV_KITS, "which environment kit builds the env and data")
     critic_schema, _ = _choice(cfg, "critic.name", CRITICS, "the critic")
     replay_schema, _ = _choice(cfg, "replay.name", REPLAYS, "the online replay")
+    collector_schema, _ = _choice(cfg, "collector.name", COLLECTORS, "the online collector")
+    check_worker_count(cfg)
     logger = _choice(cfg, "logger.backend", LOGGERS, "the TorchRL logger backend")
     sections = {
         "env": kit.settings,
@@ -106,6 +109,7 @@ def validate_config(cfg: DictConfig) -> DictConfig:
         **algorithm.sections,
         "critic": critic_schema,
         "replay": replay_schema,
+        "collector": collector_schema,
         "logger": logger.settings,
     }
     known = dotted_keys(RunSettings, "")
@@ -123,6 +127,7 @@ def validate_config(cfg: DictConfig) -> DictConfig:
     if kit.check is not None:  # what the env needs on disk (e.g. a Minari data set)
         kit.check(cfg)
     algorithm.check(cfg)
+    check_collector(cfg)
     check_machine(cfg)
     return cfg
 
