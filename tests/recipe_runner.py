@@ -1,24 +1,40 @@
-"""Running ``recipes/o2o.py`` from tests as a user would: a subprocess from the repo root.
+"""Running ``recipes/o2o.py`` from tests: in this process by default, or as a subprocess.
 
-``run_recipe`` starts one smoke-budget run; ``succeeded`` and ``failed`` assert on how it
-ended (``failed``: exit 2, one ``error:`` line, no traceback).
+``run_recipe`` starts one smoke-budget run and returns what a user would see of it (exit
+code, stdout, stderr) as a :class:`subprocess.CompletedProcess`. By default the run goes
+through the command line's own steps in this process (:func:`check_command_line`'s
+composition and checks, then :func:`hydra_task`), which saves each run the ≈ 8 CPU-s
+of starting Python and importing torch, TorchRL and Hydra. ``cli=True`` runs the real
+``python recipes/o2o.py`` instead, so ``@hydra.main`` stays under test
+(``test_o2o.py``'s PointMaze smoke run, ``test_config_errors.py``'s command-line tests).
+``succeeded`` and ``failed`` assert on how a run ended (``failed``: exit 2, one
+``error:`` line, no traceback).
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
+import random
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+import torch
+
 REPO = Path(__file__).resolve().parents[1]
+CONFIG_DIR = REPO / "recipes" / "config"
 
 
-def run_recipe(output_dir: Path, cache_dir: Path, *overrides: str) -> subprocess.CompletedProcess:
-    """``python recipes/o2o.py budget=smoke ...`` from the repo root; never raises."""
-    cmd = [
-        sys.executable,
-        "recipes/o2o.py",
+def run_recipe(
+    output_dir: Path, cache_dir: Path, *overrides: str, cli: bool = False
+) -> subprocess.CompletedProcess:
+    """``python recipes/o2o.py budget=smoke ...`` from the repo root; never raises for
+    a run that ends with an exit code (an unexpected exception in-process propagates,
+    with its traceback, to the test)."""
+    args = [
         "budget=smoke",
         f"output_dir={output_dir}",
         f"data_cache_dir={cache_dir}",
@@ -26,8 +42,41 @@ def run_recipe(output_dir: Path, cache_dir: Path, *overrides: str) -> subprocess
         "num_threads=1",  # tiny networks: one thread avoids OpenMP contention
         *overrides,
     ]
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "HYDRA_FULL_ERROR": "0"}
-    return subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
+    if cli:
+        cmd = [sys.executable, "recipes/o2o.py", *args]
+        env = {**os.environ, "OMP_NUM_THREADS": "1", "HYDRA_FULL_ERROR": "0"}
+        return subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
+    return _run_in_process(args)
+
+
+def _run_in_process(args: list[str]) -> subprocess.CompletedProcess:
+    """The command line's two steps (``check_command_line``, then the Hydra task on the
+    config it composed) with stdout and stderr captured; torch's thread count and the
+    torch, numpy and python RNG states are restored afterwards, so that the run leaves
+    the test process as it found it."""
+    from torchrl_dual.recipe import compose_checked, hydra_task
+    from torchrl_dual.recipe.errors import user_errors
+
+    stdout, stderr = io.StringIO(), io.StringIO()
+    threads, code = torch.get_num_threads(), 0
+    np_state, py_state = np.random.get_state(), random.getstate()
+    with (
+        contextlib.chdir(REPO),
+        contextlib.redirect_stdout(stdout),
+        contextlib.redirect_stderr(stderr),
+        torch.random.fork_rng(),
+    ):
+        try:
+            with user_errors(debug=False):
+                cfg = compose_checked(CONFIG_DIR, args)
+            hydra_task(cfg)
+        except SystemExit as exit_:
+            code = exit_.code if isinstance(exit_.code, int) else 1
+        finally:
+            torch.set_num_threads(threads)
+            np.random.set_state(np_state)
+            random.setstate(py_state)
+    return subprocess.CompletedProcess(["o2o.py", *args], code, stdout.getvalue(), stderr.getvalue())
 
 
 def succeeded(proc: subprocess.CompletedProcess) -> subprocess.CompletedProcess:

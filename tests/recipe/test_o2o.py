@@ -1,7 +1,8 @@
 """End-to-end tests of the O2O recipe (``recipes/o2o.py``) at the smoke budget.
 
-Every run is a subprocess from the repository root, exactly as a user would start it,
-so Hydra's command line, the exit code and what the run prints are all under test. The
+The PointMaze smoke run is a subprocess from the repository root, exactly as a user
+would start it (Hydra's command line, the exit code and what the run prints); the other
+runs take the command line's same steps in the test process (``recipe_runner``). The
 generated offline data sets live in one session-wide cache directory, so each is
 generated once; full runs that several tests inspect are session fixtures.
 """
@@ -59,7 +60,7 @@ def cache_dir(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def umaze_run(tmp_path_factory, cache_dir):
     out = tmp_path_factory.mktemp("umaze") / "run"
-    return out, succeeded(run_recipe(out, cache_dir))
+    return out, succeeded(run_recipe(out, cache_dir, cli=True))  # through @hydra.main
 
 
 @pytest.fixture(scope="session")
