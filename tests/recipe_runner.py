@@ -76,7 +76,9 @@ def _run_in_process(args: list[str]) -> subprocess.CompletedProcess:
             torch.set_num_threads(threads)
             np.random.set_state(np_state)
             random.setstate(py_state)
-    return subprocess.CompletedProcess(["o2o.py", *args], code, stdout.getvalue(), stderr.getvalue())
+    return subprocess.CompletedProcess(
+        ["o2o.py", *args], code, stdout.getvalue(), stderr.getvalue()
+    )
 
 
 def succeeded(proc: subprocess.CompletedProcess) -> subprocess.CompletedProcess:
