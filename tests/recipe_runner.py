@@ -1,4 +1,4 @@
-"""Running ``recipes/o2o.py`` from tests: in this process by default, or as a subprocess.
+"""Running ``recipes/o2o.py`` and the benchmark scripts from tests, as a user would.
 
 ``run_recipe`` starts one smoke-budget run and returns what a user would see of it (exit
 code, stdout, stderr) as a :class:`subprocess.CompletedProcess`. By default the run goes
@@ -7,7 +7,8 @@ composition and checks, then :func:`hydra_task`), which saves each run the ≈ 8
 of starting Python and importing torch, TorchRL and Hydra. ``cli=True`` runs the real
 ``python recipes/o2o.py`` instead, so ``@hydra.main`` stays under test
 (``test_o2o.py``'s PointMaze smoke run, ``test_config_errors.py``'s command-line tests).
-``succeeded`` and ``failed`` assert on how a run ended (``failed``: exit 2, one
+``run_script`` runs a benchmark script in this process the same way. ``succeeded`` and
+``failed`` assert on how a run ended (``failed``: exit 2, one
 ``error:`` line, no traceback).
 """
 
@@ -17,6 +18,7 @@ import contextlib
 import io
 import os
 import random
+import runpy
 import subprocess
 import sys
 from pathlib import Path
@@ -79,6 +81,28 @@ def _run_in_process(args: list[str]) -> subprocess.CompletedProcess:
     return subprocess.CompletedProcess(
         ["o2o.py", *args], code, stdout.getvalue(), stderr.getvalue()
     )
+
+
+def run_script(script: str, *args: str) -> subprocess.CompletedProcess:
+    """``python <script> <args>`` from the repo root, run in this process (``runpy``,
+    with ``sys.argv`` and ``sys.path[0]`` as Python would set them) to save the start-up
+    of a new interpreter; the exit code comes from ``SystemExit``."""
+    path = REPO / script
+    stdout, stderr = io.StringIO(), io.StringIO()
+    argv, sys_path, code = sys.argv, list(sys.path), 0
+    sys.argv, sys.path[:0] = [str(path), *args], [str(path.parent)]
+    try:
+        with (
+            contextlib.chdir(REPO),
+            contextlib.redirect_stdout(stdout),
+            contextlib.redirect_stderr(stderr),
+        ):
+            runpy.run_path(str(path), run_name="__main__")
+    except SystemExit as exit_:
+        code = exit_.code if isinstance(exit_.code, int) else (0 if exit_.code is None else 1)
+    finally:
+        sys.argv, sys.path[:] = argv, sys_path
+    return subprocess.CompletedProcess([script, *args], code, stdout.getvalue(), stderr.getvalue())
 
 
 def succeeded(proc: subprocess.CompletedProcess) -> subprocess.CompletedProcess:

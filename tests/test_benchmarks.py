@@ -4,25 +4,23 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from recipe_runner import run_script
 
 REPO = Path(__file__).resolve().parents[1]
 
 
 def test_latency_benchmark_times_every_candidate_and_writes_json(tmp_path):
     out = tmp_path / "latency.json"
-    cmd = [
-        sys.executable,
+    proc = run_script(
         "benchmarks/latency.py",
         *("--reps", "20", "--warmup", "2", "--rounds", "2"),
         *("--hidden", "32", "--depth", "1", "--teacher-steps", "4"),
         *("--json", str(out)),
-    ]
-    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=300)
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     medians = json.loads(out.read_text())
     assert set(medians) == {
@@ -293,9 +291,8 @@ def test_paper_projection_multiplies_each_cost_by_the_paper_budget():
 )
 def test_families_benchmark_runs_on_a_stand_in_data_set(tmp_path):
     out = tmp_path / "families.json"
-    cmd = [sys.executable, "benchmarks/families.py", "--families", "hopper"]
-    cmd += ["--updates", "5", "--steps", "20", "--json", str(out)]
-    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=300)
+    args = ["--families", "hopper", "--updates", "5", "--steps", "20", "--json", str(out)]
+    proc = run_script("benchmarks/families.py", *args)
     assert proc.returncode == 0, proc.stderr[-3000:]
     (row,) = json.loads(out.read_text())
     assert (row["family"], row["obs_dim"], row["action_dim"]) == ("hopper", 11, 3)
@@ -306,9 +303,8 @@ def test_families_benchmark_runs_on_a_stand_in_data_set(tmp_path):
 
 
 def test_ant_controller_cost_projects_minaris_budget():
-    cmd = [sys.executable, "benchmarks/ant_controller_cost.py", "--updates", "2", "--steps", "20"]
-    cmd += ["--width", "32", "--depth", "1", "--batch-size", "16"]
-    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=300)
+    args = ["--updates", "2", "--steps", "20", "--width", "32", "--depth", "1"]
+    proc = run_script("benchmarks/ant_controller_cost.py", *args, "--batch-size", "16")
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "| Minari's train_ant.py | 30,000,000 | 1,875,000 |" in proc.stdout
 

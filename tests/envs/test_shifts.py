@@ -4,14 +4,11 @@ Frozen-Lake model matches the shifted env."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
-from pathlib import Path
-
 import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from recipe_runner import run_script
 
 from torchrl_dual.envs import (
     SHIFTS,
@@ -224,9 +221,7 @@ def test_the_torchrl_frozenlake_env_carries_the_shift():
 
 
 def test_the_shift_benchmark_prints_both_tables():
-    repo = Path(__file__).resolve().parents[2]
-    cmd = [sys.executable, "benchmarks/shifts.py", "--episodes", "1", "--shifts", "rotation:90"]
-    proc = subprocess.run(cmd, cwd=repo, capture_output=True, text=True, timeout=300)
+    proc = run_script("benchmarks/shifts.py", "--episodes", "1", "--shifts", "rotation:90")
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "| rotation:90 |" in proc.stdout
     assert "| offline-optimal (data: 3/4, symmetric slip) | 0.9343 | 0.0000 |" in proc.stdout
