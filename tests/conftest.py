@@ -37,6 +37,23 @@ def pytest_configure(config: pytest.Config) -> None:
     torch.set_num_threads(int(os.environ.get("TORCHRL_DUAL_TEST_THREADS", "1")))
 
 
+def expected_seconds(item: pytest.Item) -> float:
+    """The ``long_running(seconds=...)`` mark of ``item``'s file (0 without one)."""
+    mark = item.get_closest_marker("long_running")
+    return 0.0 if mark is None else float(mark.kwargs["seconds"])
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The longest files first, the others in collection order (a stable sort).
+
+    ``-n 2 --dist loadfile`` (with ``--no-loadscope-reorder``, in pyproject's ``addopts``)
+    hands whole files to the workers in this order, so the files that take minutes start
+    at once and the many short ones fill the other worker around them; xdist's default
+    order (most tests first) started the one-test, three-minute distillation file last.
+    """
+    items.sort(key=lambda item: -expected_seconds(item))
+
+
 @pytest.fixture
 def seeded() -> int:
     """Seeds torch's global generator with 0 (use with ``pytest.mark.usefixtures``)."""

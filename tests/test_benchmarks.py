@@ -49,6 +49,7 @@ sys.path.insert(0, str(REPO / "benchmarks"))
 import learning  # noqa: E402
 import learning_report as lr  # noqa: E402
 
+pytestmark = pytest.mark.long_running(seconds=40)  # starts first under xdist
 HAND_WRITTEN = "# Learning results\n\nIntro written by hand.\n\n## Older runs\n\nkept as is.\n"
 
 

@@ -19,6 +19,7 @@ import learning  # noqa: E402
 import learning_backends  # noqa: E402
 
 # budget=smoke shrunk further, as in test_benchmarks.py's end-to-end suite test
+pytestmark = pytest.mark.long_running(seconds=40)  # starts first under xdist
 FAST = (
     *("budget.offline_updates=10", "budget.online_frames=100", "budget.frames_per_batch=50"),
     *("budget.eval_every=50", "budget.eval_episodes=1", "budget.checkpoint_every=50"),

@@ -16,6 +16,7 @@ from toy import LEFT_FRACTION, bimodal_transitions, mode_statistics
 from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout, WindowReplayBuffer
 from torchrl_dual.objectives import progressive_distillation, train_planner
 
+pytestmark = pytest.mark.long_running(seconds=175)  # starts first under xdist
 HORIZON = 8
 
 

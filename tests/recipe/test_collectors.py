@@ -26,6 +26,7 @@ from torch import nn
 from torchrl_dual.recipe import O2ORun, compose_checked, run
 from torchrl_dual.recipe.collectors import COLLECTORS, assign_episodes, push_weights
 
+pytestmark = pytest.mark.long_running(seconds=55)  # starts first under xdist
 CONFIG_DIR = REPO / "recipes" / "config"
 # DUAL at the smoke budget cut down: 120 online frames in batches of 20 (episodes of 15
 # steps, so some end inside a batch and some span two), interrupted after 60

@@ -22,6 +22,7 @@ from torchrl_dual.modules import LaplaceEnsembleActor, PlannerSampler
 from torchrl_dual.modules.laplace import LatentEnsembleActor
 from torchrl_dual.recipe import ConfigError, DualLearner, O2ORun, compose_checked
 
+pytestmark = pytest.mark.long_running(seconds=40)  # starts first under xdist
 RECIPES = REPO / "recipes"
 # the smoke budget cut further: these runs check the plumbing of each switch
 SHORT = (

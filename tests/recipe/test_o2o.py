@@ -22,6 +22,7 @@ from torchrl_dual.data import OfflineDataset, make_transitions
 from torchrl_dual.data.cache import load_cached_dataset, save_cached_dataset
 from torchrl_dual.recipe import DualLearner, O2ORun, UserError, compose_checked, env_kits, networks
 
+pytestmark = pytest.mark.long_running(seconds=140)  # starts first under xdist
 RECIPES = REPO / "recipes"
 ONLINE_FRAMES = 400  # budget/smoke.yaml
 INTERRUPT_AT = 200

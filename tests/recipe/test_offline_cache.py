@@ -18,6 +18,7 @@ from torchrl_dual.recipe import compose_checked
 from torchrl_dual.recipe.dual import DualLearner
 from torchrl_dual.recipe.offline_cache import OfflinePhaseCache, offline_key_config
 
+pytestmark = pytest.mark.long_running(seconds=85)  # starts first under xdist
 # DUAL's online ablations on a shifted env: everything the online phase reads differs
 FOLLOWER = ("env.shift=rotation", "laplace.num_samples=0", "exploration.shift_weight=0")
 
