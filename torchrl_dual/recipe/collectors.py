@@ -126,8 +126,6 @@ def make_multi(collector_class: type) -> Callable[[O2ORun, int], BaseCollector]:
     return make
 
 
-
-
 def check_worker_count(cfg: DictConfig) -> None:
     """``collector.num_workers`` with ``collector=single`` (run before the key checks, which
     would only call it an unknown key)."""

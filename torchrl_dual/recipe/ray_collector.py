@@ -104,9 +104,7 @@ def check_ray_collector(cfg: DictConfig) -> None:
     """What ``collector=ray`` needs beyond the process collectors' checks
     (:func:`~torchrl_dual.recipe.collectors.check_collector`): Ray, and ``device=cpu``."""
     if not ray_installed():
-        raise ConfigError(
-            "collector", "ray", f"needs Ray, which is not installed: {INSTALL_RAY}"
-        )
+        raise ConfigError("collector", "ray", f"needs Ray, which is not installed: {INSTALL_RAY}")
     if cfg.device != "cpu":
         raise ConfigError(
             "device",
