@@ -64,19 +64,19 @@ def time_limit(seconds: int):
         signal.signal(signal.SIGALRM, previous)
 
 
+def two_worker_run(tmp_path_factory, collector, *extra):
+    """The overrides of a FAST run with ``collector`` and 2 workers, in fresh directories."""
+    out = tmp_path_factory.mktemp(collector) / "run"
+    cache = tmp_path_factory.mktemp(f"{collector}_data")
+    options = [f"collector={collector}", "collector.num_workers=2", *extra]
+    return [*FAST, f"output_dir={out}", f"data_cache_dir={cache}", *options]
+
+
 @pytest.fixture(scope="module")
 def async_run(tmp_path_factory):
     """DUAL with ``collector=multi_async`` (2 workers): interrupted at 60 frames, resumed;
     every collected batch is recorded as ``store`` receives it."""
-    out = tmp_path_factory.mktemp("multi_async") / "run"
-    cache = tmp_path_factory.mktemp("collectors_data")
-    overrides = [
-        *FAST,
-        f"output_dir={out}",
-        f"data_cache_dir={cache}",
-        "collector=multi_async",
-        "collector.num_workers=2",
-    ]
+    overrides = two_worker_run(tmp_path_factory, "multi_async")
     batches: list = []
     original = O2ORun.store
 

@@ -22,10 +22,10 @@ import torch
 from tensordict import TensorDict
 from test_collectors import (
     CONFIG_DIR,
-    FAST,
     assert_contiguous_episodes,
     assert_previous_keys_follow_trajectories,
     time_limit,
+    two_worker_run,
 )
 
 from torchrl_dual.recipe import O2ORun, compose_checked, ray_collector, run
@@ -58,16 +58,8 @@ def ray_run(tmp_path_factory):
     batch ``store`` receives and, after every push, the learner's weights and each actor's."""
     import ray
 
-    out = tmp_path_factory.mktemp("ray") / "run"
-    cache = tmp_path_factory.mktemp("ray_data")
-    overrides = [
-        *FAST,
-        f"output_dir={out}",
-        f"data_cache_dir={cache}",
-        "collector=ray",
-        "collector.num_workers=2",
-        "collector.address=local",  # a new local runtime, even if this machine runs a cluster
-    ]
+    # collector.address=local: a new local runtime, even if this machine runs a cluster
+    overrides = two_worker_run(tmp_path_factory, "ray", "collector.address=local")
     batches, pushes, during = [], [], []
     kind, store = COLLECTORS["ray"], O2ORun.store
 
