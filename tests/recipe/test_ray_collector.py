@@ -30,7 +30,7 @@ from test_collectors import (
 
 from torchrl_dual.recipe import O2ORun, compose_checked, ray_collector, run
 from torchrl_dual.recipe.collectors import COLLECTORS
-from torchrl_dual.recipe.errors import ConfigError
+from torchrl_dual.recipe.errors import ConfigError, UserError
 from torchrl_dual.recipe.ray_collector import InterleavedTrajectories
 
 needs_ray = pytest.mark.skipif(
@@ -179,3 +179,26 @@ def test_collector_ray_without_ray_names_the_extra_to_install(tmp_path, monkeypa
     assert str(error.value) == (
         'collector=ray: needs Ray, which is not installed: pip install "torchrl-dual[ray]"'
     )
+
+
+@needs_ray
+def test_collector_address_auto_without_a_cluster_is_a_user_error(tmp_path, monkeypatch):
+    import ray
+    from ray._private.services import canonicalize_bootstrap_address
+
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    if ray.is_initialized() or canonicalize_bootstrap_address(None) is not None:
+        pytest.skip("a Ray runtime or cluster runs here: auto would connect to it")
+    cfg = compose_checked(
+        CONFIG_DIR, ["collector=ray", "collector.address=auto", f"output_dir={tmp_path}"]
+    )
+    fake_run = SimpleNamespace(
+        cfg=cfg, frames=0, learner=SimpleNamespace(exploration_policy=torch.nn.Linear(1, 1))
+    )
+    with pytest.raises(UserError) as error:
+        COLLECTORS["ray"].make(fake_run, 100)
+    assert str(error.value).startswith("collector.address=auto: Could not find any running")
+    assert str(error.value).endswith(
+        "Start a cluster (ray start --head) or use collector.address=null for a local Ray runtime"
+    )
+    assert not ray.is_initialized()

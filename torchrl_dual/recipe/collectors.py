@@ -16,9 +16,9 @@
   (``collector.sync=true``) or first-come like ``multi_async``; see
   :mod:`torchrl_dual.recipe.ray_collector`.
 
-Every worker builds its env with :class:`TrainEnvFactory` (a picklable ``cfg -> env``, so
-its ``PreviousTransition`` and hence the shift signal ``d_t`` of Eq. (10) follow that
-worker's own trajectory). The workers act with an *acting copy* of the learner's
+Every worker builds its env with :class:`~torchrl_dual.recipe.env_kits.TrainEnvFactory`
+(a picklable ``cfg -> env``, so its ``PreviousTransition`` and hence the shift signal
+``d_t`` of Eq. (10) follow that worker's own trajectory). The workers act with an *acting copy* of the learner's
 exploration policy, whose tensors they share (TorchRL's ``SharedMemWeightSyncScheme``):
 the updates never touch it, so an asynchronous worker never reads a network mid-update or a
 Laplace posterior mid-refit. The run calls its collector kind's ``push`` after every block
@@ -30,9 +30,10 @@ the same tensors (:func:`~torchrl_dual.recipe.ray_collector.push_to_actors`).
 
 Episode ids: :func:`assign_episodes` maps TorchRL's ``("collector", "traj_ids")`` (unique
 across the workers of one collector; Ray's remote collectors number them apart, see
-:class:`~torchrl_dual.recipe.ray_collector.InterleavedTrajectories`) to the run's episode ids, so that an episode that
-spans batches keeps its id and ids are never reused, also after a resume (a resumed run's
-collector starts new trajectories, numbered from the largest stored id + 1).
+:class:`~torchrl_dual.recipe.ray_collector.InterleavedTrajectories`) to the run's episode
+ids, so that an episode that spans batches keeps its id and ids are never reused, also
+after a resume (a resumed run's collector starts new trajectories, numbered from the
+largest stored id + 1).
 
 Cal-QL's Monte-Carlo labels (``critic=calql``) hold one stream of transitions until its
 episode ends: :func:`check_collector` refuses them with several workers.
@@ -189,7 +190,7 @@ class CollectorKind(NamedTuple):
     """One ``collector.name``: its schema, how the run builds it, how weights reach it."""
 
     settings: type
-    """The dataclass of ``collector.*`` (checked by :func:`~torchrl_dual.recipe.validate_config`)."""
+    """The dataclass of ``collector.*`` (checked by ``validate_config``)."""
     make: Callable[[O2ORun, int], BaseCollector]
     """``(run, total_frames) -> collector``, acting with the learner's exploration policy."""
     push: Callable[[BaseCollector, nn.Module], None]
