@@ -4,15 +4,20 @@ For each env (PointMaze U-maze as the recipe builds it, Gymnasium's MuJoCo Hoppe
 TorchRL's ``GymEnv``; both with :class:`~torchrl_dual.transforms.PreviousTransition`) and
 each policy (``random``: TorchRL's ``RandomPolicy``; ``mlp``: a stand-in for DUAL's acting
 cost, an ensemble of 5 MLPs of width 256 whose mean is the action), runs
-``collector=single`` and ``multi_sync`` / ``multi_async`` at each worker count with the
-collectors the recipe builds (TorchRL's ``Collector``, ``MultiSyncCollector``,
-``MultiAsyncCollector``) and prints env steps per second of wall-clock time, and the ratio
-to ``single`` measured in the same run. The first batch of every collector (worker start-up)
-is left out of the timing; the policy's weights are pushed after every batch, as the recipe
-does after every update block (there are no updates here: this is collection alone).
+``collector=single`` and ``multi_sync`` / ``multi_async`` / ``ray`` at each worker count
+with the collectors the recipe builds (TorchRL's ``Collector``, ``MultiSyncCollector``,
+``MultiAsyncCollector``, and ``RayCollector`` with one-env remote collectors, asynchronous
+as the recipe's ``collector=ray`` default) and prints env steps per second of wall-clock
+time, and the ratio to ``single`` measured in the same run. The first batch of every
+collector (worker start-up) is left out of the timing; the policy's weights are pushed
+after every batch, as the recipe does after every update block (there are no updates
+here: this is collection alone). ``ray`` runs on one Ray runtime for the whole script:
+the cluster at ``--ray-address``, else (as the recipe's ``collector.address=null``) a
+running cluster or a new local runtime; its start-up is not timed.
 
 Example:
     python benchmarks/collectors.py --envs pointmaze hopper --workers 1 2 --frames 4000
+    python benchmarks/collectors.py --collectors single ray --ray-address auto
 """
 
 from __future__ import annotations
@@ -22,18 +27,30 @@ import functools
 import json
 import os
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
 import torch
+from learning_backends import connect_ray
 from tensordict import TensorDict
 from tensordict.nn import TensorDictModule
 from torch import nn
-from torchrl.collectors import Collector, MultiAsyncCollector, MultiSyncCollector, RandomPolicy
+from torchrl.collectors import (
+    BaseCollector,
+    Collector,
+    MultiAsyncCollector,
+    MultiSyncCollector,
+    RandomPolicy,
+)
 from torchrl.envs import DoubleToFloat, EnvBase, GymEnv
 from torchrl.envs.utils import ExplorationType
 
 from torchrl_dual.envs import make_pointmaze_env
+from torchrl_dual.recipe.ray_collector import INSTALL_RAY, ray_installed
 from torchrl_dual.transforms import PreviousTransition
+
+RAY = ray_installed()
 
 
 def make_env(name: str) -> EnvBase:
@@ -74,6 +91,26 @@ def make_policy(kind: str, env: EnvBase) -> nn.Module:
     return TensorDictModule(module, in_keys=["observation"], out_keys=["action"])
 
 
+def make_ray_collector(
+    factory: Callable[[], EnvBase], policy: nn.Module, workers: int, common: dict
+) -> BaseCollector:
+    """TorchRL's ``RayCollector``, as the recipe's ``collector=ray`` builds it: ``workers``
+    remote collectors of one CPU, one env each, asynchronous."""
+    from torchrl.collectors.distributed import RayCollector  # imports ray
+
+    kwargs = {"auto_register_policy_transforms": common["auto_register_policy_transforms"]}
+    return RayCollector(
+        [factory] * workers,
+        policy,
+        frames_per_batch=common["frames_per_batch"],
+        total_frames=common["total_frames"],
+        exploration_type=common["exploration_type"],
+        device="cpu",
+        collector_kwargs=kwargs,
+        remote_configs={"num_cpus": 1},
+    )
+
+
 def steps_per_second(
     env_name: str, policy_kind: str, collector: str, workers: int, frames: int, batch: int
 ) -> float:
@@ -92,8 +129,11 @@ def steps_per_second(
         runner = Collector(probe, policy, **common)
     else:
         probe.close()
-        cls = MultiSyncCollector if collector == "multi_sync" else MultiAsyncCollector
-        runner = cls([factory] * workers, policy, num_threads=1, **common)
+        if collector == "ray":
+            runner = make_ray_collector(factory, policy, workers, common)
+        else:
+            cls = MultiSyncCollector if collector == "multi_sync" else MultiAsyncCollector
+            runner = cls([factory] * workers, policy, num_threads=1, **common)
         runner.set_seed(1)
     push = not isinstance(runner, Collector) and isinstance(policy, TensorDictModule)
     try:
@@ -117,16 +157,52 @@ def main() -> None:
     parser.add_argument("--workers", nargs="+", type=int, default=[1, 2])
     parser.add_argument("--frames", type=int, default=4000, help="timed frames per setting")
     parser.add_argument("--batch", type=int, default=200, help="frames per collector batch")
+    parser.add_argument(
+        "--collectors",
+        nargs="+",
+        choices=["multi_sync", "multi_async", "ray"],
+        default=["multi_sync", "multi_async", *(["ray"] if RAY else [])],
+        help="compared with single at each worker count (default: all, ray if installed)",
+    )
+    parser.add_argument(
+        "--ray-address",
+        help="ray: the cluster's address (default: a running cluster, else a local runtime)",
+    )
     parser.add_argument("--json", type=Path, default=None, help="write the figures here")
     args = parser.parse_args()
+    if "ray" in args.collectors and not RAY:
+        parser.error(f"--collectors ray needs Ray, which is not installed: {INSTALL_RAY}")
     torch.set_num_threads(1)
+    runtime = ray_runtime(args.ray_address) if "ray" in args.collectors else nullcontext()
+    with runtime:
+        run_settings(args)
+
+
+@contextmanager
+def ray_runtime(address: str | None) -> Iterator[None]:
+    """Connected to Ray for the ``with`` block (``learning_backends.connect_ray``); a
+    connection the block made is ended after it (a local runtime stops, a cluster keeps
+    running), one made before it is left as it is."""
+    import ray
+
+    started = not ray.is_initialized()
+    connect_ray(address)
+    try:
+        yield
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def run_settings(args: argparse.Namespace) -> None:
+    """Times every (env, policy, collector, workers) of ``args`` and prints the table."""
     print("| env | policy | collector | workers | env steps / s | vs single |", flush=True)
     print("|---|---|---|---:|---:|---:|", flush=True)
     results = []
     for env_name in args.envs:
         for policy in args.policies:
             settings = [("single", 1)]
-            settings += [(c, w) for c in ("multi_sync", "multi_async") for w in args.workers]
+            settings += [(c, w) for c in args.collectors for w in args.workers]
             single = None
             for collector, workers in settings:
                 rate = steps_per_second(

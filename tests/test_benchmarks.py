@@ -386,3 +386,21 @@ def test_every_cell_and_variant_of_the_grid_is_a_valid_recipe_config(tmp_path):
         assert cfg.algo == learning.VARIANTS[variant][0].split("=")[1], (name, variant)
     in_grid = {v for c in learning.CELLS.values() for v in c.variants}
     assert {v for v, _ in pairs} == in_grid and len(pairs) >= len(learning.CELLS)
+
+
+# ---------------------------------------------------------------- collectors.py
+def test_collectors_benchmark_times_single_and_a_worker_collector(tmp_path):
+    # multi_async only: a spawned worker costs ≈ 10 s here, Ray ≈ 20 s more (its runtime
+    # and one actor); the recipe's collector=ray has its own test (test_ray_collector.py)
+    out = tmp_path / "collectors.json"
+    proc = run_script(
+        "benchmarks/collectors.py",
+        *("--envs", "pointmaze", "--policies", "random", "--workers", "1"),
+        *("--frames", "40", "--batch", "20", "--collectors", "multi_async"),
+        *("--json", str(out)),
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    rows = json.loads(out.read_text())
+    assert [(r["collector"], r["workers"]) for r in rows] == [("single", 1), ("multi_async", 1)]
+    assert all(r["steps_per_second"] > 0 for r in rows)
+    assert "| pointmaze | random | multi_async | 1 |" in proc.stdout

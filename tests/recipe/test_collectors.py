@@ -5,7 +5,7 @@ stores one transition per collected frame, each episode one contiguous trajector
 id never used before (also across the resume), and each worker's ``previous_*`` keys
 follow that worker's own trajectory. Workers act with the latest weights: a buffer
 *replaced* (not updated in place, so shared memory alone cannot carry it) reaches the
-workers' next batch after :func:`push_weights`, and not before. Episode ids of one worker
+workers' next batch after the push (``push_to_processes``), and not before. Episode ids of one worker
 are those of the former single-stream formula. No worker process outlives a run, and the
 run shuts its collector down on Ctrl-C and on an error.
 """
@@ -24,7 +24,7 @@ from tensordict.nn import TensorDictModule
 from torch import nn
 
 from torchrl_dual.recipe import O2ORun, compose_checked, run
-from torchrl_dual.recipe.collectors import COLLECTORS, assign_episodes, push_weights
+from torchrl_dual.recipe.collectors import COLLECTORS, assign_episodes
 
 pytestmark = pytest.mark.long_running(seconds=55)  # starts first under xdist
 CONFIG_DIR = REPO / "recipes" / "config"
@@ -65,19 +65,19 @@ def time_limit(seconds: int):
         signal.signal(signal.SIGALRM, previous)
 
 
+def two_worker_run(tmp_path_factory, collector, *extra):
+    """The overrides of a FAST run with ``collector`` and 2 workers, in fresh directories."""
+    out = tmp_path_factory.mktemp(collector) / "run"
+    cache = tmp_path_factory.mktemp(f"{collector}_data")
+    options = [f"collector={collector}", "collector.num_workers=2", *extra]
+    return [*FAST, f"output_dir={out}", f"data_cache_dir={cache}", *options]
+
+
 @pytest.fixture(scope="module")
 def async_run(tmp_path_factory):
     """DUAL with ``collector=multi_async`` (2 workers): interrupted at 60 frames, resumed;
     every collected batch is recorded as ``store`` receives it."""
-    out = tmp_path_factory.mktemp("multi_async") / "run"
-    cache = tmp_path_factory.mktemp("collectors_data")
-    overrides = [
-        *FAST,
-        f"output_dir={out}",
-        f"data_cache_dir={cache}",
-        "collector=multi_async",
-        "collector.num_workers=2",
-    ]
+    overrides = two_worker_run(tmp_path_factory, "multi_async")
     batches: list = []
     original = O2ORun.store
 
@@ -110,6 +110,33 @@ def episodes_of(online):
     return {int(e): online[ids == e] for e in ids.unique()}
 
 
+def assert_contiguous_episodes(online, max_steps=15):
+    """Each stored episode is one trajectory: each transition starts where the previous one
+    ended, at most ``max_steps`` (env.max_episode_steps) long, done at most at its end."""
+    for episode in episodes_of(online).values():
+        assert torch.equal(episode["observation"][1:], episode["next", "observation"][:-1])
+        assert len(episode) <= max_steps
+        assert not episode["next", "done"][:-1].any()
+
+
+def assert_previous_keys_follow_trajectories(batches):
+    """In every collected batch, each trajectory's ``previous_*`` keys are its own previous
+    step (none at its first step); returns how many steps were checked."""
+    checked = 0
+    for batch in batches:
+        for traj in batch["collector", "traj_ids"].unique():
+            steps = batch[batch["collector", "traj_ids"] == traj]
+            valid = steps["previous_valid"].reshape(-1)
+            # a trajectory's first step has no previous step; later ones have theirs
+            assert torch.equal(steps["previous_observation"][1:], steps["observation"][:-1])
+            assert torch.equal(steps["previous_action"][1:], steps["action"][:-1])
+            assert valid[1:].all()
+            checked += len(steps) - 1
+        first = batch["previous_valid"].reshape(-1) == 0
+        assert (batch["previous_observation"][first] == 0).all()
+    return checked
+
+
 def test_a_multi_worker_run_stores_every_frame_once_with_unique_contiguous_episodes(async_run):
     interrupted, final = async_run.interrupted, async_run.final
     assert (interrupted["frames"], final["frames"]) == (60, 120)
@@ -121,30 +148,13 @@ def test_a_multi_worker_run_stores_every_frame_once_with_unique_contiguous_episo
     after = set(online[60:]["episode"].tolist())
     assert min(before | after) > async_run.offline_max
     assert before.isdisjoint(after)
-    for episode in episodes_of(online).values():
-        # one trajectory: each transition starts where the previous one ended ...
-        assert torch.equal(episode["observation"][1:], episode["next", "observation"][:-1])
-        # ... at most 15 steps (env.max_episode_steps), done at most at its last step
-        assert len(episode) <= 15
-        assert not episode["next", "done"][:-1].any()
+    assert_contiguous_episodes(online)
     # both workers' batches were stored (async: whichever is ready first)
     assert len({b["collector", "traj_ids"].min().item() for b in async_run.batches}) > 1
 
 
 def test_each_worker_s_previous_keys_follow_its_own_trajectory(async_run):
-    checked = 0
-    for batch in async_run.batches:
-        for traj in batch["collector", "traj_ids"].unique():
-            steps = batch[batch["collector", "traj_ids"] == traj]
-            valid = steps["previous_valid"].reshape(-1)
-            # a trajectory's first step has no previous step; later ones have theirs
-            assert torch.equal(steps["previous_observation"][1:], steps["observation"][:-1])
-            assert torch.equal(steps["previous_action"][1:], steps["action"][:-1])
-            assert valid[1:].all()
-            checked += len(steps) - 1
-        first = batch["previous_valid"].reshape(-1) == 0
-        assert (batch["previous_observation"][first] == 0).all()
-    assert checked > 60
+    assert assert_previous_keys_follow_trajectories(async_run.batches) > 60
 
 
 def test_no_worker_outlives_an_interrupted_or_finished_run(async_run):
@@ -170,7 +180,8 @@ def test_workers_act_with_the_weights_and_buffers_pushed_after_an_update_block()
     fake_run = SimpleNamespace(
         cfg=cfg, frames=0, learner=SimpleNamespace(exploration_policy=policy)
     )
-    collector = COLLECTORS["multi_sync"][1](fake_run, 200)
+    kind = COLLECTORS["multi_sync"]
+    collector = kind.make(fake_run, 200)
     seen = []
     try:
         with time_limit(120):
@@ -181,13 +192,13 @@ def test_workers_act_with_the_weights_and_buffers_pushed_after_an_update_block()
                     with torch.no_grad():
                         module.a.add_(0.5)
                     module.b = torch.full((2,), 0.25)
-                    push_weights(collector, policy)
+                    kind.push(collector, policy)
                 if i == 1:  # changed again, not pushed: the workers keep the last push
                     with torch.no_grad():
                         module.a.add_(10.0)
                     module.b.fill_(-1.0)
                 if i == 2:
-                    push_weights(collector, policy)
+                    kind.push(collector, policy)
                 if i == 3:
                     break
     finally:

@@ -138,8 +138,8 @@ CASES = [
     ),
     ("logger.project=dual", "unknown key 'logger.project'"),
     (
-        "collector=ray",
-        "collector=ray: unknown option; choose one of multi_async, multi_sync, single",
+        "collector=mpi",
+        "collector=mpi: unknown option; choose one of multi_async, multi_sync, ray, single",
     ),
     (
         "collector=multi_sync collector.num_workers=0",
@@ -148,7 +148,8 @@ CASES = [
     (
         "+collector.num_workers=2",
         "collector.num_workers=2: collector=single collects in this process; choose "
-        "collector=multi_sync or collector=multi_async for worker processes",
+        "collector=multi_sync or collector=multi_async for worker processes, collector=ray "
+        "for Ray actors",
     ),
     (
         "collector=multi_sync collector.num_workers=3",

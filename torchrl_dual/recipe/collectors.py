@@ -10,22 +10,30 @@
 * ``multi_async`` (``collector/multi_async.yaml``): TorchRL's
   :class:`~torchrl.collectors.MultiAsyncCollector`; each worker keeps collecting and the
   run gets whichever worker's ``budget.frames_per_batch`` frames are ready first.
+* ``ray`` (``collector/ray.yaml``, the ``torchrl-dual[ray]`` extra): TorchRL's
+  :class:`~torchrl.collectors.distributed.RayCollector`, ``collector.num_workers`` remote
+  collectors (Ray actors, possibly on other nodes), batches stacked like ``multi_sync``
+  (``collector.sync=true``) or first-come like ``multi_async``; see
+  :mod:`torchrl_dual.recipe.ray_collector`.
 
-Every worker builds its env with :class:`TrainEnvFactory` (a picklable ``cfg -> env``, so
-its ``PreviousTransition`` and hence the shift signal ``d_t`` of Eq. (10) follow that
-worker's own trajectory). The workers act with an *acting copy* of the learner's
+Every worker builds its env with :class:`~torchrl_dual.recipe.env_kits.TrainEnvFactory`
+(a picklable ``cfg -> env``, so its ``PreviousTransition`` and hence the shift signal
+``d_t`` of Eq. (10) follow that worker's own trajectory). The workers act with an *acting copy* of the learner's
 exploration policy, whose tensors they share (TorchRL's ``SharedMemWeightSyncScheme``):
 the updates never touch it, so an asynchronous worker never reads a network mid-update or a
-Laplace posterior mid-refit. The run calls :func:`push_weights` after every block of
-updates, which copies the current parameters *and buffers* (DUAL's Laplace posterior
-draws, refitted every ``budget.laplace_refit_every`` updates) into the acting copy;
-``multi_sync``'s next batch acts with them, ``multi_async``'s batches in flight switch over
-mid-batch.
+Laplace posterior mid-refit. The run calls its collector kind's ``push`` after every block
+of updates (:func:`push_to_processes`: the current parameters *and buffers*, DUAL's
+Laplace posterior draws refitted every ``budget.laplace_refit_every`` updates, copied into
+the acting copy); ``multi_sync``'s next batch acts with them, ``multi_async``'s batches in
+flight switch over mid-batch. Ray's remote collectors hold their own copies and receive
+the same tensors (:func:`~torchrl_dual.recipe.ray_collector.push_to_actors`).
 
 Episode ids: :func:`assign_episodes` maps TorchRL's ``("collector", "traj_ids")`` (unique
-across the workers of one collector) to the run's episode ids, so that an episode that
-spans batches keeps its id and ids are never reused, also after a resume (a resumed run's
-collector starts new trajectories, numbered from the largest stored id + 1).
+across the workers of one collector; Ray's remote collectors number them apart, see
+:class:`~torchrl_dual.recipe.ray_collector.InterleavedTrajectories`) to the run's episode
+ids, so that an episode that spans batches keeps its id and ids are never reused, also
+after a resume (a resumed run's collector starts new trajectories, numbered from the
+largest stored id + 1).
 
 Cal-QL's Monte-Carlo labels (``critic=calql``) hold one stream of transitions until its
 episode ends: :func:`check_collector` refuses them with several workers.
@@ -36,19 +44,19 @@ from __future__ import annotations
 import copy
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 from tensordict import TensorDict
 from torch import nn
 from torchrl.collectors import Collector, MultiAsyncCollector, MultiSyncCollector
-from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType
 
-from torchrl_dual.recipe import env_kits
+from torchrl_dual.recipe.env_kits import TrainEnvFactory
 from torchrl_dual.recipe.errors import ConfigError
-from torchrl_dual.recipe.rules import Integer, Text, key
+from torchrl_dual.recipe.ray_collector import check_ray_collector, make_ray, push_to_actors
+from torchrl_dual.recipe.rules import Flag, Integer, Maybe, Text, key
 
 if TYPE_CHECKING:
     from torchrl.collectors import BaseCollector
@@ -70,32 +78,13 @@ class MultiCollectorSettings(CollectorSettings):
     num_workers: int = key(Integer(1), "worker processes, each stepping its own env")
 
 
-class TrainEnvFactory:
-    """``() -> env``: the online env of ``cfg`` (with ``PreviousTransition``), picklable.
+@dataclass
+class RayCollectorSettings(CollectorSettings):
+    """``collector/ray.yaml`` (:mod:`torchrl_dual.recipe.ray_collector`)."""
 
-    It holds the resolved config as plain containers, so a spawned worker process receives
-    a few kilobytes rather than the run's offline data; kits whose env depends on the data
-    (the Minari kits' observation normalization) read it from the data cache.
-
-    Args:
-        cfg (DictConfig): a validated recipe config.
-
-    Examples:
-        >>> import pickle
-        >>> env = {"kind": "pointmaze", "maze": "umaze", "max_episode_steps": 20}
-        >>> env.update(shift="none", shift_angle=0.0, shift_scale=None)
-        >>> cfg = OmegaConf.create({"seed": 0, "env": env})  # what the PointMaze kit reads
-        >>> factory = pickle.loads(pickle.dumps(TrainEnvFactory(cfg)))
-        >>> env = factory()
-        >>> "previous_observation" in env.reset().keys()
-        True
-    """
-
-    def __init__(self, cfg: DictConfig) -> None:
-        self.config = OmegaConf.to_container(cfg, resolve=True)
-
-    def __call__(self) -> EnvBase:
-        return env_kits.make_train_env(OmegaConf.create(self.config), None)
+    num_workers: int = key(Integer(1), "remote collectors (Ray actors), each stepping an env")
+    sync: bool = key(Flag(), "true: batches stacked as multi_sync; false: first come")
+    address: Any = key(Maybe(Text()), "the Ray cluster (null: a running one, else local)")
 
 
 def make_single(run: O2ORun, total_frames: int) -> BaseCollector:
@@ -138,14 +127,6 @@ def make_multi(collector_class: type) -> Callable[[O2ORun, int], BaseCollector]:
     return make
 
 
-COLLECTORS: dict[str, tuple[type, Callable[[O2ORun, int], BaseCollector]]] = {
-    "single": (CollectorSettings, make_single),
-    "multi_sync": (MultiCollectorSettings, make_multi(MultiSyncCollector)),
-    "multi_async": (MultiCollectorSettings, make_multi(MultiAsyncCollector)),
-}
-"""``collector.name`` -> (schema of ``collector.*``, ``(run, total_frames) -> collector``)."""
-
-
 def check_worker_count(cfg: DictConfig) -> None:
     """``collector.num_workers`` with ``collector=single`` (run before the key checks, which
     would only call it an unknown key)."""
@@ -154,41 +135,48 @@ def check_worker_count(cfg: DictConfig) -> None:
             "collector.num_workers",
             cfg.collector.num_workers,
             "collector=single collects in this process; choose collector=multi_sync or "
-            "collector=multi_async for worker processes",
+            "collector=multi_async for worker processes, collector=ray for Ray actors",
         )
 
 
 def check_collector(cfg: DictConfig) -> None:
     """The combinations of ``collector.*`` with other keys that cannot work."""
-    if cfg.collector.name == "single":
+    name = cfg.collector.name
+    if name == "single":
         return
+    if name == "ray":
+        check_ray_collector(cfg)
     workers = cfg.collector.num_workers
-    if cfg.collector.name == "multi_sync" and cfg.budget.frames_per_batch % workers:
+    stacked = name == "multi_sync" or (name == "ray" and cfg.collector.sync)
+    if stacked and cfg.budget.frames_per_batch % workers:  # one slice per worker
+        sync = " collector.sync=true" if name == "ray" else ""
         raise ConfigError(
             "budget.frames_per_batch",
             cfg.budget.frames_per_batch,
-            f"collector=multi_sync splits each batch over collector.num_workers={workers}: "
+            f"collector={name}{sync} splits each batch over collector.num_workers={workers}: "
             "use a multiple of it",
         )
     if cfg.critic.name == "calql":
         raise ConfigError(
             "collector",
-            cfg.collector.name,
+            name,
             "critic=calql labels one stream of online episodes with Monte-Carlo returns; "
             "use collector=single with it",
         )
 
 
-def push_weights(collector: BaseCollector, policy: nn.Module) -> None:
+def push_nothing(collector: BaseCollector, policy: nn.Module) -> None:
+    """``collector=single`` acts with ``policy`` itself: nothing to push."""
+
+
+def push_to_processes(collector: BaseCollector, policy: nn.Module) -> None:
     """Copies ``policy``'s current parameters and buffers into the collector's acting copy,
-    which its workers share (nothing to do for ``single``, which acts with ``policy``).
+    which its worker processes share.
 
     Raises:
         RuntimeError: a worker process has died (its traceback is printed above); the
             run's ``finally`` then shuts the others down.
     """
-    if isinstance(collector, Collector):
-        return
     for index, process in enumerate(collector.procs):
         if not process.is_alive():  # it would never acknowledge the new weights
             raise RuntimeError(
@@ -196,6 +184,31 @@ def push_weights(collector: BaseCollector, policy: nn.Module) -> None:
                 "printed above"
             )
     collector.update_policy_weights_(TensorDict.from_module(policy).data)
+
+
+class CollectorKind(NamedTuple):
+    """One ``collector.name``: its schema, how the run builds it, how weights reach it."""
+
+    settings: type
+    """The dataclass of ``collector.*`` (checked by ``validate_config``)."""
+    make: Callable[[O2ORun, int], BaseCollector]
+    """``(run, total_frames) -> collector``, acting with the learner's exploration policy."""
+    push: Callable[[BaseCollector, nn.Module], None]
+    """``(collector, policy) -> None``, after every update block: the policy's current
+    parameters and buffers reach the collector's next batch."""
+
+
+COLLECTORS: dict[str, CollectorKind] = {
+    "single": CollectorKind(CollectorSettings, make_single, push_nothing),
+    "multi_sync": CollectorKind(
+        MultiCollectorSettings, make_multi(MultiSyncCollector), push_to_processes
+    ),
+    "multi_async": CollectorKind(
+        MultiCollectorSettings, make_multi(MultiAsyncCollector), push_to_processes
+    ),
+    "ray": CollectorKind(RayCollectorSettings, make_ray, push_to_actors),
+}
+"""``collector.name`` -> its :class:`CollectorKind`."""
 
 
 def assign_episodes(

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
 from torchrl.envs import EnvBase
@@ -247,6 +247,35 @@ def make_train_env(cfg: DictConfig, data: OfflineDataset | None = None) -> EnvBa
     to the policy; the policy turns them into ``d_t`` of Eq. (10). ``data`` is
     ``D_offline`` when the caller has it (kits whose env depends on it read it otherwise)."""
     return env_kit(cfg).make_env(cfg, data).append_transform(PreviousTransition())
+
+
+class TrainEnvFactory:
+    """``() -> env``: the online env of ``cfg`` (with ``PreviousTransition``), picklable.
+
+    It holds the resolved config as plain containers, so a spawned worker process (or a
+    Ray actor) receives a few kilobytes rather than the run's offline data; kits whose env
+    depends on the data (the Minari kits' observation normalization) read it from the data
+    cache.
+
+    Args:
+        cfg (DictConfig): a validated recipe config.
+
+    Examples:
+        >>> import pickle
+        >>> env = {"kind": "pointmaze", "maze": "umaze", "max_episode_steps": 20}
+        >>> env.update(shift="none", shift_angle=0.0, shift_scale=None)
+        >>> cfg = OmegaConf.create({"seed": 0, "env": env})  # what the PointMaze kit reads
+        >>> factory = pickle.loads(pickle.dumps(TrainEnvFactory(cfg)))
+        >>> env = factory()
+        >>> "previous_observation" in env.reset().keys()
+        True
+    """
+
+    def __init__(self, cfg: DictConfig) -> None:
+        self.config = OmegaConf.to_container(cfg, resolve=True)
+
+    def __call__(self) -> EnvBase:
+        return make_train_env(OmegaConf.create(self.config), None)
 
 
 def check_dims(env: EnvBase, data: OfflineDataset, name: Any = None) -> None:

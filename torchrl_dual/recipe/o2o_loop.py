@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 from omegaconf import DictConfig
 
-from torchrl_dual.recipe.collectors import push_weights
+from torchrl_dual.recipe.collectors import COLLECTORS
 from torchrl_dual.recipe.learner import Learner
 from torchrl_dual.recipe.o2o_run import O2ORun
 from torchrl_dual.recipe.offline_cache import run_offline_stages
@@ -37,12 +37,13 @@ def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORu
     next_save = run.frames + budget.checkpoint_every
     clock = StageClock(run, "online")
     collector = run.collector() if run.frames < budget.online_frames else None
+    push = COLLECTORS[cfg.collector.name].push  # the weights' way to the collector
     try:
         for batch in collector if collector is not None else ():
             stats = run.store(batch)  # act with the exploration policy, store in D_online
             losses = run.train_online(batch.numel())  # UTD-ratio updates
             run.learner.after_updates()  # DUAL: refit the Laplace posterior when due
-            push_weights(collector, run.learner.exploration_policy)  # to the workers
+            push(collector, run.learner.exploration_policy)  # to the workers
             run.log({**stats, **losses}, run.frames, "online/")
             if (signals := online_signals(run.frames, stats)) is not None:
                 run.online_signals.append(signals)  # the plot's epistemic std and d_t

@@ -271,7 +271,7 @@ class O2ORun:
         the ``collector.name`` entry of :data:`~torchrl_dual.recipe.collectors.COLLECTORS`."""
         remaining = max(self.cfg.budget.online_frames - self.frames, 0)
         self.open_episodes = {}  # a new collector starts new trajectories
-        return COLLECTORS[self.cfg.collector.name][1](self, remaining)
+        return COLLECTORS[self.cfg.collector.name].make(self, remaining)
 
     def store(self, batch: TensorDictBase) -> dict:
         """D_online ← D_online ∪ {(s_t, a_t, s_t+1, r_t)} with the executed action (l. 13)."""

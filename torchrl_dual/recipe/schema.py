@@ -100,7 +100,7 @@ def validate_config(cfg: DictConfig) -> DictConfig:
     kit = _choice(cfg, "env.kind", ENV_KITS, "which environment kit builds the env and data")
     critic_schema, _ = _choice(cfg, "critic.name", CRITICS, "the critic")
     replay_schema, _ = _choice(cfg, "replay.name", REPLAYS, "the online replay")
-    collector_schema, _ = _choice(cfg, "collector.name", COLLECTORS, "the online collector")
+    collector_schema = _choice(cfg, "collector.name", COLLECTORS, "the online collector").settings
     check_worker_count(cfg)
     logger = _choice(cfg, "logger.backend", LOGGERS, "the TorchRL logger backend")
     sections = {
