@@ -18,9 +18,18 @@ from torchrl_dual.recipe import compose_checked
 from torchrl_dual.recipe.dual import DualLearner
 from torchrl_dual.recipe.offline_cache import OfflinePhaseCache, offline_key_config
 
-pytestmark = pytest.mark.long_running(seconds=85)  # starts first under xdist
+pytestmark = pytest.mark.long_running(seconds=40)  # starts first under xdist
 # DUAL's online ablations on a shifted env: everything the online phase reads differs
 FOLLOWER = ("env.shift=rotation", "laplace.num_samples=0", "exploration.shift_weight=0")
+# the smoke budget cut down (what is under test is the sharing, not the training)
+FAST = (
+    "budget.planner_updates=10",
+    "budget.distill_updates=[2,2,2,2,2]",
+    "budget.offline_updates=10",
+    "budget.online_frames=200",
+    "budget.eval_every=200",
+    "budget.eval_episodes=1",
+)
 
 
 def summary(output_dir: Path) -> dict:
@@ -44,7 +53,9 @@ def shared_runs(tmp_path_factory) -> dict:
         "follower": (root / "follower", (f"offline_cache={cache}", *FOLLOWER)),
         "reference": (root / "reference", FOLLOWER),
     }
-    procs = {name: succeeded(run_recipe(out, data, *args)) for name, (out, args) in runs.items()}
+    procs = {
+        name: succeeded(run_recipe(out, data, *FAST, *args)) for name, (out, args) in runs.items()
+    }
     return {"root": root, "cache": cache, "data": data, "procs": procs} | {
         name: out for name, (out, _) in runs.items()
     }
@@ -96,7 +107,7 @@ def test_the_summary_charges_the_shared_stages_at_their_first_cost(shared_runs):
     assert follower["wall_seconds"] == pytest.approx(
         follower["offline_seconds"] + stages["online"], abs=1e-2
     )
-    assert follower["shift"] == "rotation" and follower["frames"] == 400
+    assert follower["shift"] == "rotation" and follower["frames"] == 200
 
 
 def test_a_corrupt_snapshot_is_named_with_the_fix(shared_runs, tmp_path):
@@ -105,7 +116,8 @@ def test_a_corrupt_snapshot_is_named_with_the_fix(shared_runs, tmp_path):
     target = cache / entry.name
     target.mkdir(parents=True)
     (target / "offline_phase.pt").write_bytes(b"not a checkpoint")
-    line = failed(run_recipe(tmp_path / "run", shared_runs["data"], f"offline_cache={cache}"))
+    run = run_recipe(tmp_path / "run", shared_runs["data"], *FAST, f"offline_cache={cache}")
+    line = failed(run)
     assert line.startswith(f"error: offline_cache={cache}:")
     assert "delete that directory to recompute it" in line
 
