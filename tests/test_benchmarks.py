@@ -404,3 +404,11 @@ def test_collectors_benchmark_times_single_and_a_worker_collector(tmp_path):
     assert [(r["collector"], r["workers"]) for r in rows] == [("single", 1), ("multi_async", 1)]
     assert all(r["steps_per_second"] > 0 for r in rows)
     assert "| pointmaze | random | multi_async | 1 |" in proc.stdout
+
+
+def test_ensemble_eval_benchmark_checks_equality_and_prints_the_ratio():
+    args = ("--members", "2", "3", "--reps", "2", "--rounds", "1", "--width", "16")
+    proc = run_script("benchmarks/ensemble_eval.py", *args)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    rows = [line for line in proc.stdout.splitlines() if line.startswith("| 2 |")]
+    assert len(rows) == 1 and rows[0].endswith("x |")

@@ -298,3 +298,37 @@ def test_sac_without_explicit_critic_params_keeps_gradients_out_of_q():
     loss_fn = WeightedMAPActorLoss(_mock_actor(), qvalue_network=qvalue, weighting="sac")
     loss_fn(_mock_batch())["loss_actor"].backward()
     assert all(p.grad is None for p in qvalue.parameters())
+
+
+def test_a_ten_member_ensemble_gives_the_min_by_hand_and_its_action_gradient():
+    """SO2's critic: all members evaluated in one vmapped call; the value is the min of
+    the members computed one by one, and so is its gradient with respect to the action
+    (the path the ``sac`` weighting trains the actor through)."""
+    members = 10
+    nets = []
+    for seed in range(members):
+        torch.manual_seed(seed)
+        nets.append(
+            ValueOperator(
+                MLP(in_features=OBS + ACT, out_features=1, num_cells=[8]),
+                in_keys=["observation", "action"],
+            )
+        )
+    params = TensorDict.from_modules(*nets, as_module=True)
+    loss_fn = WeightedMAPActorLoss(
+        _mock_actor(), qvalue_network=nets[0], qvalue_params=params, weighting="sac"
+    )
+    batch = _mock_batch(32)
+    action = batch["action"].clone().requires_grad_(True)
+    batch["action"] = action
+    q = loss_fn.q_value(batch)
+    (grad,) = torch.autograd.grad(q.sum(), action)
+
+    by_hand_action = action.detach().clone().requires_grad_(True)
+    sa = torch.cat([batch["observation"], by_hand_action], -1)
+    expected = torch.stack([mlp_by_hand(params[k].data, sa) for k in range(members)]).min(0)
+    (expected_grad,) = torch.autograd.grad(expected.values.sum(), by_hand_action)
+    assert expected.indices.unique().numel() > 1  # the min switches member across the batch
+    torch.testing.assert_close(q, expected.values)
+    torch.testing.assert_close(grad, expected_grad)
+    assert all(p.grad is None for p in params.values(True, True))  # the critic stays fixed
