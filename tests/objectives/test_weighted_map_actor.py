@@ -9,6 +9,7 @@ import torch
 from tensordict import TensorDict
 from tensordict.nn import TensorDictModule
 from torch import nn
+from torchrl.data import Bounded, Unbounded
 from torchrl.modules import MLP, ValueOperator
 from torchrl.objectives import IQLLoss
 from toy import mlp_by_hand, tanh_normal_actor
@@ -17,6 +18,7 @@ from torchrl_dual.modules import LinearHeadActor, PlannerActor
 from torchrl_dual.objectives.weighted_map_actor import WEIGHTINGS, WeightedMAPActorLoss
 
 OBS, ACT = 3, 2
+BOX = Bounded(-1.0, 1.0, shape=(ACT,))
 
 
 # ----------------------------------------------------------------------------- factories
@@ -91,7 +93,7 @@ def _train(loss_fn: WeightedMAPActorLoss, data: TensorDict, steps: int, lr: floa
 def test_gradients_reach_only_the_actor_and_critics_stay_unchanged(weighting):
     iql = _mock_iql()
     actor = _mock_actor()
-    loss_fn = WeightedMAPActorLoss.from_iql(actor, iql, weighting=weighting)
+    loss_fn = WeightedMAPActorLoss.from_iql(actor, iql, weighting=weighting, action_spec=BOX)
     critic_before = {n: p.detach().clone() for n, p in iql.named_parameters()}
     critic_before.update(
         {f"target.{k}": v.clone() for k, v in iql.target_qvalue_network_params.items(True, True)}
@@ -119,7 +121,9 @@ def test_sac_gradient_flows_to_the_actor_through_q_of_the_sampled_action():
     iql = _mock_iql()
     actor = _mock_actor()
     # α = 0: the only path from the loss to the head is Q(s, a ~ π).
-    loss_fn = WeightedMAPActorLoss.from_iql(actor, iql, weighting="sac", entropy_coef=0.0)
+    loss_fn = WeightedMAPActorLoss.from_iql(
+        actor, iql, weighting="sac", entropy_coef=0.0, action_spec=BOX
+    )
     loss_fn(_mock_batch())["loss_actor"].backward()
     assert actor.head.weight.grad.abs().sum() > 0
     assert all(p.grad is None for p in iql.parameters())
@@ -274,6 +278,10 @@ def test_missing_critics_are_rejected_for_weightings_that_need_them():
         WeightedMAPActorLoss(_mock_actor(), qvalue_network=critics["qvalue_network"])
     with pytest.raises(ValueError, match="qvalue_network"):
         WeightedMAPActorLoss(_mock_actor(), weighting="sac")
+    with pytest.raises(ValueError, match="pass action_spec=env.action_spec"):
+        WeightedMAPActorLoss(
+            _mock_actor(), qvalue_network=critics["qvalue_network"], weighting="sac"
+        )
 
 
 @pytest.mark.parametrize("role", ["observation", "action"])
@@ -295,7 +303,9 @@ def test_sac_without_explicit_critic_params_keeps_gradients_out_of_q():
     qvalue = ValueOperator(
         MLP(in_features=OBS + ACT, out_features=1, num_cells=[8]), in_keys=["observation", "action"]
     )
-    loss_fn = WeightedMAPActorLoss(_mock_actor(), qvalue_network=qvalue, weighting="sac")
+    loss_fn = WeightedMAPActorLoss(
+        _mock_actor(), qvalue_network=qvalue, weighting="sac", action_spec=BOX
+    )
     loss_fn(_mock_batch())["loss_actor"].backward()
     assert all(p.grad is None for p in qvalue.parameters())
 
@@ -316,7 +326,11 @@ def test_a_ten_member_ensemble_gives_the_min_by_hand_and_its_action_gradient():
         )
     params = TensorDict.from_modules(*nets, as_module=True)
     loss_fn = WeightedMAPActorLoss(
-        _mock_actor(), qvalue_network=nets[0], qvalue_params=params, weighting="sac"
+        _mock_actor(),
+        qvalue_network=nets[0],
+        qvalue_params=params,
+        weighting="sac",
+        action_spec=BOX,
     )
     batch = _mock_batch(32)
     action = batch["action"].clone().requires_grad_(True)
@@ -332,3 +346,66 @@ def test_a_ten_member_ensemble_gives_the_min_by_hand_and_its_action_gradient():
     torch.testing.assert_close(q, expected.values)
     torch.testing.assert_close(grad, expected_grad)
     assert all(p.grad is None for p in params.values(True, True))  # the critic stays fixed
+
+
+# ----------------------------------------------------------------------------- action box
+class _SlopeQ(nn.Module):
+    """``Q(s, a) = 5 · Σ a``: rises without end along every action dimension, as a critic's
+    extrapolation outside the box may."""
+
+    def forward(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        return 5.0 * action.sum(-1, keepdim=True)
+
+
+def _sac_on_slope(action_spec, bias: float) -> tuple[WeightedMAPActorLoss, LinearHeadActor]:
+    actor = _mock_actor()
+    with torch.no_grad():
+        actor.head.weight.zero_()
+        actor.head.bias.fill_(bias)  # μ(s) = bias in every state and dimension
+    qvalue = ValueOperator(_SlopeQ(), in_keys=["observation", "action"])
+    loss = WeightedMAPActorLoss(
+        actor, qvalue_network=qvalue, weighting="sac", entropy_coef=0.0, action_spec=action_spec
+    )
+    return loss, actor
+
+
+def test_sac_reads_q_at_the_clamped_action_so_an_actor_outside_the_box_gets_no_push():
+    """The runaway ``algo=dual critic=so2`` had (its actor's mean at |μ| ≈ 3 and growing, a
+    constant -6.0 score): Q queried outside the box rewards leaving it. With the box,
+    the loss is ``-Q(s, clamp(a))``, exactly, and a mean beyond the box gets no
+    gradient from Q; inside it, the same push as without a box."""
+    batch = _mock_batch(4096)
+    torch.manual_seed(0)
+    near_edge, actor = _sac_on_slope(BOX, bias=0.8)  # N(0.8, 0.3²): a quarter of the draws clamped
+    out = near_edge(batch.clone(False))
+    out["loss_actor"].backward()
+    # by hand, per dimension, X ~ N(μ, σ²), z = (1 - μ) / σ (the lower face is 6σ away):
+    # E[clamp(X, -1, 1)] = μ Φ(z) - σ φ(z) + (1 - Φ(z)), d/dμ = Φ(z) = P(X < 1)
+    mu, std = 0.8, float(actor.std[0])
+    z = (1.0 - mu) / std
+    cdf, pdf = 0.5 * (1 + math.erf(z / math.sqrt(2))), math.exp(-z * z / 2) / math.sqrt(2 * math.pi)
+    mean_clamped = mu * cdf - std * pdf + (1 - cdf)
+    # Monte-Carlo tolerances ≈ 4 standard errors (4096 draws); without the box the loss
+    # would be -8.0 and the gradient -5.0
+    torch.testing.assert_close(
+        out["loss_actor"], torch.tensor(-5.0 * ACT * mean_clamped), atol=0.1, rtol=0
+    )
+    torch.testing.assert_close(
+        actor.head.bias.grad, torch.full((ACT,), -5.0 * cdf), atol=0.15, rtol=0
+    )
+
+    outside, actor = _sac_on_slope(BOX, bias=4.0)  # every draw of N(4, 0.3²) is clamped to 1
+    out = outside(batch.clone(False))
+    torch.testing.assert_close(out["loss_actor"], torch.tensor(-5.0 * ACT))
+    out["loss_actor"].backward()
+    assert actor.head.bias.grad.abs().max() == 0 and actor.head.weight.grad.abs().max() == 0
+
+    unbounded, actor = _sac_on_slope(Unbounded(shape=(ACT,)), bias=4.0)  # opt-in: no box
+    unbounded(batch.clone(False))["loss_actor"].backward()
+    torch.testing.assert_close(actor.head.bias.grad, torch.full((ACT,), -5.0))
+
+
+def test_the_action_box_follows_the_loss_to_its_device_and_dtype():
+    loss, _ = _sac_on_slope(BOX, bias=0.0)
+    loss.double()  # as .to(device): the bounds are a submodule's buffers
+    assert loss.action_box.low.dtype == loss.action_box.high.dtype == torch.float64

@@ -9,10 +9,12 @@ from tensordict import TensorDict, TensorDictBase, TensorDictParams
 from tensordict.nn import TensorDictModule
 from tensordict.utils import NestedKey
 from torch.distributions import Normal
+from torchrl.data import TensorSpec
 from torchrl.objectives.common import LossModule
 from torchrl.objectives.utils import _vmap_func  # TorchRL's own ensemble evaluation
 
 from torchrl_dual._utils import read_loss_input
+from torchrl_dual.modules.action_box import ActionBox
 from torchrl_dual.modules.actors.last_layer_actor import LastLayerActor
 
 WEIGHTINGS = ("advantage", "sac", "uniform")
@@ -35,8 +37,11 @@ class WeightedMAPActorLoss(LossModule):
     * ``"advantage"`` (default): IQL's ``w = min(exp(β·(Q(s,a) − V(s))), w_max)``, with Q the
       minimum over the critic ensemble. The loss stays a weighted log-likelihood, so
       Thm. 3.3 and the closed-form Laplace of Eq. (8) apply as stated;
-    * ``"sac"``: the Cal-QL / SAC actor loss ``−E_{s∼D, a∼π}[Q(s, a) − α·log π(a | s)]``
-      with a reparameterised ``a``, the paper's Cal-QL variant (note after Thm. 3.3);
+    * ``"sac"``: the Cal-QL / SAC actor loss ``−E_{s∼D, a∼π}[Q(s, ā) − α·log π(a | s)]``
+      with a reparameterised ``a``, the paper's Cal-QL variant (note after Thm. 3.3).
+      ``ā = clamp(a, low, high)`` is the action the env executes (``action_spec``):
+      the critic never saw actions outside the box, and a Gaussian that climbs its
+      extrapolation there leaves the box for good (:mod:`torchrl_dual.modules.action_box`);
     * ``"uniform"``: ``w = 1``, plain behaviour cloning of the planner's first action.
 
     The prior ``p(θ)`` is flat, as in the paper (density 1); the Laplace step picks its
@@ -59,6 +64,9 @@ class WeightedMAPActorLoss(LossModule):
         temperature (float): ``β`` of the advantage weights. Defaults to ``3.0``.
         max_weight (float): ``w_max``. Defaults to ``100.0``.
         entropy_coef (float): ``α`` of the ``"sac"`` variant. Defaults to ``0.2``.
+        action_spec (TensorSpec, optional): the env's ``Bounded`` action spec (an
+            ``Unbounded`` one for a space without bounds); required by ``"sac"``, whose
+            Q is read at the sample clamped to it.
         reduction (str): ``"none"`` | ``"mean"`` | ``"sum"``. Defaults to ``"mean"``.
 
     Examples:
@@ -70,6 +78,14 @@ class WeightedMAPActorLoss(LossModule):
         >>> loss_fn = WeightedMAPActorLoss(actor, weighting="uniform")
         >>> td = TensorDict({"observation": torch.randn(8, 3), "action": torch.randn(8, 2)}, [8])
         >>> loss_fn(td)["loss_actor"].backward()
+        >>> # the Cal-QL variant on a critic Q(s, a), its actions clamped to the box
+        >>> from torchrl.data import Bounded
+        >>> from torchrl.modules import ValueOperator
+        >>> qvalue = ValueOperator(MLP(in_features=5, out_features=1, num_cells=[16]),
+        ...     in_keys=["observation", "action"])
+        >>> sac = WeightedMAPActorLoss(actor, qvalue_network=qvalue, weighting="sac",
+        ...     action_spec=Bounded(-1.0, 1.0, shape=(2,)))
+        >>> sac(td)["loss_actor"].backward()
     """
 
     @dataclass
@@ -111,6 +127,7 @@ class WeightedMAPActorLoss(LossModule):
         temperature: float = 3.0,
         max_weight: float = 100.0,
         entropy_coef: float = 0.2,
+        action_spec: TensorSpec | None = None,
         reduction: str = "mean",
     ) -> None:
         super().__init__()
@@ -120,6 +137,14 @@ class WeightedMAPActorLoss(LossModule):
             raise ValueError(f"weighting={weighting!r} needs a qvalue_network.")
         if weighting == "advantage" and value_network is None:
             raise ValueError("weighting='advantage' needs a value_network (V(s) of IQL).")
+        if weighting == "sac" and action_spec is None:
+            raise ValueError(
+                "weighting='sac' reads Q at samples of the unbounded Gaussian N(mu, sigma^2): "
+                "pass action_spec=env.action_spec so they are clamped to the executed action "
+                "(torchrl.data.Unbounded(...) for an action space without bounds)."
+            )
+        # "sac": Q at the executed action (a submodule: its bounds follow .to(device))
+        self.action_box = None if action_spec is None else ActionBox(action_spec)
         self.convert_to_functional(actor, "actor")
         # Critic modules and weights belong to the critic's loss: kept unregistered so the
         # actor's optimizer and state_dict never see them.
@@ -215,7 +240,7 @@ class WeightedMAPActorLoss(LossModule):
                 sample = dist.rsample()
                 log_prob = dist.log_prob(sample).sum(-1)
                 td = tensordict.select(*self.qvalue_network.in_keys, strict=False).clone(False)
-                td.set(self.tensor_keys.action, sample)
+                td.set(self.tensor_keys.action, self.action_box(sample))
                 loss = self.entropy_coef * log_prob - self.q_value(td)
                 weight = torch.ones_like(log_prob)
             else:

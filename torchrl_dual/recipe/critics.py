@@ -19,9 +19,11 @@ from omegaconf import DictConfig
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from torch import nn
-from torchrl.modules import MLP, IndependentNormal, ProbabilisticActor, ValueOperator
+from torchrl.data import TensorSpec
+from torchrl.modules import MLP, ProbabilisticActor, ValueOperator
 from torchrl.objectives import IQLLoss, SoftUpdate
 
+from torchrl_dual.modules.action_box import ClippedNormal, box_bounds
 from torchrl_dual.objectives import PENALTY_LAYOUTS, WEIGHTINGS, CalQLLoss, SO2QLoss
 from torchrl_dual.objectives.so2 import TARGET_REDUCTIONS
 from torchrl_dual.recipe.rules import Choice, Integer, Maybe, Real, Text, key
@@ -340,16 +342,22 @@ class _MeanAndStd(nn.Module):
         return loc, self.actor.std.expand_as(loc)
 
 
-def policy_view(actor: nn.Module, action_spec) -> ProbabilisticActor:
+def policy_view(actor: nn.Module, action_spec: TensorSpec) -> ProbabilisticActor:
     """A TorchRL ``ProbabilisticActor`` sampling ``N(μ(s), σ̄²)`` from DUAL's last-layer
     actor (the policy of Eq. 7's ``sac`` weighting), for a critic whose loss samples the
-    policy (Cal-QL's penalty and target actions). It holds the actor's own parameters:
-    the critic's optimizer never steps them and :meth:`Critic.modules` does not save them."""
+    policy (Cal-QL's penalty and target actions, SO2's target actions). Its draws are
+    clamped to the action box (:class:`~torchrl_dual.modules.action_box.ClippedNormal`):
+    the critics read Q at the actions the env would execute, never at an extrapolation.
+    It holds the actor's own parameters: the critic's optimizer never steps them and
+    :meth:`Critic.modules` does not save them."""
+    bounds = box_bounds(action_spec)
+    low, high = bounds if bounds is not None else (-torch.inf, torch.inf)
     return ProbabilisticActor(
         TensorDictModule(_MeanAndStd(actor), in_keys=["observation"], out_keys=["loc", "scale"]),
         in_keys=["loc", "scale"],
         spec=action_spec,
-        distribution_class=IndependentNormal,  # log π sums over the action dims
+        distribution_class=ClippedNormal,  # log π sums over the action dims
+        distribution_kwargs={"low": low, "high": high},
         return_log_prob=True,  # SO2's targets read log π(a'|s')
     )
 

@@ -49,7 +49,9 @@ class DualLearner(Learner):
         self.online_batches_per_update = self.critic.online_steps_per_update  # SO2: 10
         # critic=calql: the Monte-Carlo bound on D_offline now, on D_online per episode
         self.labels = MonteCarloLabels(run) if cfg.critic.name == "calql" else None
-        self.actor_loss = networks.make_actor_loss(cfg, self.actor, self.critic)
+        self.actor_loss = networks.make_actor_loss(
+            cfg, self.actor, self.critic, run.env.action_spec
+        )
         self.actor_optimizer = torch.optim.Adam(self.actor_loss.parameters(), lr=cfg.actor.lr)
         self.policy = networks.make_policy(cfg, self.actor, run.env.action_spec, self.transition)
         self.ensemble = self.policy[0]  # Eq. 9's ensemble: acts and holds ŝ_t's model

@@ -71,8 +71,11 @@ def make_transition_model(
     return TransitionModel(actor.model, frozen=False)
 
 
-def make_actor_loss(cfg: DictConfig, actor: PlannerActor, critic: Critic) -> WeightedMAPActorLoss:
-    """The weighted MAP actor loss of Eq. (7) on the critics."""
+def make_actor_loss(
+    cfg: DictConfig, actor: PlannerActor, critic: Critic, action_spec: TensorSpec
+) -> WeightedMAPActorLoss:
+    """The weighted MAP actor loss of Eq. (7) on the critics; ``action_spec`` bounds the
+    actions at which the ``sac`` weighting reads Q."""
     a = cfg.actor
     return WeightedMAPActorLoss.from_iql(
         actor,
@@ -80,6 +83,7 @@ def make_actor_loss(cfg: DictConfig, actor: PlannerActor, critic: Critic) -> Wei
         weighting=a.weighting,
         temperature=a.temperature,
         max_weight=a.max_weight,
+        action_spec=action_spec,
     )
 
 

@@ -1,0 +1,76 @@
+"""The executed action of DUAL's unbounded Gaussian policy (``modules/action_box.py``)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from tensordict import TensorDict
+from torch import nn
+from torchrl.data import Bounded, OneHot, Unbounded
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.modules.distributions.utils import rsample_and_log_prob
+
+from torchrl_dual.modules.action_box import ActionBox, ClippedNormal, box_bounds
+from torchrl_dual.recipe.critics import policy_view
+
+LOW, HIGH = torch.tensor([-1.0, 0.0]), torch.tensor([1.0, 2.0])
+
+
+def test_clipped_normal_draws_stay_in_the_box_and_score_the_gaussian_draw():
+    loc = torch.tensor([[0.9, 2.5], [-3.0, 1.0]], requires_grad=True)
+    scale = torch.full((2, 2), 0.5)
+    dist = ClippedNormal(loc, scale, low=LOW, high=HIGH)
+    torch.manual_seed(0)
+    action, log_prob = rsample_and_log_prob(dist)  # what TorchRL's losses call
+    torch.manual_seed(0)
+    draw = torch.distributions.Normal(loc, scale).rsample()
+    torch.testing.assert_close(action, torch.clamp(draw, LOW, HIGH))
+    torch.testing.assert_close(
+        log_prob, torch.distributions.Normal(loc, scale).log_prob(draw).sum(-1)
+    )
+    # the pathwise gradient is the identity inside the box and zero on a clamped entry
+    (grad,) = torch.autograd.grad(action.sum(), loc)
+    inside = ((draw > LOW) & (draw < HIGH)).float()
+    torch.testing.assert_close(grad, inside)
+    assert 0 < inside.sum() < inside.numel()  # both cases exercised
+    samples = dist.sample((2000,))
+    assert bool((samples >= LOW).all() and (samples <= HIGH).all())
+    assert (samples == HIGH).float().mean() > 0.2  # mass piles on the faces it crosses
+    torch.testing.assert_close(dist.deterministic_sample, torch.clamp(loc, LOW, HIGH))
+    torch.testing.assert_close(dist.mode, torch.clamp(loc, LOW, HIGH))
+
+
+def test_action_box_clamps_with_the_spec_and_passes_unbounded_actions_through():
+    action = torch.tensor([[3.0, -1.0], [-0.5, 0.5]])
+    torch.testing.assert_close(
+        ActionBox(Bounded(LOW, HIGH, shape=(2,)))(action), torch.tensor([[1.0, 0.0], [-0.5, 0.5]])
+    )
+    assert ActionBox(Unbounded(shape=(2,)))(action) is action
+    with pytest.raises(TypeError, match="Bounded or Unbounded action spec, got OneHot"):
+        box_bounds(OneHot(4))
+
+
+class _FarMean(nn.Module):
+    """A last-layer actor stand-in whose mean lies far outside the box."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.log_std = nn.Parameter(torch.zeros(2))
+        self.std = torch.ones(2)
+
+    def forward(self, observation: torch.Tensor) -> torch.Tensor:
+        return torch.full((*observation.shape[:-1], 2), 5.0)
+
+
+def test_policy_view_gives_critics_the_executed_action():
+    """Cal-QL's penalty and targets and SO2's targets draw DUAL's policy through this view
+    (``get_dist`` and the module call): never an action outside the env's box."""
+    view = policy_view(_FarMean(), Bounded(LOW, HIGH, shape=(2,)))
+    td = TensorDict({"observation": torch.randn(64, 3)}, [64])
+    action, _ = rsample_and_log_prob(view.get_dist(td))
+    assert bool((action <= HIGH).all() and (action >= LOW).all())
+    for mode in (ExplorationType.RANDOM, ExplorationType.DETERMINISTIC):
+        with set_exploration_type(mode):
+            out = view(td.clone())
+        assert bool((out["action"] <= HIGH).all() and (out["action"] >= LOW).all())
+        assert out["action_log_prob"].shape == (64,)
