@@ -16,20 +16,25 @@ from torchrl_dual.recipe.critics import policy_view
 LOW, HIGH = torch.tensor([-1.0, 0.0]), torch.tensor([1.0, 2.0])
 
 
-def test_clipped_normal_draws_stay_in_the_box_and_score_the_gaussian_draw():
+def test_clipped_normal_draws_stay_in_the_box_and_score_the_censored_gaussian():
     loc = torch.tensor([[0.9, 2.5], [-3.0, 1.0]], requires_grad=True)
     scale = torch.full((2, 2), 0.5)
     dist = ClippedNormal(loc, scale, low=LOW, high=HIGH)
     torch.manual_seed(0)
     action, log_prob = rsample_and_log_prob(dist)  # what TorchRL's losses call
     torch.manual_seed(0)
-    draw = torch.distributions.Normal(loc, scale).rsample()
+    normal = torch.distributions.Normal(loc, scale)
+    draw = normal.rsample()
     torch.testing.assert_close(action, torch.clamp(draw, LOW, HIGH))
-    torch.testing.assert_close(
-        log_prob, torch.distributions.Normal(loc, scale).log_prob(draw).sum(-1)
+    # by hand: the density inside, the mass beyond each face on it
+    low_mass = normal.cdf(LOW.expand_as(loc)).log()
+    high_mass = (1 - normal.cdf(HIGH.expand_as(loc))).log()
+    by_hand = torch.where(
+        draw >= HIGH, high_mass, torch.where(draw <= LOW, low_mass, normal.log_prob(draw))
     )
+    torch.testing.assert_close(log_prob, by_hand.sum(-1))
     # the pathwise gradient is the identity inside the box and zero on a clamped entry
-    (grad,) = torch.autograd.grad(action.sum(), loc)
+    (grad,) = torch.autograd.grad(action.sum(), loc, retain_graph=True)
     inside = ((draw > LOW) & (draw < HIGH)).float()
     torch.testing.assert_close(grad, inside)
     assert 0 < inside.sum() < inside.numel()  # both cases exercised
@@ -40,12 +45,22 @@ def test_clipped_normal_draws_stay_in_the_box_and_score_the_gaussian_draw():
     torch.testing.assert_close(dist.mode, torch.clamp(loc, LOW, HIGH))
 
 
+def test_clipped_normal_scores_sum_to_one_over_the_box():
+    """The censored distribution is normalised: the density integrated over the interior
+    plus the two face masses is 1 (one dimension, trapezoid rule)."""
+    dist = ClippedNormal(torch.tensor([0.7]), torch.tensor([0.4]), low=-1.0, high=1.0)
+    grid = torch.linspace(-1, 1, 20001)[1:-1, None]
+    interior = torch.trapezoid(dist.log_prob(grid).exp(), grid[:, 0])
+    faces = dist.log_prob(torch.tensor([[-1.0], [1.0]])).exp().sum()
+    torch.testing.assert_close(interior + faces, torch.tensor(1.0), atol=1e-3, rtol=0)
+
+
 def test_action_box_clamps_with_the_spec_and_passes_unbounded_actions_through():
     action = torch.tensor([[3.0, -1.0], [-0.5, 0.5]])
     torch.testing.assert_close(
         ActionBox(Bounded(LOW, HIGH, shape=(2,)))(action), torch.tensor([[1.0, 0.0], [-0.5, 0.5]])
     )
-    assert ActionBox(Unbounded(shape=(2,)))(action) is action
+    torch.testing.assert_close(ActionBox(Unbounded(shape=(2,)))(action), action)
     with pytest.raises(TypeError, match="Bounded or Unbounded action spec, got OneHot"):
         box_bounds(OneHot(4))
 

@@ -350,21 +350,31 @@ def test_a_ten_member_ensemble_gives_the_min_by_hand_and_its_action_gradient():
 
 # ----------------------------------------------------------------------------- action box
 class _SlopeQ(nn.Module):
-    """``Q(s, a) = 5 · Σ a``: rises without end along every action dimension, as a critic's
-    extrapolation outside the box may."""
+    """``Q(s, a) = slope · Σ a``: rises without end along every action dimension, as a
+    critic's extrapolation outside the box may."""
+
+    def __init__(self, slope: float) -> None:
+        super().__init__()
+        self.slope = slope
 
     def forward(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        return 5.0 * action.sum(-1, keepdim=True)
+        return self.slope * action.sum(-1, keepdim=True)
 
 
-def _sac_on_slope(action_spec, bias: float) -> tuple[WeightedMAPActorLoss, LinearHeadActor]:
+def _sac_on_slope(
+    action_spec, bias: float, slope: float = 5.0, entropy_coef: float = 0.0
+) -> tuple[WeightedMAPActorLoss, LinearHeadActor]:
     actor = _mock_actor()
     with torch.no_grad():
         actor.head.weight.zero_()
         actor.head.bias.fill_(bias)  # μ(s) = bias in every state and dimension
-    qvalue = ValueOperator(_SlopeQ(), in_keys=["observation", "action"])
+    qvalue = ValueOperator(_SlopeQ(slope), in_keys=["observation", "action"])
     loss = WeightedMAPActorLoss(
-        actor, qvalue_network=qvalue, weighting="sac", entropy_coef=0.0, action_spec=action_spec
+        actor,
+        qvalue_network=qvalue,
+        weighting="sac",
+        entropy_coef=entropy_coef,
+        action_spec=action_spec,
     )
     return loss, actor
 
@@ -381,7 +391,7 @@ def test_sac_reads_q_at_the_clamped_action_so_an_actor_outside_the_box_gets_no_p
     out["loss_actor"].backward()
     # by hand, per dimension, X ~ N(μ, σ²), z = (1 - μ) / σ (the lower face is 6σ away):
     # E[clamp(X, -1, 1)] = μ Φ(z) - σ φ(z) + (1 - Φ(z)), d/dμ = Φ(z) = P(X < 1)
-    mu, std = 0.8, float(actor.std[0])
+    mu, std = 0.8, float(actor.std.detach()[0])
     z = (1.0 - mu) / std
     cdf, pdf = 0.5 * (1 + math.erf(z / math.sqrt(2))), math.exp(-z * z / 2) / math.sqrt(2 * math.pi)
     mean_clamped = mu * cdf - std * pdf + (1 - cdf)
@@ -403,6 +413,24 @@ def test_sac_reads_q_at_the_clamped_action_so_an_actor_outside_the_box_gets_no_p
     unbounded, actor = _sac_on_slope(Unbounded(shape=(ACT,)), bias=4.0)  # opt-in: no box
     unbounded(batch.clone(False))["loss_actor"].backward()
     torch.testing.assert_close(actor.head.bias.grad, torch.full((ACT,), -5.0))
+
+
+def test_sac_entropy_term_scores_the_clamped_draw_and_pulls_a_mean_back_into_the_box():
+    """``α·log π`` of the executed (censored) Gaussian: on a flat critic, a mean past the
+    face at 1 gets ``d/dμ E[α log π] = α φ(w) / σ`` per dimension, ``w = (μ - 1) / σ``
+    (only the draws on the face depend on μ, through ``log P(X ≥ 1) = log Φ(w)``), so a
+    gradient step moves it back in; the Gaussian score of the raw draw gives it 0."""
+    alpha, mu = 0.2, 1.2
+    loss, actor = _sac_on_slope(BOX, bias=mu, slope=0.0, entropy_coef=alpha)
+    torch.manual_seed(0)
+    loss(_mock_batch(4096))["loss_actor"].backward()
+    std = float(actor.std.detach()[0])
+    w = (mu - 1.0) / std
+    expected = alpha * math.exp(-w * w / 2) / math.sqrt(2 * math.pi) / std
+    torch.testing.assert_close(
+        actor.head.bias.grad, torch.full((ACT,), expected), atol=0.02, rtol=0
+    )
+    assert expected > 0.2  # inward, and far outside the tolerance
 
 
 def test_the_action_box_follows_the_loss_to_its_device_and_dtype():

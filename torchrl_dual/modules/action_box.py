@@ -5,11 +5,12 @@ executes actions in a box. Critics are trained on in-box actions only (the data,
 target actions projected onto the box), so a Q network queried outside the box returns
 an extrapolation; an actor that climbs ``Q(s, a)`` there (the ``sac`` weighting of Eq. 7,
 the Cal-QL variant) runs away from the box, and its clamped actions end in a corner.
-Everything that queries a critic at a draw of DUAL's policy therefore queries it at the
-action the env would execute: :class:`ActionBox` for
-:class:`~torchrl_dual.objectives.WeightedMAPActorLoss`, :class:`ClippedNormal` for
-critic losses that sample the policy through TorchRL's ``get_dist`` (Cal-QL's penalty and
-targets, SO2's targets).
+Everything that draws DUAL's policy for a critic therefore draws the action the env would
+execute, a :class:`ClippedNormal` (a censored Gaussian), and scores it with that
+distribution's log-likelihood: :class:`ActionBox` in
+:class:`~torchrl_dual.objectives.WeightedMAPActorLoss`'s ``sac`` weighting, and the
+``distribution_class`` of the policy view that critic losses sample through TorchRL's
+``get_dist`` (Cal-QL's penalty and targets, SO2's targets).
 """
 
 from __future__ import annotations
@@ -37,11 +38,12 @@ def box_bounds(action_spec: TensorSpec) -> tuple[torch.Tensor, torch.Tensor] | N
 
 
 class ActionBox(nn.Module):
-    """``a ↦ clamp(a, low, high)``: the action the env executes for a policy draw ``a``.
+    """The env's action box: :meth:`forward` clamps a draw, :meth:`distribution` gives the
+    executed-action distribution of ``N(loc, scale²)`` (a :class:`ClippedNormal`).
 
-    The gradient is the identity inside the box and zero outside, so a loss that reads
-    ``Q(s, ActionBox(a))`` never rewards leaving the box. An ``Unbounded`` spec gives the
-    identity.
+    The clamp's gradient is the identity inside the box and zero outside, so a loss that
+    reads ``Q(s, clamp(a))`` never rewards leaving the box. An ``Unbounded`` spec gives the
+    identity and a plain Gaussian.
 
     Args:
         action_spec (Bounded or Unbounded): the env's action spec.
@@ -53,38 +55,46 @@ class ActionBox(nn.Module):
         >>> box(torch.tensor([[0.5, 3.0], [-2.0, -0.25]]))
         tensor([[ 0.5000,  1.0000],
                 [-1.0000, -0.2500]])
+        >>> box.distribution(torch.zeros(2), torch.ones(2)).log_prob(torch.tensor([1.0, 0.0]))
+        tensor(-2.7600)
     """
 
     def __init__(self, action_spec: TensorSpec) -> None:
         super().__init__()
         bounds = box_bounds(action_spec)
-        self.bounded = bounds is not None
-        if bounds is not None:
-            self.register_buffer("low", bounds[0].detach().clone())
-            self.register_buffer("high", bounds[1].detach().clone())
+        low, high = bounds if bounds is not None else (-torch.inf, torch.inf)
+        self.register_buffer("low", torch.as_tensor(low).detach().clone())
+        self.register_buffer("high", torch.as_tensor(high).detach().clone())
 
     def forward(self, action: torch.Tensor) -> torch.Tensor:
-        if not self.bounded:
-            return action
         return torch.clamp(action, self.low, self.high)
+
+    def distribution(self, loc: torch.Tensor, scale: torch.Tensor) -> ClippedNormal:
+        """``clamp(N(loc, scale²))`` on this box."""
+        return ClippedNormal(loc, scale, low=self.low, high=self.high)
 
 
 class ClippedNormal(IndependentNormal):
-    """TorchRL's ``IndependentNormal`` whose draws are clamped to ``[low, high]``.
+    """``clamp(X, low, high)`` for ``X ∼ N(loc, scale²)`` per dimension: the executed action
+    of an unbounded Gaussian policy.
 
-    The distribution of the executed action of an unbounded Gaussian policy, for critic
-    losses that sample it through ``get_dist`` (``distribution_kwargs={"low": ...,
-    "high": ...}`` of a ``ProbabilisticActor``). :meth:`rsample_and_log_prob` (what
-    TorchRL's losses call) scores the Gaussian draw before the clamp, as ``TanhNormal``
-    scores its pre-tanh draw: ``log N(u; μ, σ²)``, the density the actor's entropy term
-    uses. :meth:`log_prob` of a given in-box value is the Gaussian density there (the
-    clamp's point masses on the faces are not represented).
+    A censored Gaussian: a density inside the box and point masses on its faces.
+    :meth:`log_prob` is the log-likelihood of that mixed distribution, summed over the
+    action dimensions: ``log N(a; μ, σ²)`` where ``low < a < high``, ``log P(X ≤ low)`` where
+    ``a = low`` and ``log P(X ≥ high)`` where ``a = high``. Its expectation is the
+    (negative) entropy the ``sac`` weighting's ``α·log π`` and the critics' targets use: a
+    mean beyond a face makes the face's mass grow, and the score pulls it back (a clamp
+    has no tanh Jacobian to do it). Draws are the clamped Gaussian draws, reparameterised
+    (the pathwise gradient is zero on a clamped entry). ``low``/``high`` of ``∓inf`` give
+    the plain Gaussian. Used as the ``distribution_class`` of a ``ProbabilisticActor``
+    with ``distribution_kwargs={"low": ..., "high": ...}`` for critic losses that sample
+    the policy through ``get_dist``.
 
     Examples:
         >>> import torch
         >>> dist = ClippedNormal(torch.tensor([[0.0, 5.0]]), torch.ones(1, 2), low=-1.0, high=1.0)
-        >>> action, log_prob = dist.rsample_and_log_prob()
-        >>> bool(action.abs().max() <= 1.0), tuple(log_prob.shape)
+        >>> action = dist.rsample()
+        >>> bool(action.abs().max() <= 1.0), tuple(dist.log_prob(action).shape)
         (True, (1,))
         >>> dist.deterministic_sample
         tensor([[0., 1.]])
@@ -112,11 +122,16 @@ class ClippedNormal(IndependentNormal):
     def rsample(self, sample_shape: torch.Size | tuple[int, ...] = ()) -> torch.Tensor:
         return self._clamp(super().rsample(sample_shape))
 
-    def rsample_and_log_prob(
-        self, sample_shape: torch.Size | tuple[int, ...] = ()
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        draw = super().rsample(sample_shape)
-        return self._clamp(draw), super().log_prob(draw)
+    def log_prob(self, value: torch.Tensor) -> torch.Tensor:
+        normal = self.base_dist
+        z = (value - normal.loc) / normal.scale
+        inside = normal.log_prob(value)
+        below = torch.special.log_ndtr(z)  # log P(X ≤ low), read where value == low
+        above = torch.special.log_ndtr(-z)  # log P(X ≥ high), read where value == high
+        per_dim = torch.where(
+            value >= self.high, above, torch.where(value <= self.low, below, inside)
+        )
+        return per_dim.sum(-1)
 
     @property
     def mode(self) -> torch.Tensor:

@@ -37,11 +37,13 @@ class WeightedMAPActorLoss(LossModule):
     * ``"advantage"`` (default): IQL's ``w = min(exp(β·(Q(s,a) − V(s))), w_max)``, with Q the
       minimum over the critic ensemble. The loss stays a weighted log-likelihood, so
       Thm. 3.3 and the closed-form Laplace of Eq. (8) apply as stated;
-    * ``"sac"``: the Cal-QL / SAC actor loss ``−E_{s∼D, a∼π}[Q(s, ā) − α·log π(a | s)]``
+    * ``"sac"``: the Cal-QL / SAC actor loss ``−E_{s∼D, a∼π}[Q(s, a) − α·log π(a | s)]``
       with a reparameterised ``a``, the paper's Cal-QL variant (note after Thm. 3.3).
-      ``ā = clamp(a, low, high)`` is the action the env executes (``action_spec``):
-      the critic never saw actions outside the box, and a Gaussian that climbs its
-      extrapolation there leaves the box for good (:mod:`torchrl_dual.modules.action_box`);
+      ``a`` is the action the env executes, a draw of ``N(μ, σ̄²)`` clamped to the
+      ``action_spec`` box, and ``log π`` its censored-Gaussian score
+      (:class:`~torchrl_dual.modules.action_box.ClippedNormal`): the critic never saw
+      actions outside the box, and a Gaussian that climbs its extrapolation there leaves
+      the box for good (:mod:`torchrl_dual.modules.action_box`);
     * ``"uniform"``: ``w = 1``, plain behaviour cloning of the planner's first action.
 
     The prior ``p(θ)`` is flat, as in the paper (density 1); the Laplace step picks its
@@ -235,16 +237,17 @@ class WeightedMAPActorLoss(LossModule):
         observation, action = self._inputs(tensordict)
         with self.actor_params.to_module(self.actor):
             loc = self.actor(observation)
-            dist = Normal(loc, self.actor.std.expand_as(loc))
-            if self.weighting == "sac":
-                sample = dist.rsample()
-                log_prob = dist.log_prob(sample).sum(-1)
+            std = self.actor.std.expand_as(loc)
+            if self.weighting == "sac":  # the executed action: a clamped draw, its score
+                executed = self.action_box.distribution(loc, std)
+                sample = executed.rsample()
+                log_prob = executed.log_prob(sample)
                 td = tensordict.select(*self.qvalue_network.in_keys, strict=False).clone(False)
-                td.set(self.tensor_keys.action, self.action_box(sample))
+                td.set(self.tensor_keys.action, sample)
                 loss = self.entropy_coef * log_prob - self.q_value(td)
                 weight = torch.ones_like(log_prob)
             else:
-                log_prob = dist.log_prob(action).sum(-1)
+                log_prob = Normal(loc, std).log_prob(action).sum(-1)
                 if self.weighting == "advantage":
                     weight = self.advantage_weights(tensordict)
                 else:
