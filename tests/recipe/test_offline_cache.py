@@ -8,13 +8,14 @@ an offline stage reads is a different entry.
 from __future__ import annotations
 
 import json
+import tempfile
 import threading
 from pathlib import Path
 
 import pytest
 from recipe_runner import REPO, failed, run_recipe, succeeded
 
-from torchrl_dual.recipe import compose_checked
+from torchrl_dual.recipe import compose_checked, offline_cache
 from torchrl_dual.recipe.dual import DualLearner
 from torchrl_dual.recipe.offline_cache import OfflinePhaseCache, offline_key_config
 
@@ -123,7 +124,9 @@ def test_a_corrupt_snapshot_is_named_with_the_fix(shared_runs, tmp_path):
 
 
 def key(*overrides: str) -> str:
-    cfg = compose_checked(REPO / "recipes" / "config", ["budget=smoke", *overrides])
+    # a fresh output_dir (not part of the key): the default one may hold a user's run
+    fresh = f"output_dir={tempfile.mkdtemp()}"
+    cfg = compose_checked(REPO / "recipes" / "config", ["budget=smoke", fresh, *overrides])
     return OfflinePhaseCache("/unused", offline_key_config(cfg, DualLearner.online_keys), "x").key
 
 
@@ -138,6 +141,16 @@ def test_online_keys_share_the_key_and_offline_keys_do_not():
         assert key(online) == base, online
     for offline in ("planner.lr=0.001", "seed=1", "budget.offline_updates=7", "actor.init=scratch"):
         assert key(offline) != base, offline
+
+
+def test_a_new_offline_phase_revision_is_a_new_entry(monkeypatch):
+    """A code change that alters the offline stages (a bumped revision) must not reuse the
+    snapshots written before it."""
+    base = key()
+    monkeypatch.setattr(
+        offline_cache, "OFFLINE_PHASE_REVISION", offline_cache.OFFLINE_PHASE_REVISION + 1
+    )
+    assert key() != base
 
 
 def test_the_lock_makes_a_second_run_wait_for_the_first(tmp_path):

@@ -11,7 +11,8 @@ as if it had computed the stages itself: same weights, same random stream (teste
 
 The key is a hash of the run's config without the keys that only the online phase reads
 (:data:`ONLINE_KEYS` and the learner's :attr:`~torchrl_dual.recipe.Learner.online_keys`)
-and without where the run writes; a change to any other key is a different offline phase.
+and without where the run writes, and of :data:`OFFLINE_PHASE_REVISION`; a change to any
+other key is a different offline phase, and so is a code change that bumps the revision.
 A file lock (``fcntl.flock``, released if the process dies) makes parallel runs with the
 same key wait for the first one instead of computing it twice.
 """
@@ -34,6 +35,12 @@ from torchrl_dual.recipe.errors import UserError
 
 if TYPE_CHECKING:
     from torchrl_dual.recipe.o2o_run import O2ORun
+
+OFFLINE_PHASE_REVISION = 2
+"""Bumped when a code change alters what a shared offline stage computes, so that caches
+written before it are not reused (their entries stay on disk under their old keys).
+2 (2026-12-02): DUAL's ``sac`` weighting (``critic=calql``/``so2``) reads Q at the clamped
+action and scores it as a censored Gaussian (docs/equations.md, deviation 2a)."""
 
 ONLINE_KEYS: tuple[str, ...] = (
     "output_dir",
@@ -98,7 +105,8 @@ class OfflinePhaseCache:
     """
 
     def __init__(self, root: str | Path, key_config: dict, layout: str) -> None:
-        text = json.dumps(key_config, sort_keys=True, default=str)
+        keyed = {"config": key_config, "revision": OFFLINE_PHASE_REVISION}
+        text = json.dumps(keyed, sort_keys=True, default=str)
         self.key = hashlib.sha256(text.encode()).hexdigest()[:16]
         self.directory = Path(root) / self.key
         fingerprint = {"offline_phase": key_config, "checkpoint_layout": layout}
