@@ -75,8 +75,10 @@ def make_actor_loss(
     cfg: DictConfig, actor: PlannerActor, critic: Critic, action_spec: TensorSpec
 ) -> WeightedMAPActorLoss:
     """The weighted MAP actor loss of Eq. (7) on the critics; ``action_spec`` bounds the
-    actions at which the ``sac`` weighting reads Q."""
+    actions at which the ``sac`` weighting reads Q, whose ``α`` is the critic's
+    ``entropy_coef`` when it has one (SO2: the same ``α`` as its targets)."""
     a = cfg.actor
+    entropy = {"entropy_coef": cfg.critic.entropy_coef} if "entropy_coef" in cfg.critic else {}
     return WeightedMAPActorLoss.from_iql(
         actor,
         critic.loss,
@@ -84,6 +86,7 @@ def make_actor_loss(
         temperature=a.temperature,
         max_weight=a.max_weight,
         action_spec=action_spec,
+        **entropy,
     )
 
 
