@@ -21,6 +21,7 @@ import random
 import runpy
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -59,21 +60,15 @@ def _run_in_process(args: list[str]) -> subprocess.CompletedProcess:
     from torchrl_dual.recipe import compose_checked, hydra_task
     from torchrl_dual.recipe.errors import user_errors
 
-    stdout, stderr = io.StringIO(), io.StringIO()
     threads, code = torch.get_num_threads(), 0
     np_state, py_state = np.random.get_state(), random.getstate()
-    with (
-        contextlib.chdir(REPO),
-        contextlib.redirect_stdout(stdout),
-        contextlib.redirect_stderr(stderr),
-        torch.random.fork_rng(),
-    ):
+    with _in_repo_captured() as (stdout, stderr), torch.random.fork_rng():
         try:
             with user_errors(debug=False):
                 cfg = compose_checked(CONFIG_DIR, args)
             hydra_task(cfg)
         except SystemExit as exit_:
-            code = exit_.code if isinstance(exit_.code, int) else 1
+            code = _exit_code(exit_)
         finally:
             torch.set_num_threads(threads)
             np.random.set_state(np_state)
@@ -88,21 +83,35 @@ def run_script(script: str, *args: str) -> subprocess.CompletedProcess:
     with ``sys.argv`` and ``sys.path[0]`` as Python would set them) to save the start-up
     of a new interpreter; the exit code comes from ``SystemExit``."""
     path = REPO / script
-    stdout, stderr = io.StringIO(), io.StringIO()
     argv, sys_path, code = sys.argv, list(sys.path), 0
     sys.argv, sys.path[:0] = [str(path), *args], [str(path.parent)]
     try:
-        with (
-            contextlib.chdir(REPO),
-            contextlib.redirect_stdout(stdout),
-            contextlib.redirect_stderr(stderr),
-        ):
+        with _in_repo_captured() as (stdout, stderr):
             runpy.run_path(str(path), run_name="__main__")
     except SystemExit as exit_:
-        code = exit_.code if isinstance(exit_.code, int) else (0 if exit_.code is None else 1)
+        code = _exit_code(exit_)
     finally:
         sys.argv, sys.path[:] = argv, sys_path
     return subprocess.CompletedProcess([script, *args], code, stdout.getvalue(), stderr.getvalue())
+
+
+@contextlib.contextmanager
+def _in_repo_captured() -> Iterator[tuple[io.StringIO, io.StringIO]]:
+    """The working directory set to the repo root, stdout and stderr captured."""
+    stdout, stderr = io.StringIO(), io.StringIO()
+    with (
+        contextlib.chdir(REPO),
+        contextlib.redirect_stdout(stdout),
+        contextlib.redirect_stderr(stderr),
+    ):
+        yield stdout, stderr
+
+
+def _exit_code(exit_: SystemExit) -> int:
+    """The process exit code Python gives ``exit_``: an int as is, None 0, anything else 1."""
+    if isinstance(exit_.code, int):
+        return exit_.code
+    return 0 if exit_.code is None else 1
 
 
 def succeeded(proc: subprocess.CompletedProcess) -> subprocess.CompletedProcess:
