@@ -22,6 +22,7 @@ from collections.abc import Callable
 import torch
 from tensordict import TensorDict
 from torch import nn
+from torchrl.data import Bounded
 from torchrl.modules import MLP, ValueOperator
 
 from torchrl_dual.modules import LinearHeadActor
@@ -60,7 +61,11 @@ def compare(members: int, args: argparse.Namespace) -> tuple[float, float]:
     params = TensorDict.from_modules(*nets, as_module=True).detach()
     actor = LinearHeadActor(MLP(obs_dim, action_dim, num_cells=[args.width]), action_dim)
     loss = WeightedMAPActorLoss(
-        actor, qvalue_network=nets[0], qvalue_params=params, weighting="sac"
+        actor,
+        qvalue_network=nets[0],
+        qvalue_params=params,
+        weighting="sac",
+        action_spec=Bounded(-1.0, 1.0, shape=(action_dim,)),
     )
     action = torch.rand(args.batch, action_dim, requires_grad=True)
     td = TensorDict(
