@@ -86,9 +86,10 @@ class ClippedNormal(IndependentNormal):
     mean beyond a face makes the face's mass grow, and the score pulls it back (a clamp
     has no tanh Jacobian to do it). Draws are the clamped Gaussian draws, reparameterised
     (the pathwise gradient is zero on a clamped entry). ``low``/``high`` of ``∓inf`` give
-    the plain Gaussian. Used as the ``distribution_class`` of a ``ProbabilisticActor``
-    with ``distribution_kwargs={"low": ..., "high": ...}`` for critic losses that sample
-    the policy through ``get_dist``.
+    the plain Gaussian; ``mean`` and ``variance`` stay the Gaussian's (before the clamp),
+    ``mode`` and ``deterministic_sample`` are clamped. Used as the ``distribution_class``
+    of a ``ProbabilisticActor`` with ``distribution_kwargs={"low": ..., "high": ...}`` for
+    critic losses that sample the policy through ``get_dist``.
 
     Examples:
         >>> import torch
