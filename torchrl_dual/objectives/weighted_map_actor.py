@@ -14,7 +14,7 @@ from torchrl.objectives.common import LossModule
 from torchrl.objectives.utils import _vmap_func  # TorchRL's own ensemble evaluation
 
 from torchrl_dual._utils import read_loss_input
-from torchrl_dual.modules.action_box import ActionBox
+from torchrl_dual.modules.actors.action_box import ActionBox
 from torchrl_dual.modules.actors.last_layer_actor import LastLayerActor
 
 WEIGHTINGS = ("advantage", "sac", "uniform")
@@ -41,9 +41,9 @@ class WeightedMAPActorLoss(LossModule):
       with a reparameterised ``a``, the paper's Cal-QL variant (note after Thm. 3.3).
       ``a`` is the action the env executes, a draw of ``N(μ, σ̄²)`` clamped to the
       ``action_spec`` box, and ``log π`` its censored-Gaussian score
-      (:class:`~torchrl_dual.modules.action_box.ClippedNormal`): the critic never saw
+      (:class:`~torchrl_dual.modules.actors.action_box.ClippedNormal`): the critic never saw
       actions outside the box, and a Gaussian that climbs its extrapolation there leaves
-      the box for good (:mod:`torchrl_dual.modules.action_box`);
+      the box for good (:mod:`torchrl_dual.modules.actors.action_box`);
     * ``"uniform"``: ``w = 1``, plain behaviour cloning of the planner's first action.
 
     The prior ``p(θ)`` is flat, as in the paper (density 1); the Laplace step picks its

@@ -23,7 +23,7 @@ from torchrl.data import TensorSpec
 from torchrl.modules import MLP, ProbabilisticActor, ValueOperator
 from torchrl.objectives import IQLLoss, SoftUpdate
 
-from torchrl_dual.modules.action_box import ClippedNormal, box_bounds
+from torchrl_dual.modules.actors.action_box import ClippedNormal, box_bounds
 from torchrl_dual.objectives import PENALTY_LAYOUTS, WEIGHTINGS, CalQLLoss, SO2QLoss
 from torchrl_dual.objectives.so2 import TARGET_REDUCTIONS
 from torchrl_dual.recipe.rules import Choice, Integer, Maybe, Real, Text, key
@@ -346,7 +346,7 @@ def policy_view(actor: nn.Module, action_spec: TensorSpec) -> ProbabilisticActor
     """A TorchRL ``ProbabilisticActor`` sampling ``N(μ(s), σ̄²)`` from DUAL's last-layer
     actor (the policy of Eq. 7's ``sac`` weighting), for a critic whose loss samples the
     policy (Cal-QL's penalty and target actions, SO2's target actions). Its draws are
-    clamped to the action box (:class:`~torchrl_dual.modules.action_box.ClippedNormal`):
+    clamped to the action box (:class:`~torchrl_dual.modules.actors.action_box.ClippedNormal`):
     the critics read Q at the actions the env would execute, never at an extrapolation.
     It holds the actor's own parameters: the critic's optimizer never steps them and
     :meth:`Critic.modules` does not save them."""

@@ -1,4 +1,4 @@
-"""The executed action of DUAL's unbounded Gaussian policy (``modules/action_box.py``)."""
+"""The executed action of DUAL's unbounded Gaussian policy (``modules/actors/action_box.py``)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from torchrl.data import Bounded, OneHot, Unbounded
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules.distributions.utils import rsample_and_log_prob
 
-from torchrl_dual.modules.action_box import ActionBox, ClippedNormal, box_bounds
+from torchrl_dual.modules.actors.action_box import ActionBox, ClippedNormal, box_bounds
 from torchrl_dual.recipe.critics import policy_view
 
 LOW, HIGH = torch.tensor([-1.0, 0.0]), torch.tensor([1.0, 2.0])
