@@ -350,8 +350,7 @@ def policy_view(actor: nn.Module, action_spec: TensorSpec) -> ProbabilisticActor
     the critics read Q at the actions the env would execute, never at an extrapolation.
     It holds the actor's own parameters: the critic's optimizer never steps them and
     :meth:`Critic.modules` does not save them."""
-    bounds = box_bounds(action_spec)
-    low, high = bounds if bounds is not None else (-torch.inf, torch.inf)
+    low, high = box_bounds(action_spec)
     return ProbabilisticActor(
         TensorDictModule(_MeanAndStd(actor), in_keys=["observation"], out_keys=["loc", "scale"]),
         in_keys=["loc", "scale"],

@@ -21,8 +21,8 @@ from torchrl.data import Bounded, TensorSpec, Unbounded
 from torchrl.modules.distributions import IndependentNormal
 
 
-def box_bounds(action_spec: TensorSpec) -> tuple[torch.Tensor, torch.Tensor] | None:
-    """``(low, high)`` of a ``Bounded`` spec, ``None`` for an ``Unbounded`` one.
+def box_bounds(action_spec: TensorSpec) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(low, high)`` of a ``Bounded`` spec; ``(-inf, inf)`` for an ``Unbounded`` one.
 
     Raises:
         TypeError: for any other spec (a discrete action has no box to clamp to).
@@ -30,7 +30,7 @@ def box_bounds(action_spec: TensorSpec) -> tuple[torch.Tensor, torch.Tensor] | N
     if isinstance(action_spec, Bounded):
         return action_spec.space.low, action_spec.space.high
     if isinstance(action_spec, Unbounded):
-        return None
+        return torch.tensor(-torch.inf), torch.tensor(torch.inf)
     raise TypeError(
         f"an action box needs a Bounded or Unbounded action spec, got "
         f"{type(action_spec).__name__}; pass the continuous spec the policy acts in."
@@ -61,10 +61,9 @@ class ActionBox(nn.Module):
 
     def __init__(self, action_spec: TensorSpec) -> None:
         super().__init__()
-        bounds = box_bounds(action_spec)
-        low, high = bounds if bounds is not None else (-torch.inf, torch.inf)
-        self.register_buffer("low", torch.as_tensor(low).detach().clone())
-        self.register_buffer("high", torch.as_tensor(high).detach().clone())
+        low, high = box_bounds(action_spec)
+        self.register_buffer("low", low.detach().clone())
+        self.register_buffer("high", high.detach().clone())
 
     def forward(self, action: torch.Tensor) -> torch.Tensor:
         return torch.clamp(action, self.low, self.high)
