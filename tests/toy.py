@@ -5,7 +5,9 @@
   must equal) and the weight changes every cache of derived tensors must notice.
 * tiny fitted Laplace ensembles over a linear-head or planner actor and their data.
 * a tiny TorchRL ``TanhNormal`` actor and the by-hand forward of a one-hidden-layer ``MLP``
-  (critic losses' reference computations).
+  (critic losses' reference computations);
+* a linear-head actor, a tiny TorchRL ``IQLLoss`` and an observation-action batch (the
+  actor losses' inputs).
 """
 
 from __future__ import annotations
@@ -17,7 +19,8 @@ from tensordict import TensorDict
 from tensordict.nn import NormalParamExtractor, TensorDictModule
 from torch import nn
 from torchrl.data import TensorSpec
-from torchrl.modules import MLP, ProbabilisticActor, TanhNormal
+from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
+from torchrl.objectives import IQLLoss
 
 from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
 from torchrl_dual.modules import (
@@ -258,4 +261,39 @@ def ensemble_observation_td(batch: int = 5, seed: int = 1, scale: float = 0.5) -
     gen = torch.Generator().manual_seed(seed)
     return TensorDict(
         {"observation": torch.randn(batch, ENSEMBLE_OBS_DIM, generator=gen) * scale}, [batch]
+    )
+
+
+# ----------------------------------------------------------------------------- actor losses
+def linear_head_actor(obs_dim: int = 3, action_dim: int = 2, *, seed: int = 0) -> LinearHeadActor:
+    torch.manual_seed(seed)
+    return LinearHeadActor(
+        MLP(in_features=obs_dim, out_features=action_dim, num_cells=[8]), action_dim
+    )
+
+
+def tiny_iql_loss(obs_dim: int = 3, action_dim: int = 2, *, seed: int = 0) -> IQLLoss:
+    """A real TorchRL ``IQLLoss`` with tiny ``ValueOperator`` Q (twin) and V networks."""
+    torch.manual_seed(seed)
+    policy = tanh_normal_actor(obs_dim, action_dim)
+    qvalue = ValueOperator(
+        MLP(in_features=obs_dim + action_dim, out_features=1, num_cells=[8]),
+        in_keys=["observation", "action"],
+    )
+    value = ValueOperator(
+        MLP(in_features=obs_dim, out_features=1, num_cells=[8]), in_keys=["observation"]
+    )
+    return IQLLoss(policy, qvalue, value, num_qvalue_nets=2)
+
+
+def observation_action_batch(
+    batch: int = 16, obs_dim: int = 3, action_dim: int = 2, *, seed: int = 0
+) -> TensorDict:
+    gen = torch.Generator().manual_seed(seed)
+    return TensorDict(
+        {
+            "observation": torch.randn(batch, obs_dim, generator=gen),
+            "action": torch.rand(batch, action_dim, generator=gen) * 2 - 1,
+        },
+        [batch],
     )
