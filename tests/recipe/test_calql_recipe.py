@@ -126,6 +126,15 @@ def test_the_episode_in_progress_survives_an_interruption_cut(tmp_path):
     ends = online["next", "done"].squeeze(-1).nonzero().squeeze(-1).tolist()
     assert ends == [39, 49, 89]
     assert bool(online["next", "truncated"][49])  # the cut
+    # three episodes, three ids: the cut one (held through the resume, so not among the
+    # stored data the resumed run saw) keeps its id, the new one gets a fresh one
+    ids = online["episode"].reshape(-1)
+    assert [sorted(set(ids[a:b].tolist())) for a, b in ((0, 40), (40, 50), (50, 90))] == [
+        [ids[0].item()],
+        [ids[40].item()],
+        [ids[50].item()],
+    ]
+    assert len({ids[0].item(), ids[40].item(), ids[50].item()}) == 3
     expected = monte_carlo_returns(online, finished.cfg.critic.discount)
     assert torch.allclose(online[MC_RETURN], expected.float())
     by_hand = sum(

@@ -76,8 +76,8 @@ class MonteCarloLabels:
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restores the held episode, cut: a resumed run's collector starts a new episode,
         so the held one ends at its last transition (marked truncated and done, and
-        released with the next finished episode; ``monte_carlo_returns`` splits at the flag
-        even where the new episode reuses its id)."""
+        released with the next finished episode, under its own id: the run's episode
+        counter, checkpointed, is already past it)."""
         self.pending = state.get("pending")
         if self.pending is not None:
             for flag in ("truncated", "done"):

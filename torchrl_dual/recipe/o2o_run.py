@@ -202,8 +202,9 @@ class O2ORun:
             setattr(self, name, state[name] if name != "online_signals" else state.get(name, []))
         if state["online_data"] is not None:
             self.replay.extend(state["online_data"])
-            # The collector starts a new episode on resume: never reuse the cut one's id.
-            self.next_episode = int(state["online_data"]["episode"].max()) + 1
+            # next_episode (a counter above) is past every id handed out, stored or held
+            # by the learner (Cal-QL's MonteCarloLabels): the collector's new episode
+            # after the resume takes it, the cut one keeps its own.
         if "replay" in state:  # after the online data: the priorities follow it
             self.replay.load_state_dict(state["replay"])
         set_rng_state(state["rng"])
