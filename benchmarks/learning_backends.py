@@ -98,7 +98,9 @@ def run_recipe(
     if not (path / "summary.json").exists():  # else: finished, only the JSON is missing
         if (path / "checkpoint.pt").exists() and "resume=true" not in command:
             command = [*command, "resume=true"]
+        # unbuffered: the recipe's stage lines reach stdout.txt as they are printed
         env = {**os.environ, "OMP_NUM_THREADS": "1", "HYDRA_FULL_ERROR": "0"}
+        env["PYTHONUNBUFFERED"] = "1"
         with open(path / "stdout.txt", "w") as out, open(path / "stderr.txt", "w") as err:
             python = [sys.executable, *command[1:]]  # this node's interpreter
             proc = subprocess.Popen(

@@ -120,6 +120,12 @@ def test_iql_runs_end_to_end_on_pointmaze_with_dual_s_budget_and_critics(iql_uma
     out, proc = iql_umaze_run
     assert "[iql] normalized score after the offline phase:" in proc.stdout
     assert "[iql] normalized score at the end of the online phase:" in proc.stdout
+    # progress=false (a suite run, a log file): the stages and every 10 % say so instead
+    lines = proc.stdout.splitlines()
+    assert "[iql] actor_critic: started" in lines
+    steps = [line for line in lines if line.startswith("[iql] actor+critic: ")]
+    assert steps == [f"[iql] actor+critic: {6 * k}/60 updates" for k in range(1, 11)]
+    assert any(line.startswith("[iql] actor_critic: done in ") for line in lines)
     scalars = out / "logs" / "iql" / "scalars"
     assert csv_steps(scalars / "eval" / "normalized_score.csv") == [0, 200, 400]
     # budget.offline_updates = 60 updates offline, then 0.5 per frame for 400 frames

@@ -216,8 +216,13 @@ class O2ORun:
             self.say(f"{name}: done in the checkpoint, skipped")
             return
         clock = StageClock(self, name)
+        self.say(f"{name}: started")
         fn()
         clock.tick()
+        self.say(
+            f"{name}: done in {self.stage_seconds[name]:.0f} s "
+            f"({self.stage_cpu_seconds[name]:.0f} CPU-s)"
+        )
         self.stages_done.append(name)
         self.save()
 
@@ -246,12 +251,15 @@ class O2ORun:
             disable=not self.cfg.progress,
             leave=False,
         )
+        tenth = max(self.cfg.budget.offline_updates // 10, 1)
         for i in bar:
             metrics = self.update(self.offline_buffer.sample().to(self.cfg.device))
             if i % 100 == 0:
                 self.log(metrics, self.updates, "offline/")
                 if "loss_actor" in metrics:
                     bar.set_postfix(actor=f"{metrics['loss_actor']:.3f}")
+            if not self.cfg.progress and (i + 1) % tenth == 0:  # no bar: a line per 10 %
+                self.say(f"actor+critic: {i + 1}/{self.cfg.budget.offline_updates} updates")
 
     def evaluate(self, label: str) -> dict:
         result = self.evaluate_policy(self.learner.evaluation_policy)
