@@ -35,6 +35,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from learning_backends import BACKENDS, Outcome, add_arguments, check_arguments, machine
+from learning_cost import queue_cost_text
 from learning_grid import CELLS, ONLINE_ONLY, VARIANTS, Cell  # noqa: F401 - the grid
 from learning_plots import latency_points, plot_cell_curves, plot_latency_vs_score
 from learning_report import compact_result, load_results, render_section, replace_section
@@ -275,6 +276,7 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"{len(runs)} runs in the grid, {len(runs) - len(todo)} already done, {len(todo)} to run"
         )
+        print(queue_cost_text(todo, load_results(args.results / args.budget), args.jobs))
         if args.dry_run:
             for run in todo:
                 print(shlex.join(suite.command(run)[1:]))
