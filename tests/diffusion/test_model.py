@@ -165,3 +165,23 @@ def test_state_dict_round_trip_restores_weights_num_steps_and_normalizer(make_mo
     assert {"_num_steps", "normalizer.obs_mean", "normalizer.action_std"} <= set(
         source.state_dict()
     )
+
+
+def test_normalized_window_standardises_each_dimension_with_the_fitted_data(make_layout):
+    """``x_0`` as the planner is trained on it: every state and action dimension of the
+    data it was fitted on has mean 0 and standard deviation 1 inside the window."""
+    layout = make_layout()
+    model = TrajectoryDiffusion(layout)
+    scale_obs, scale_act = torch.arange(1.0, layout.obs_dim + 1), torch.tensor(0.1)
+    observation = torch.randn(4096, layout.length, layout.obs_dim) * scale_obs + 3.0
+    action = torch.randn(4096, layout.length, layout.action_dim) * scale_act - 1.0
+    model.normalizer.fit(observation.flatten(0, 1), action.flatten(0, 1))
+
+    x0 = model.normalized_window(observation, action)
+
+    assert x0.shape == (4096, *layout.window_shape)
+    flat = x0.flatten(0, 1)
+    torch.testing.assert_close(flat.mean(0), torch.zeros(layout.transition_dim), atol=1e-5, rtol=0)
+    torch.testing.assert_close(flat.std(0), torch.ones(layout.transition_dim), atol=1e-5, rtol=0)
+    data = action.flatten(0, 1)
+    torch.testing.assert_close(layout.actions(x0), (action - data.mean(0)) / data.std(0))

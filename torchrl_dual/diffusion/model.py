@@ -94,6 +94,15 @@ class TrajectoryDiffusion(nn.Module):
             if module is not self.denoiser and hasattr(module, "reset_parameters"):
                 module.reset_parameters()
 
+    def normalized_window(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """Raw ``[*B, H + 1, obs_dim]`` states and ``[*B, H + 1, action_dim]`` actions ->
+        the clean window ``x_0`` ``[*B, H + 1, D]`` in the units the model is trained in
+        (its :class:`~torchrl_dual.diffusion.Normalizer`, then the layout's packing)."""
+        norm = self.normalizer
+        return self.layout.pack(
+            norm.normalize_observation(observation), norm.normalize_action(action)
+        )
+
     # ---------------------------------------------------------------- forward process
     def _scales(self, t: torch.Tensor, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         alpha, sigma = self.schedule(t.to(like.dtype))

@@ -46,8 +46,7 @@ def normalized_windows(
         if not torch.isfinite(value).all():
             bad = int((~torch.isfinite(value)).sum())
             raise ValueError(f"{role} holds {bad} NaN/inf entries; clean the data first.")
-    norm = model.normalizer
-    x0 = layout.pack(norm.normalize_observation(observation), norm.normalize_action(action))
+    x0 = model.normalized_window(observation, action)
     mask = tensordict.get(mask_key, default=None)
     if mask is None:
         batch = x0.shape[:-2]

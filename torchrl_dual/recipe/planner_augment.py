@@ -222,15 +222,12 @@ class PlannerAugmenter:
 
     def normalized(self, windows: TensorDictBase) -> torch.Tensor:
         """``[B, H + 1]`` window TensorDict -> the planner's normalized ``[B, H + 1, D]``."""
-        return self.normalize(self.layout.pack(windows["observation"], windows["action"]))
+        return self.planner.normalized_window(windows["observation"], windows["action"])
 
     def normalize(self, windows: torch.Tensor) -> torch.Tensor:
         """Raw ``[B, H + 1, D]`` windows in the planner's normalized units."""
-        norm, layout = self.planner.normalizer, self.layout
-        return layout.pack(
-            norm.normalize_observation(layout.observations(windows)),
-            norm.normalize_action(layout.actions(windows)),
-        )
+        layout = self.layout
+        return self.planner.normalized_window(layout.observations(windows), layout.actions(windows))
 
     def fit_guider(self, online_windows: WindowReplayBuffer) -> dict[str, float]:
         """``augment.guider_updates`` logistic-loss steps, offline (0) vs online (1)."""
