@@ -203,24 +203,14 @@ def make_iql_critic(
     critic's optimizer leaves alone.
     """
     c = cfg.critic
-    cells = [c.hidden] * c.depth
-
-    class _QNet(nn.Module):
-        def __init__(self) -> None:
-            super().__init__()
-            self.mlp = MLP(
-                in_features=obs_dim + action_dim,
-                out_features=1,
-                num_cells=cells,
-                activation_class=nn.ReLU,
-            )
-
-        def forward(self, observation, action):
-            return self.mlp(torch.cat([observation, action], -1))
-
-    qvalue = ValueOperator(_QNet(), in_keys=["observation", "action"])
+    qvalue = q_network(cfg, obs_dim, action_dim)
     value = ValueOperator(
-        MLP(in_features=obs_dim, out_features=1, num_cells=cells, activation_class=nn.ReLU),
+        MLP(
+            in_features=obs_dim,
+            out_features=1,
+            num_cells=[c.hidden] * c.depth,
+            activation_class=nn.ReLU,
+        ),
         in_keys=["observation"],
     )
     if actor is None:
@@ -319,7 +309,7 @@ def so2_phase(loss: SO2QLoss, *, cfg: DictConfig, online: bool) -> None:
 
 def q_network(cfg: DictConfig, obs_dim: int, action_dim: int) -> ValueOperator:
     """``Q(s, a)``: an MLP on the concatenated ``(s, a)``, ``critic.depth`` hidden layers of
-    ``critic.hidden`` units (Cal-QL's and SO2's critics)."""
+    ``critic.hidden`` units (every critic's: IQL's twin, Cal-QL's twin, SO2's ensemble)."""
     c = cfg.critic
     mlp = MLP(
         in_features=obs_dim + action_dim,
