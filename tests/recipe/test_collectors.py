@@ -1,6 +1,7 @@
 """``collector=single|multi_sync|multi_async`` (``torchrl_dual/recipe/collectors.py``).
 
-A DUAL run with two ``multi_async`` workers, interrupted and resumed in this process,
+A DUAL run with two ``multi_sync`` workers, interrupted and resumed with two
+``multi_async`` ones in this process,
 stores one transition per collected frame, each episode one contiguous trajectory under an
 id never used before (also across the resume), and each worker's ``previous_*`` keys
 follow that worker's own trajectory. Workers act with the latest weights: a buffer
@@ -75,9 +76,11 @@ def two_worker_run(tmp_path_factory, collector, *extra):
 
 @pytest.fixture(scope="module")
 def async_run(tmp_path_factory):
-    """DUAL with ``collector=multi_async`` (2 workers): interrupted at 60 frames, resumed;
-    every collected batch is recorded as ``store`` receives it."""
+    """DUAL with ``collector=multi_sync`` (2 workers), interrupted at 60 frames, resumed
+    with ``collector=multi_async`` (the collector may change on resume, as on a machine
+    with other cores); every collected batch is recorded as ``store`` receives it."""
     overrides = two_worker_run(tmp_path_factory, "multi_async")
+    first_half = [o.replace("collector=multi_async", "collector=multi_sync") for o in overrides]
     batches: list = []
     original = O2ORun.store
 
@@ -88,7 +91,7 @@ def async_run(tmp_path_factory):
     O2ORun.store = store
     try:
         with time_limit(300):
-            first = run(compose_checked(CONFIG_DIR, [*overrides, "interrupt_at_frames=60"]))
+            first = run(compose_checked(CONFIG_DIR, [*first_half, "interrupt_at_frames=60"]))
             interrupted = first.state()
             children_between = multiprocessing.active_children()
             second = run(compose_checked(CONFIG_DIR, [*overrides, "resume=true"]))
@@ -123,7 +126,7 @@ def assert_previous_keys_follow_trajectories(batches):
     """In every collected batch, each trajectory's ``previous_*`` keys are its own previous
     step (none at its first step); returns how many steps were checked."""
     checked = 0
-    for batch in batches:
+    for batch in (b.reshape(-1) for b in batches):  # multi_sync: [workers, frames]
         for traj in batch["collector", "traj_ids"].unique():
             steps = batch[batch["collector", "traj_ids"] == traj]
             valid = steps["previous_valid"].reshape(-1)
@@ -151,6 +154,8 @@ def test_a_multi_worker_run_stores_every_frame_once_with_unique_contiguous_episo
     assert_contiguous_episodes(online)
     # both workers' batches were stored (async: whichever is ready first)
     assert len({b["collector", "traj_ids"].min().item() for b in async_run.batches}) > 1
+    # multi_sync's [workers, frames] batches before the resume, multi_async's after
+    assert [tuple(b.shape) for b in async_run.batches] == [(2, 10)] * 3 + [(20,)] * 3
 
 
 def test_each_worker_s_previous_keys_follow_its_own_trajectory(async_run):

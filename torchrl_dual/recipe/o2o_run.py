@@ -46,6 +46,7 @@ RESUMABLE_KEYS = (
     "device",
     "debug",
     "offline_cache",
+    "collector",  # how frames are gathered: a resumed run may use other workers or cores
 )
 # Part of the fingerprint: a checkpoint of another layout (e.g. written before the
 # O2ORun / Learner split) is refused with the checkpoint's "incompatible run" error.
