@@ -148,6 +148,33 @@ def test_online_env_is_the_data_sets_env_behind_the_same_observation_map(minari_
     assert np.allclose(obs, (train.flatten(raw) - train.loc) / train.scale)
 
 
+def test_a_worker_s_env_is_built_from_the_data_set_s_description_not_its_data(
+    minari_path, tmp_path, monkeypatch
+):
+    """``collector.num_workers`` processes each build their env from a ``TrainEnvFactory``:
+    it carries the data set without its transitions (a few kB through the pickle), and
+    the env it builds normalizes and scales like the run's, without reading the data set
+    again."""
+    import pickle
+
+    from torchrl_dual.recipe import minari_kits
+
+    cfg = compose(tmp_path, "env=hopper", "env.max_episode_steps=10")
+    data = env_kits.make_offline_dataset(cfg)
+    factory = pickle.loads(pickle.dumps(env_kits.TrainEnvFactory(cfg, data)))
+    assert len(pickle.dumps(env_kits.TrainEnvFactory(cfg, data))) < 20_000 < len(pickle.dumps(data))
+
+    def no_reading(*args, **kwargs):
+        raise AssertionError("the worker read the data set again")
+
+    monkeypatch.setattr(minari_kits, "load_minari_dataset", no_reading)
+    worker_env, run_env = factory(), env_kits.make_train_env(cfg, data)
+    worker_env.set_seed(5)
+    run_env.set_seed(5)
+    assert torch.equal(worker_env.reset()["observation"], run_env.reset()["observation"])
+    assert factory.data.metadata == data.metadata
+
+
 def test_a_changed_observation_layout_is_refused():
     import gymnasium as gym
 

@@ -28,6 +28,9 @@ class OfflineDataset:
         >>> data = OfflineDataset(td, reference_min=0.0, reference_max=10.0)
         >>> data.obs_dim, data.action_dim, data.normalized_score(5.0)
         (3, 1, 50.0)
+        >>> head = data.without_transitions()
+        >>> len(head), head.obs_dim, head.normalized_score(5.0)
+        (0, 3, 50.0)
     """
 
     transitions: TensorDictBase
@@ -49,6 +52,18 @@ class OfflineDataset:
 
     def __len__(self) -> int:
         return int(self.transitions.batch_size[0])
+
+    def without_transitions(self) -> OfflineDataset:
+        """The data set's description without its transitions (an empty slice keeps the
+        keys and dims): references and metadata, a few kilobytes to send to a worker
+        process that needs what the data set says of its env (e.g. the observation
+        normalization of a Minari kit), not the data."""
+        return OfflineDataset(
+            self.transitions[:0].clone(),
+            self.reference_min,
+            self.reference_max,
+            dict(self.metadata),
+        )
 
     def normalized_score(self, returns: ReturnsT) -> ReturnsT:
         """``100 * (R - reference_min) / (reference_max - reference_min)``."""

@@ -108,7 +108,7 @@ def make_multi(collector_class: type) -> Callable[[O2ORun, int], BaseCollector]:
     def make(run: O2ORun, total_frames: int) -> BaseCollector:
         cfg = run.cfg
         collector = collector_class(
-            [TrainEnvFactory(cfg)] * cfg.collector.num_workers,
+            [TrainEnvFactory(cfg, run.data)] * cfg.collector.num_workers,
             copy.deepcopy(run.learner.exploration_policy),  # the acting copy
             frames_per_batch=cfg.budget.frames_per_batch,
             total_frames=total_frames,

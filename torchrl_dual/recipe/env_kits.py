@@ -252,13 +252,16 @@ def make_train_env(cfg: DictConfig, data: OfflineDataset | None = None) -> EnvBa
 class TrainEnvFactory:
     """``() -> env``: the online env of ``cfg`` (with ``PreviousTransition``), picklable.
 
-    It holds the resolved config as plain containers, so a spawned worker process (or a
-    Ray actor) receives a few kilobytes rather than the run's offline data; kits whose env
-    depends on the data (the Minari kits' observation normalization) read it from the data
-    cache.
+    It holds the resolved config as plain containers and the offline data set without its
+    transitions (:meth:`~torchrl_dual.data.OfflineDataset.without_transitions`), so a
+    spawned worker process (or a Ray actor) receives a few kilobytes rather than the run's
+    offline data; kits whose env depends on the data (the Minari kits' observation
+    normalization and reward scale) find it in that description. Without ``data`` they
+    read the data set again in each worker.
 
     Args:
         cfg (DictConfig): a validated recipe config.
+        data (OfflineDataset, optional): the run's ``D_offline``.
 
     Examples:
         >>> import pickle
@@ -271,11 +274,12 @@ class TrainEnvFactory:
         True
     """
 
-    def __init__(self, cfg: DictConfig) -> None:
+    def __init__(self, cfg: DictConfig, data: OfflineDataset | None = None) -> None:
         self.config = OmegaConf.to_container(cfg, resolve=True)
+        self.data = None if data is None else data.without_transitions()
 
     def __call__(self) -> EnvBase:
-        return make_train_env(OmegaConf.create(self.config), None)
+        return make_train_env(OmegaConf.create(self.config), self.data)
 
 
 def check_dims(env: EnvBase, data: OfflineDataset, name: Any = None) -> None:

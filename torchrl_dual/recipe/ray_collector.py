@@ -124,7 +124,7 @@ def make_ray(run: O2ORun, total_frames: int) -> BaseCollector:
     workers = settings.num_workers
     try:
         collector = RayCollector(
-            [TrainEnvFactory(cfg)] * workers,
+            [TrainEnvFactory(cfg, run.data)] * workers,
             copy.deepcopy(run.learner.exploration_policy),  # what the actors are sent
             frames_per_batch=cfg.budget.frames_per_batch,
             total_frames=total_frames,
