@@ -183,7 +183,7 @@ def test_workers_act_with_the_weights_and_buffers_pushed_after_an_update_block()
     module = ConstantAction()
     policy = TensorDictModule(module, in_keys=["observation"], out_keys=["action"])
     fake_run = SimpleNamespace(
-        cfg=cfg, frames=0, learner=SimpleNamespace(exploration_policy=policy)
+        cfg=cfg, data=None, frames=0, learner=SimpleNamespace(exploration_policy=policy)
     )
     kind = COLLECTORS["multi_sync"]
     collector = kind.make(fake_run, 200)

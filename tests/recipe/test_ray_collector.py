@@ -194,7 +194,10 @@ def test_collector_address_auto_without_a_cluster_is_a_user_error(tmp_path, monk
         CONFIG_DIR, ["collector=ray", "collector.address=auto", f"output_dir={tmp_path}"]
     )
     fake_run = SimpleNamespace(
-        cfg=cfg, frames=0, learner=SimpleNamespace(exploration_policy=torch.nn.Linear(1, 1))
+        cfg=cfg,
+        data=None,
+        frames=0,
+        learner=SimpleNamespace(exploration_policy=torch.nn.Linear(1, 1)),
     )
     with pytest.raises(UserError) as error:
         COLLECTORS["ray"].make(fake_run, 100)
