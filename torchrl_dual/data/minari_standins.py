@@ -21,6 +21,7 @@ from typing import Any
 import gymnasium as gym
 
 from torchrl_dual.data.minari_writer import collect_episodes, write_minari_dataset
+from torchrl_dual.envs.maze_xml import release_maze_xml
 
 R, G = "r", "g"
 UMAZE_MAP = [[1, 1, 1, 1, 1], [1, G, 0, 0, 1], [1, 1, 1, 0, 1], [1, R, 0, 0, 1], [1, 1, 1, 1, 1]]
@@ -96,10 +97,11 @@ def write_standin_dataset(
 
     gym.register_envs(gymnasium_robotics)
     standin = STANDINS[dataset_id]
-    env = gym.make(standin.env_id, **standin.kwargs)
+    env = release_maze_xml(gym.make(standin.env_id, **standin.kwargs))
     eval_spec = None
     if standin.eval_kwargs is not None:
-        eval_spec = gym.make(standin.env_id, **{**standin.kwargs, **standin.eval_kwargs}).spec
+        eval_env = gym.make(standin.env_id, **{**standin.kwargs, **standin.eval_kwargs})
+        eval_spec = release_maze_xml(eval_env).spec
     buffers = collect_episodes(env, None, num_episodes, seed=seed, max_steps=steps)
     env.close()
     return write_minari_dataset(

@@ -26,6 +26,7 @@ from torchrl_dual.envs.locomotion_shifts import (
     LocomotionShift,
     locomotion_robot,
 )
+from torchrl_dual.envs.maze_xml import release_maze_xml
 from torchrl_dual.envs.onehot_action import ContinuousOneHotAction
 from torchrl_dual.envs.pointmaze import (
     POINTMAZE_IDS,
@@ -85,5 +86,6 @@ __all__ = [
     "make_frozenlake_env",
     "make_pointmaze_env",
     "make_pointmaze_gym_env",
+    "release_maze_xml",
     "pointmaze_env_id",
 ]

@@ -21,6 +21,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from torchrl_dual.envs.maze_xml import release_maze_xml
 from torchrl_dual.envs.shifts import apply_shift, check_shift
 
 POINTMAZE_IDS: dict[str, str] = {
@@ -131,7 +132,11 @@ def make_pointmaze_gym_env(
     env_id, kwargs = _gym_kwargs(maze, max_episode_steps, continuing_task, reward_type)
     check_shift(shift, "pointmaze")
     return apply_shift(
-        gym.make(env_id, **kwargs), shift, angle=shift_angle, scale=shift_scale, kind="pointmaze"
+        release_maze_xml(gym.make(env_id, **kwargs)),
+        shift,
+        angle=shift_angle,
+        scale=shift_scale,
+        kind="pointmaze",
     )
 
 
@@ -215,9 +220,10 @@ def make_pointmaze_env(
     check_shift(shift, "pointmaze")
     if shift == "none":
         base = GymEnv(env_id, device=device, **kwargs)
+        release_maze_xml(base._env)  # TorchRL's wrapped gym env
     else:
         shifted = apply_shift(
-            gym.make(env_id, **kwargs),
+            release_maze_xml(gym.make(env_id, **kwargs)),
             shift,
             angle=shift_angle,
             scale=shift_scale,

@@ -37,7 +37,13 @@ from torch import nn
 from torchrl.envs import EnvBase
 
 from torchrl_dual.data import OfflineDataset, load_minari_dataset
-from torchrl_dual.envs import FlatObservation, apply_shift, make_flat_env, shift_names
+from torchrl_dual.envs import (
+    FlatObservation,
+    apply_shift,
+    make_flat_env,
+    release_maze_xml,
+    shift_names,
+)
 from torchrl_dual.evaluation import evaluate_episodes
 from torchrl_dual.recipe.env_kit import EnvKit, EnvSettings, Evaluator
 from torchrl_dual.recipe.errors import ConfigError, UserError
@@ -272,7 +278,7 @@ def _gym_env(cfg: DictConfig, data: OfflineDataset, *, eval_env: bool, shifted: 
     dataset_id = FAMILIES[env.kind].dataset_id(env)
     dataset = minari.load_dataset(dataset_id)
     kwargs = {} if env.max_episode_steps is None else {"max_episode_steps": env.max_episode_steps}
-    raw = dataset.recover_environment(eval_env=eval_env, **kwargs)
+    raw = release_maze_xml(dataset.recover_environment(eval_env=eval_env, **kwargs))
     check_observation_layout(dataset.observation_space, raw.observation_space, dataset_id)
     if shifted:
         raw = apply_shift(raw, env.shift, scale=env.shift_scale, kind=env.kind)
