@@ -276,7 +276,9 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"{len(runs)} runs in the grid, {len(runs) - len(todo)} already done, {len(todo)} to run"
         )
-        print(queue_cost_text(todo, load_results(args.results / args.budget), args.jobs))
+        leaders = {run.sharing_key(): run for run in reversed(todo)}  # each key's first
+        shares = [leaders[run.sharing_key()] is not run for run in todo]
+        print(queue_cost_text(todo, load_results(args.results / args.budget), args.jobs, shares))
         if args.dry_run:
             for run in todo:
                 print(shlex.join(suite.command(run)[1:]))

@@ -5,8 +5,10 @@ for JSONs from before it) of the finished runs of the same variant in the same c
 of the same variant on the same env in another cell (a shift changes little of the cost),
 else of any variant with the same ``algo=`` and ``critic=`` on the same env (an ablation
 switch or a shift changes little of it either).
-Runs that share an offline phase with an earlier run of the queue cost less than this
-(their offline stages load from the cache), so the total is an upper estimate for them.
+A run that shares its offline phase with an earlier run of the queue loads it from the
+cache: it is priced without the offline CPU seconds of its likes (``offline_cpu_seconds``).
+One whose phase a finished run left in the cache is still priced in full (an upper
+estimate for it).
 """
 
 from __future__ import annotations
@@ -27,13 +29,19 @@ def _value(overrides: Sequence[str], key: str) -> str | None:
     return next((o.split("=", 1)[1] for o in overrides if o.startswith(f"{key}=")), None)
 
 
-def _seconds(result: dict) -> float | None:
+def _seconds(result: dict, online_only: bool) -> float | None:
     value = result.get("cpu_seconds", result.get("wall_seconds"))
-    return None if value is None else float(value)
+    if value is None:
+        return None
+    offline = result.get("offline_cpu_seconds") if online_only else None
+    return float(value) - float(offline or 0.0)
 
 
-def run_cost(run: QueuedRun, results: dict[str, dict[str, list[dict]]]) -> float | None:
-    """The median measured seconds of ``run``'s like (see the module docstring), or None."""
+def run_cost(
+    run: QueuedRun, results: dict[str, dict[str, list[dict]]], *, shares_offline: bool = False
+) -> float | None:
+    """The median measured seconds of ``run``'s likes (see the module docstring), without
+    their offline phase if ``shares_offline``; None if nothing like it has finished."""
     env = _value(run.overrides, "env")
     on_env = [
         (variant, result)
@@ -51,17 +59,21 @@ def run_cost(run: QueuedRun, results: dict[str, dict[str, list[dict]]]) -> float
         if [_value(result.get("overrides", []), key) for key in ("algo", "critic")] == kind
     ]
     for pool in (same_cell, same_variant, same_kind):
-        seconds = [s for s in map(_seconds, pool) if s is not None]
+        seconds = [s for r in pool if (s := _seconds(r, shares_offline)) is not None]
         if seconds:
             return statistics.median(seconds)
     return None
 
 
 def queue_cost_text(
-    todo: Sequence[QueuedRun], results: dict[str, dict[str, list[dict]]], jobs: int
+    todo: Sequence[QueuedRun],
+    results: dict[str, dict[str, list[dict]]],
+    jobs: int,
+    shares_offline: Sequence[bool] | None = None,
 ) -> str:
     """One paragraph: the queue's estimated CPU hours, the hours on ``jobs`` parallel
-    runs, and the runs nothing measured yet prices.
+    runs, and the runs nothing measured yet prices. ``shares_offline[i]``: run ``i``
+    loads its offline phase from an earlier run of the queue.
 
     Examples:
         >>> from types import SimpleNamespace as Run
@@ -76,7 +88,11 @@ def queue_cost_text(
     """
     if not todo:
         return "nothing to run"
-    costs = [(run, run_cost(run, results)) for run in todo]
+    shared = shares_offline or [False] * len(todo)
+    costs = [
+        (run, run_cost(run, results, shares_offline=sh))
+        for run, sh in zip(todo, shared, strict=True)
+    ]
     priced = [seconds for _, seconds in costs if seconds is not None]
     unpriced = Counter(f"{run.cell}/{run.variant}" for run, seconds in costs if seconds is None)
     hours = sum(priced) / 3600

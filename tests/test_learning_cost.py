@@ -49,3 +49,14 @@ def test_a_run_is_priced_by_its_closest_finished_likes():
 
 def test_an_empty_queue_costs_nothing():
     assert learning_cost.queue_cost_text([], {}, jobs=2) == "nothing to run"
+
+
+def test_a_run_sharing_an_earlier_run_s_offline_phase_is_priced_online_only():
+    """The second run of an offline-sharing group loads the phase from the cache: its likes'
+    offline CPU seconds are left out, the first run pays them."""
+    result = {**_result(1000.0), "offline_cpu_seconds": 700.0}
+    results = {"umaze": {"dual": [result]}}
+    run = SimpleNamespace(cell="umaze", variant="dual", overrides=UMAZE)
+    assert learning_cost.run_cost(run, results, shares_offline=True) == 300.0
+    text = learning_cost.queue_cost_text([run, run], results, jobs=1, shares_offline=[False, True])
+    assert "≈ 0.4 CPU-hours for 2 of them" in text  # 1000 + 300 s
