@@ -56,6 +56,19 @@ def test_a_fingerprint_mismatch_names_every_dotted_key_with_both_values(tmp_path
     assert "Resume with the original settings, or use another output_dir" in message
 
 
+def test_free_keys_may_differ_or_be_missing_on_either_side(tmp_path):
+    """A checkpoint written while ``collector`` was still fingerprinted loads in a run that
+    treats it as free, and a free key may change; the other keys still must match."""
+    path = tmp_path / "ckpt.pt"
+    RunCheckpoint(path, {"env": "umaze", "collector": {"name": "single"}, "out": "a"}).save({})
+    free = ("collector", "out")
+    assert RunCheckpoint(path, {"env": "umaze", "out": "b"}, free_keys=free).load() == {}
+    with pytest.raises(CheckpointError, match=r"\(env: checkpoint='umaze' now='medium'\)"):
+        RunCheckpoint(path, {"env": "medium"}, free_keys=free).load()
+    with pytest.raises(CheckpointError, match="collector: checkpoint="):
+        RunCheckpoint(path, {"env": "umaze", "out": "a"}).load()  # not free: a difference
+
+
 def test_a_corrupt_file_is_reported_as_such(tmp_path):
     path = tmp_path / "ckpt.pt"
     path.write_bytes(b"not a checkpoint at all")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import random
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -47,6 +48,11 @@ class RunCheckpoint:
         path (str or Path): checkpoint file.
         fingerprint (dict): JSON-like settings that a resumed run must share.
 
+    Keyword Args:
+        free_keys (sequence of str): top-level fingerprint keys a resumed run may change;
+            ignored on both sides when a checkpoint is loaded, so a checkpoint written when
+            one of them was still fingerprinted loads too. Defaults to none.
+
     Examples:
         >>> import tempfile, torch
         >>> ckpt = RunCheckpoint(tempfile.mkdtemp() + "/ckpt.pt", {"env": "umaze"})
@@ -55,9 +61,12 @@ class RunCheckpoint:
         3
     """
 
-    def __init__(self, path: str | Path, fingerprint: dict[str, Any]) -> None:
+    def __init__(
+        self, path: str | Path, fingerprint: dict[str, Any], *, free_keys: Sequence[str] = ()
+    ) -> None:
         self.path = Path(path)
         self.fingerprint = fingerprint
+        self.free_keys = frozenset(free_keys)
 
     def exists(self) -> bool:
         return self.path.is_file()
@@ -90,11 +99,14 @@ class RunCheckpoint:
                 f"{self.path} is not a torchrl-dual checkpoint of format {FORMAT_VERSION}; "
                 "delete it or use another output_dir."
             )
-        saved = payload["fingerprint"]
-        if saved != self.fingerprint:
+        saved, now = (
+            {k: v for k, v in fp.items() if k not in self.free_keys}
+            for fp in (payload["fingerprint"], self.fingerprint)
+        )
+        if saved != now:
             diff = [
                 f"{key}: checkpoint={old!r} now={new!r}"
-                for key, old, new in _differences(saved, self.fingerprint)
+                for key, old, new in _differences(saved, now)
             ]
             raise CheckpointError(
                 f"The checkpoint {self.path} comes from an incompatible run ("

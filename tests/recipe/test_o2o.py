@@ -37,10 +37,16 @@ def csv_steps(path: Path) -> list[int]:
     return [int(line.split(",")[0]) for line in path.read_text().splitlines() if line]
 
 
-def interrupt_then_resume(out: Path, cache_dir: Path, *overrides: str) -> dict:
-    """A run stopped after ``INTERRUPT_AT`` online frames, then continued with resume=true."""
+def interrupt_then_resume(
+    out: Path, cache_dir: Path, *overrides: str, move_to: Path | None = None
+) -> dict:
+    """A run stopped after ``INTERRUPT_AT`` online frames, then continued with resume=true
+    (in ``move_to`` if given: the run directory is moved there first)."""
     first = succeeded(run_recipe(out, cache_dir, *overrides, f"interrupt_at_frames={INTERRUPT_AT}"))
     interrupted = checkpoint_state(out)
+    if move_to is not None:
+        shutil.move(out, move_to)
+        out = move_to
     second = succeeded(run_recipe(out, cache_dir, *overrides, "resume=true"))
     return {
         "dir": out,
@@ -84,9 +90,12 @@ def iql_umaze_run(tmp_path_factory, cache_dir):
 
 @pytest.fixture(scope="session")
 def iql_frozenlake_resumed(tmp_path_factory, cache_dir) -> dict:
-    """IQL on Frozen-Lake stopped after 200 online frames, then continued with resume=true."""
-    out = tmp_path_factory.mktemp("iql_frozenlake") / "run"
-    return interrupt_then_resume(out, cache_dir, "algo=iql", "env=frozenlake")
+    """IQL on Frozen-Lake stopped after 200 online frames, then moved to another directory
+    and continued there with resume=true (``output_dir`` may change on resume)."""
+    base = tmp_path_factory.mktemp("iql_frozenlake")
+    return interrupt_then_resume(
+        base / "run", cache_dir, "algo=iql", "env=frozenlake", move_to=base / "moved"
+    )
 
 
 def umaze_cache_entry(cache_dir: Path) -> Path:
@@ -157,6 +166,7 @@ def test_iql_on_frozenlake_stores_one_hot_actions_and_resumes_where_it_stopped(
     actions = final["online_data"]["action"]  # executed: the env kit's one-hot projection
     assert ((actions == 0) | (actions == 1)).all() and (actions.sum(-1) == 1).all()
     reward_csv = run["dir"] / "logs" / "iql" / "scalars" / "online" / "reward_per_step.csv"
+    assert run["dir"].name == "moved"  # the moved run continued its own logs
     assert csv_steps(reward_csv) == [100, 200, 300, 400]
 
 

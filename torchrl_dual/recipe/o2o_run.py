@@ -39,6 +39,8 @@ from torchrl_dual.recipe.stage_clock import StageClock
 
 # Settings that may change when a run is resumed; everything else must match.
 RESUMABLE_KEYS = (
+    "output_dir",  # a run directory may be moved (or copied) and resumed where it is
+    "data_cache_dir",  # the data is regenerated identically from its seed, or read
     "resume",
     "progress",
     "interrupt_at_frames",
@@ -102,7 +104,9 @@ class O2ORun:
         }
         fingerprint["checkpoint_layout"] = self.checkpoint_layout = CHECKPOINT_LAYOUT
         check_output_dir(cfg)
-        self.checkpoint = RunCheckpoint(self.output_dir / "checkpoint.pt", fingerprint)
+        self.checkpoint = RunCheckpoint(
+            self.output_dir / "checkpoint.pt", fingerprint, free_keys=RESUMABLE_KEYS
+        )
         # Read a checkpoint first, so a corrupt or incompatible one fails before any work.
         saved = self._load_checkpoint() if cfg.resume and self.checkpoint.exists() else None
         # ---- data and envs (Alg. 1 line 1)
