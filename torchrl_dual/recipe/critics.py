@@ -9,6 +9,7 @@ policy-smoothed targets; ``algo=so2`` and ``algo=dual``).
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
@@ -108,8 +109,10 @@ class Critic:
     def modules(self) -> dict[str, Any]:
         """What a learner's checkpoint holds of the critics (:meth:`Learner.modules`): the
         loss (V, the Q and the target Q networks) and its optimizer."""
-        loss = self.loss if self.saves_actor else _WithoutActor(self.loss)
-        return {"critic": loss, "critic_optimizer": self.optimizer}
+        return {
+            "critic": _CriticState(self.loss, keep_actor=self.saves_actor),
+            "critic_optimizer": self.optimizer,
+        }
 
     def step(self, batch: TensorDictBase, *, online: bool = False) -> dict[str, torch.Tensor]:
         """Critic updates of Alg. 1 (lines 7 and 15): per batch (``[B]``, or each of a
@@ -149,25 +152,54 @@ def so2_terms(loss: SO2QLoss, batch: TensorDictBase) -> dict[str, torch.Tensor]:
     return {"loss_qvalue": loss.qvalue_loss(batch)[0].mean()}
 
 
-class _WithoutActor:
-    """A critic loss's ``state_dict`` without the actor weights it samples (saved by the
-    learner as its actor's)."""
+class _CriticState:
+    """What a checkpoint holds of a critic loss: its ``state_dict``, without the actor
+    weights it samples unless ``keep_actor`` (else the learner saves them as its actor's).
+    Loading renames the Q keys of checkpoints written before IQL's Q networks came from
+    :func:`q_network` (:func:`upgraded_critic_state`)."""
 
-    def __init__(self, loss: nn.Module) -> None:
-        self.loss = loss
+    def __init__(self, loss: nn.Module, *, keep_actor: bool) -> None:
+        self.loss, self.keep_actor = loss, keep_actor
 
     def state_dict(self) -> dict[str, Any]:
-        return {k: v for k, v in self.loss.state_dict().items() if not _is_actor(k)}
+        state = self.loss.state_dict()
+        return state if self.keep_actor else {k: v for k, v in state.items() if not _is_actor(k)}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        missing, unexpected = self.loss.load_state_dict(state, strict=False)
-        wrong = [k for k in missing if not _is_actor(k)] + list(unexpected)
-        if wrong:
-            raise RuntimeError(f"critic state does not fit: {wrong[:5]}")
+        """Loads ``state`` after checking its keys here: TorchRL 0.14's ``LossModule``
+        (its ``TensorDictParams``) reports a parameter key it does not have as matched and
+        skips it, even with ``strict=True``, which would leave those networks as they were
+        initialised without a word (``test_critic_checkpoint.py`` shows the upstream
+        behaviour)."""
+        state = upgraded_critic_state(state)
+        given = {k for k in state if self.keep_actor or not _is_actor(k)}
+        expected = set(self.state_dict())
+        if given != expected:
+            missing, unexpected = sorted(expected - given), sorted(given - expected)
+            raise RuntimeError(
+                f"critic state does not fit: missing {missing[:5]}, unexpected {unexpected[:5]}"
+            )
+        self.loss.load_state_dict(state, strict=self.keep_actor)
 
 
 def _is_actor(name: str) -> bool:
     return name.startswith(("actor_network_params", "target_actor_network_params"))
+
+
+_OLD_IQL_Q = re.compile(r"^((?:target_)?qvalue_network_params\.module)\.mlp\.")
+
+
+def upgraded_critic_state(state: dict[str, Any]) -> dict[str, Any]:
+    """A critic ``state_dict`` in today's key layout: until 2026-12-02 IQL's Q networks were
+    an ``MLP`` inside a small module (keys ``qvalue_network_params.module.mlp.0.weight``);
+    they are :func:`q_network`'s ``MLP`` itself now (``...module.0.weight``), the same
+    parameters. Other keys are kept.
+
+    Examples:
+        >>> upgraded_critic_state({"target_qvalue_network_params.module.mlp.0.bias": 1, "x": 2})
+        {'target_qvalue_network_params.module.0.bias': 1, 'x': 2}
+    """
+    return {_OLD_IQL_Q.sub(r"\1.", k): v for k, v in state.items()}
 
 
 class _NoActor(nn.Module):

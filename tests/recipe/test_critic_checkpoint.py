@@ -1,0 +1,76 @@
+"""What a checkpoint holds of a critic (``critics._CriticState``): checkpoints of earlier
+versions still resume (the IQL critic's Q networks before they came from
+``critics.q_network``, keys ``...module.mlp.*``), and a state whose keys do not fit is
+refused, which TorchRL's own ``load_state_dict`` does not do."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+import torch
+from omegaconf import OmegaConf
+from recipe_runner import run_recipe, succeeded
+
+from torchrl_dual.recipe import critics
+
+TINY = ("algo=iql", "env=frozenlake", "budget.offline_updates=10", "budget.online_frames=100")
+TINY += ("budget.frames_per_batch=50", "budget.eval_every=100", "budget.eval_episodes=1")
+
+
+def test_an_iql_checkpoint_with_the_former_q_keys_resumes_and_saves_the_new_ones(tmp_path):
+    out, cache = tmp_path / "run", tmp_path / "data"
+    succeeded(run_recipe(out, cache, *TINY, "interrupt_at_frames=50"))
+    path = out / "checkpoint.pt"
+    payload = torch.load(path, map_location="cpu", weights_only=False)
+    critic = payload["state"]["critic"]
+    old = {
+        re.sub(r"^((?:target_)?qvalue_network_params\.module)\.", r"\1.mlp.", k): v
+        for k, v in critic.items()
+    }
+    assert sum(".module.mlp." in k for k in old) >= 8  # Q and target Q: 2 layers or more
+    payload["state"]["critic"] = old
+    torch.save(payload, path)  # as the code before 2026-12-02 wrote it
+
+    resumed = succeeded(run_recipe(out, cache, *TINY, "resume=true"))
+    assert "normalized score at the end of the online phase" in resumed.stdout
+    final = torch.load(path, map_location="cpu", weights_only=False)["state"]
+    assert not any(".mlp." in k for k in final["critic"])
+    assert final["frames"] == 100
+
+
+def _iql_critic():
+    cfg = OmegaConf.create(
+        {
+            "critic": {"name": "iql", "hidden": 8, "depth": 2, "expectile": 0.7, "lr": 3e-4},
+            "device": "cpu",
+        }
+    )
+    cfg.critic.update(discount=0.99, target_update_tau=0.005)
+    return critics.make_iql_critic(cfg, 4, 2)
+
+
+def test_torchrl_s_loss_module_skips_an_unknown_parameter_key_without_a_word():
+    """The upstream behaviour ``_CriticState`` guards against (TorchRL 0.14.1): if this
+    fails, TorchRL now refuses the key itself and the check in ``_CriticState`` is only a
+    clearer message."""
+    loss = _iql_critic().loss
+    state = loss.state_dict()
+    key = next(k for k in state if k.startswith("qvalue_network_params.module.0."))
+    renamed = {k.replace("module.0.", "module.9.") if k == key else k: v for k, v in state.items()}
+    before = loss.qvalue_network_params.clone()
+    assert str(loss.load_state_dict(renamed, strict=True)) == "<All keys matched successfully>"
+    assert (loss.qvalue_network_params == before).all()  # nothing was loaded into module.0
+
+
+@pytest.mark.parametrize("keep_actor", [True, False])
+def test_a_critic_state_with_a_foreign_key_is_refused_naming_it(keep_actor):
+    critic = _iql_critic()
+    saved = critics._CriticState(critic.loss, keep_actor=keep_actor)
+    state = saved.state_dict()
+    key = next(k for k in state if k.startswith("qvalue_network_params.module.0."))
+    foreign = {k.replace("module.0.", "module.9.") if k == key else k: v for k, v in state.items()}
+    with pytest.raises(RuntimeError, match="critic state does not fit: missing") as error:
+        saved.load_state_dict(foreign)
+    assert key in str(error.value) and key.replace("module.0.", "module.9.") in str(error.value)
+    saved.load_state_dict(state)  # its own state loads
