@@ -36,14 +36,13 @@ from torchrl_dual.recipe.errors import UserError
 if TYPE_CHECKING:
     from torchrl_dual.recipe.o2o_run import O2ORun
 
-OFFLINE_PHASE_REVISION = 3
-"""Bumped when a code change alters what a shared offline stage computes or how it is
-saved, so that caches written before it are not reused (their entries stay on disk under
-their old keys).
+OFFLINE_PHASE_REVISION = 2
+"""Bumped when a code change alters what a shared offline stage computes, so that caches
+written before it are not reused (their entries stay on disk under their old keys).
 2 (2026-12-02): DUAL's ``sac`` weighting (``critic=calql``/``so2``) reads Q at the clamped
 action and scores it as a censored Gaussian (docs/equations.md, deviation 2a).
-3 (2026-12-02): IQL's Q networks are built by ``critics.q_network`` like the other
-critics' (the same weights and values; their parameter names lost a ``.mlp``)."""
+(IQL's Q networks built by ``critics.q_network``, same day, changed only their parameter
+names; snapshots of before are renamed on load: ``critics.upgraded_critic_state``.)"""
 
 ONLINE_KEYS: tuple[str, ...] = (
     "output_dir",
