@@ -22,6 +22,7 @@ import gymnasium as gym
 
 from torchrl_dual.data.minari_writer import collect_episodes, write_minari_dataset
 from torchrl_dual.envs.maze_xml import release_maze_xml
+from torchrl_dual.envs.robotics import register_robotics_envs
 
 R, G = "r", "g"
 UMAZE_MAP = [[1, 1, 1, 1, 1], [1, G, 0, 0, 1], [1, 1, 1, 0, 1], [1, R, 0, 0, 1], [1, 1, 1, 1, 1]]
@@ -93,9 +94,7 @@ def write_standin_dataset(
     """
     if dataset_id not in STANDINS:
         raise ValueError(f"no stand-in for {dataset_id!r}; known: {sorted(STANDINS)}.")
-    import gymnasium_robotics
-
-    gym.register_envs(gymnasium_robotics)
+    register_robotics_envs()
     standin = STANDINS[dataset_id]
     env = release_maze_xml(gym.make(standin.env_id, **standin.kwargs))
     eval_spec = None

@@ -36,6 +36,7 @@ from torchrl_dual.envs.pointmaze import (
     make_pointmaze_gym_env,
     pointmaze_env_id,
 )
+from torchrl_dual.envs.robotics import register_robotics_envs
 from torchrl_dual.envs.shifts import (
     DEFAULT_SHIFT_ANGLE,
     SHIFTS,
@@ -86,6 +87,7 @@ __all__ = [
     "make_frozenlake_env",
     "make_pointmaze_env",
     "make_pointmaze_gym_env",
+    "register_robotics_envs",
     "release_maze_xml",
     "pointmaze_env_id",
 ]

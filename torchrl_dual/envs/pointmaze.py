@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from torchrl_dual.envs.maze_xml import release_maze_xml
+from torchrl_dual.envs.robotics import register_robotics_envs
 from torchrl_dual.envs.shifts import apply_shift, check_shift
 
 POINTMAZE_IDS: dict[str, str] = {
@@ -38,9 +39,7 @@ _REWARD_TYPES = ("sparse", "dense")
 
 
 def _register() -> None:
-    import gymnasium_robotics
-
-    gym.register_envs(gymnasium_robotics)
+    register_robotics_envs()
 
 
 def pointmaze_env_id(maze: str) -> str:

@@ -41,6 +41,7 @@ from torchrl_dual.envs import (
     FlatObservation,
     apply_shift,
     make_flat_env,
+    register_robotics_envs,
     release_maze_xml,
     shift_names,
 )
@@ -277,6 +278,7 @@ def _gym_env(cfg: DictConfig, data: OfflineDataset, *, eval_env: bool, shifted: 
     env = cfg.env
     dataset_id = FAMILIES[env.kind].dataset_id(env)
     dataset = minari.load_dataset(dataset_id)
+    register_robotics_envs()  # AntMaze / Adroit ids, without the import's notice
     kwargs = {} if env.max_episode_steps is None else {"max_episode_steps": env.max_episode_steps}
     raw = release_maze_xml(dataset.recover_environment(eval_env=eval_env, **kwargs))
     check_observation_layout(dataset.observation_space, raw.observation_space, dataset_id)
