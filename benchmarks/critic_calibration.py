@@ -8,6 +8,12 @@ prints the mean return-to-go ``G``, the critic's ``min_k Q_k`` at the data actio
 the learner's deterministic action ``π(s)``, the share of transitions where
 ``Q(s, a) < G`` (underestimated), and the correlation of Q with G.
 
+``G`` is :func:`~torchrl_dual.data.monte_carlo_returns` with the critic's discount (the
+bound Cal-QL trains with): it stops at the end of each episode, also at a time limit,
+where the critic bootstraps past it. On a time-limited task whose reward goes on after
+the limit (PointMaze's continuing goal reward) ``Q > G`` is therefore expected near the
+ends of episodes, and the share ``Q < G`` is a lower bound on how often Q underestimates.
+
     python benchmarks/critic_calibration.py outputs/suite/default/umaze_baselines/calql/seed0
     python benchmarks/critic_calibration.py RUN_DIR [RUN_DIR ...] --samples 20000 --json out.json
 
