@@ -33,20 +33,19 @@ import torch
 from omegaconf import OmegaConf
 from tensordict import TensorDict, TensorDictBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.objectives.utils import _vmap_func  # TorchRL's own ensemble evaluation
 
 from torchrl_dual.data import monte_carlo_returns
 from torchrl_dual.recipe import ALGORITHMS, O2ORun
 
 
 def min_q(loss, batch: TensorDictBase) -> torch.Tensor:
-    """``min_k Q_k(s, a)`` over the loss's current Q networks, shape ``[B]``."""
+    """``min_k Q_k(s, a)`` over the loss's current Q networks, shape ``[B]``: all members
+    in one vmapped call (TorchRL's ``_vmap_func``, as the losses and the actor loss do)."""
     params = loss.qvalue_network_params.detach()
-    values = []
-    for k in range(params.batch_size[0]):
-        with params[k].to_module(loss.qvalue_network):
-            td = loss.qvalue_network(batch.select("observation", "action").clone(False))
-        values.append(td["state_action_value"].reshape(-1))
-    return torch.stack(values).min(0).values
+    td = batch.select("observation", "action")
+    values = _vmap_func(loss.qvalue_network, (None, 0))(td, params)["state_action_value"]
+    return values.reshape(params.batch_size[0], -1).min(0).values
 
 
 def load_run(run_dir: Path, workdir: Path) -> O2ORun:
