@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 
 import torch
 from tensordict import TensorDictBase
-from torchrl.data import OfflineToOnlineReplayBuffer, ReplayBuffer
+from torchrl.data import OfflineToOnlineReplayBuffer, RandomSampler, ReplayBuffer
 
 from torchrl_dual.data import BalancedReplayBuffer
 from torchrl_dual.objectives import DensityRatioLoss, make_density_ratio_network
@@ -90,11 +90,19 @@ class Replay:
 
 
 def make_mixed_replay(run: O2ORun) -> Replay:
-    """TorchRL's ``OfflineToOnlineReplayBuffer`` with ``online.offline_fraction``."""
+    """TorchRL's ``OfflineToOnlineReplayBuffer`` with ``online.offline_fraction``.
+
+    Its offline share is drawn from a buffer over the same storage as
+    ``run.offline_buffer`` but without a default batch size: TorchRL 0.14 samples it with
+    an explicit ``round(offline_fraction * batch_size)`` and warns (once per buffer, a
+    "conflicting batch_sizes" ``UserWarning`` in every run's log) when that differs from
+    the buffer's own default.
+    """
     cfg = run.cfg
+    offline = run.offline_buffer
     return Replay(
         OfflineToOnlineReplayBuffer(
-            run.offline_buffer,
+            ReplayBuffer(storage=offline.storage, sampler=RandomSampler()),
             online_capacity=online_capacity(run),
             offline_fraction=cfg.online.offline_fraction,
             batch_size=cfg.online.batch_size,
