@@ -40,40 +40,71 @@ def _pyplot():
     return plt
 
 
-def curve_band(results: Sequence[dict]) -> tuple[list[int], list[float], list[float]]:
-    """Frames evaluated in every run, the mean score there and the 95 % t half-width (0
-    with one run)."""
-    common = set.intersection(*({h["frames"] for h in r["history"]} for r in results))
+def curve_band(
+    results: Sequence[dict], series: str = "history", value: str = "normalized_score"
+) -> tuple[list[int], list[float], list[float]]:
+    """Frames present in every run's ``series`` (the evaluations, or ``"online_signals"``),
+    the mean of ``value`` there and the 95 % t half-width (0 with one run)."""
+    common = set.intersection(*({h["frames"] for h in r[series]} for r in results))
     frames = sorted(common)
     means, halves = [], []
     for f in frames:
-        scores = [
-            next(h["normalized_score"] for h in r["history"] if h["frames"] == f) for r in results
-        ]
-        mean, half = t_interval(scores)
+        values = [next(h[value] for h in r[series] if h["frames"] == f) for r in results]
+        mean, half = t_interval(values)
         means.append(mean)
         halves.append(0.0 if math.isnan(half) else half)
     return frames, means, halves
 
 
+def _signal_runs(results: Sequence[dict], name: str) -> list[dict]:
+    """The runs that logged online signal ``name`` (JSONs from before the signals were
+    kept have none)."""
+    return [r for r in results if any(name in h for h in r.get("online_signals", []))]
+
+
 def plot_cell_curves(variants: dict[str, list[dict]], path: Path, *, title: str) -> Path:
-    """Mean normalized score ± 95 % t band per variant against online frames."""
+    """Mean normalized score ± 95 % t band per variant against online frames; below it, one
+    panel per online signal that some variant's runs logged (DUAL's epistemic std and shift
+    distance ``d_t`` per collected batch, :data:`torchrl_dual.recipe.plots.ONLINE_SIGNALS`),
+    averaged over those runs."""
+    from torchrl_dual.recipe.plots import ONLINE_SIGNALS
+
     plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(6.5, 4))
-    for variant, results in variants.items():
-        frames, means, halves = curve_band(results)
-        ax.plot(frames, means, marker="o", markersize=3, label=f"{variant} (n={len(results)})")
-        ax.fill_between(
-            frames,
-            [m - h for m, h in zip(means, halves, strict=True)],
-            [m + h for m, h in zip(means, halves, strict=True)],
-            alpha=0.2,
-        )
-    ax.set_xlabel("online environment frames (0 = end of the offline phase)")
-    ax.set_ylabel("normalized score")
-    ax.set_title(title)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    signals = [
+        name
+        for name in ONLINE_SIGNALS
+        if any(_signal_runs(results, name) for results in variants.values())
+    ]
+    fig, axes = plt.subplots(
+        1 + len(signals), 1, figsize=(6.5, 4 + 2 * len(signals)), sharex=True, squeeze=False
+    )
+    panels = [(axes[0, 0], "history", "normalized_score", "normalized score")]
+    panels += [
+        (axes[1 + i, 0], "online_signals", name, ONLINE_SIGNALS[name])
+        for i, name in enumerate(signals)
+    ]
+    for ax, series, value, label in panels:
+        for color, (variant, results) in enumerate(variants.items()):
+            runs = results if series == "history" else _signal_runs(results, value)
+            if not runs:
+                continue
+            frames, means, halves = curve_band(runs, series, value)
+            ax.plot(
+                frames, means, marker="o", markersize=3, color=f"C{color}",
+                label=f"{variant} (n={len(runs)})",
+            )  # fmt: skip
+            ax.fill_between(
+                frames,
+                [m - h for m, h in zip(means, halves, strict=True)],
+                [m + h for m, h in zip(means, halves, strict=True)],
+                alpha=0.2,
+                color=f"C{color}",
+            )
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    axes[-1, 0].set_xlabel("online environment frames (0 = end of the offline phase)")
+    axes[0, 0].set_title(title)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)

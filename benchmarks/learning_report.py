@@ -153,6 +153,11 @@ def compact_result(summary: dict, *, variant: str, cell: str, overrides: list[st
         "cpu_seconds": summary.get("cpu_seconds"),
         "stage_cpu_seconds": summary.get("stage_cpu_seconds", {}),
         "shared_offline": summary.get("shared_offline", False),
+        # DUAL's epistemic std and d_t per collected batch (absent before they were kept)
+        "online_signals": [
+            {k: round(v, 6) if isinstance(v, float) else v for k, v in signals.items()}
+            for signals in summary.get("online_signals", [])
+        ],
         **meta,
     }
 

@@ -216,6 +216,9 @@ def test_the_plot_has_the_score_and_the_online_signals_logged_per_batch(csv_run,
     assert png_size(out / "learning_curve.png") == (720, 960)
     score_only = plot_learning_curve(result.history, tmp_path / "score.png", signals=[])
     assert png_size(score_only) == (720, 480)
+    # summary.json carries them too (the learning suite's per-run JSON and plots)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["online_signals"] == result.online_signals
 
 
 def test_the_online_signals_cover_the_whole_online_phase_across_a_resume(wandb_runs, csv_run):

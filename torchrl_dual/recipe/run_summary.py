@@ -1,7 +1,7 @@
 """``summary.json``: what a finished recipe run measured, for the learning suite.
 
 One small file per run (``benchmarks/learning.py`` collects them): the evaluation history,
-the wall time of every stage and of the online phase, whether the offline stages came from
+the online signals per collected batch (DUAL's epistemic std and shift distance), the wall time of every stage and of the online phase, whether the offline stages came from
 a shared offline phase, and the resolved config.
 """
 
@@ -53,6 +53,7 @@ def run_summary(run: O2ORun) -> dict:
         "budget": str(cfg.budget.name),
         "shift": str(cfg.env.get("shift", "none")),
         "history": run.history,
+        "online_signals": run.online_signals,
         "stage_seconds": seconds,
         "offline_seconds": round(offline, 3),
         "wall_seconds": round(offline + seconds.get("online", 0.0), 3),
