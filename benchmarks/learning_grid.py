@@ -40,6 +40,10 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     # SO2's UTD 10 would make one run ~1.5 CPU hours at the default budget
     "so2": ("algo=so2", "critic.online_steps_per_update=2"),
     "dual_so2": ("algo=dual", "critic=so2", "replay=balanced", "critic.online_steps_per_update=2"),
+    # DUAL's online settings, tuned against the default's final-score wander (docs/results.md,
+    # "Budget split"): a larger offline share of each batch, or half the updates per frame
+    "dual_offline_frac75": ("algo=dual", "online.offline_fraction=0.75"),
+    "dual_utd025": ("algo=dual", "online.utd_ratio=0.25"),
 }
 """Variant name -> recipe overrides."""
 
@@ -51,6 +55,9 @@ CRITIC_VARIANTS = ("calql", "dual_calql", "so2", "dual_so2")
 
 PAPER_BASELINES = ("diffuser", "dacer", "edis", "dual_augment", *CRITIC_VARIANTS)
 """The paper's other baselines, "DUAL + EDIS" and the other critics (beyond the issue's grid)."""
+
+ONLINE_TUNING_VARIANTS = ("dual_offline_frac75", "dual_utd025")
+"""DUAL with other online settings, on the offline phases of ``dual``'s seeds."""
 
 SHIFT_VARIANTS = ("dual", "iql", "dual_lambda0")
 
@@ -68,8 +75,15 @@ class Cell:
 CELLS: dict[str, Cell] = {
     "umaze": Cell(
         ("env=pointmaze_umaze",),
-        tuple(v for v in VARIANTS if v not in (*ABLATION_VARIANTS, *PAPER_BASELINES)), 5,
+        tuple(
+            v for v in VARIANTS
+            if v not in (*ABLATION_VARIANTS, *PAPER_BASELINES, *ONLINE_TUNING_VARIANTS)
+        ), 5,
         "PointMaze U-maze",
+    ),
+    "umaze_online": Cell(
+        ("env=pointmaze_umaze",), ONLINE_TUNING_VARIANTS, 5,
+        "PointMaze U-maze: DUAL with offline share 0.75 or UTD 0.25 online (`dual`: 0.5 and 0.5)",
     ),
     "umaze_ablations": Cell(
         ("env=pointmaze_umaze",), ABLATION_VARIANTS, 3,
@@ -109,4 +123,6 @@ ONLINE_ONLY = (
     "augment.",
     "replay=",
     "critic.online_steps_per_update=",
+    "online.offline_fraction=",
+    "online.utd_ratio=",
 )

@@ -368,26 +368,6 @@ def test_dual_against_its_base_critic_is_a_paired_difference_over_common_seeds()
     assert (n, marker) == (3, "▲") and m - h > 0
 
 
-def test_every_cell_and_variant_of_the_grid_is_a_valid_recipe_config(tmp_path):
-    """A broken variant would otherwise surface hours into the suite: every variant on the
-    first cell that runs it, and every cell with its first variant."""
-    from torchrl_dual.recipe import compose_checked
-
-    pairs = {(cell.variants[0], name) for name, cell in learning.CELLS.items()}
-    for variant in learning.VARIANTS:
-        cells = [n for n, c in learning.CELLS.items() if variant in c.variants]
-        if cells:
-            pairs.add((variant, cells[0]))
-    for variant, name in sorted(pairs):
-        overrides = [*learning.CELLS[name].overrides, *learning.VARIANTS[variant]]
-        cfg = compose_checked(
-            REPO / "recipes" / "config", [*overrides, "budget=default", f"output_dir={tmp_path}"]
-        )
-        assert cfg.algo == learning.VARIANTS[variant][0].split("=")[1], (name, variant)
-    in_grid = {v for c in learning.CELLS.values() for v in c.variants}
-    assert {v for v, _ in pairs} == in_grid and len(pairs) >= len(learning.CELLS)
-
-
 # ---------------------------------------------------------------- collectors.py
 def test_collectors_benchmark_times_single_and_a_worker_collector(tmp_path):
     # multi_async only: a spawned worker costs ≈ 10 s here, Ray ≈ 20 s more (its runtime

@@ -1,0 +1,58 @@
+"""``benchmarks/learning_grid.py``: every cell and variant of the learning suite is a valid
+recipe config, and the suite's offline-sharing groups are the recipe's offline-cache keys."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "benchmarks"))  # the scripts' directory is not a package
+import learning  # noqa: E402
+
+
+def test_every_cell_and_variant_of_the_grid_is_a_valid_recipe_config(tmp_path):
+    """A broken variant would otherwise surface hours into the suite: every variant on the
+    first cell that runs it, and every cell with its first variant."""
+    from torchrl_dual.recipe import compose_checked
+
+    pairs = {(cell.variants[0], name) for name, cell in learning.CELLS.items()}
+    for variant in learning.VARIANTS:
+        cells = [n for n, c in learning.CELLS.items() if variant in c.variants]
+        if cells:
+            pairs.add((variant, cells[0]))
+    for variant, name in sorted(pairs):
+        overrides = [*learning.CELLS[name].overrides, *learning.VARIANTS[variant]]
+        cfg = compose_checked(
+            REPO / "recipes" / "config", [*overrides, "budget=default", f"output_dir={tmp_path}"]
+        )
+        assert cfg.algo == learning.VARIANTS[variant][0].split("=")[1], (name, variant)
+    in_grid = {v for c in learning.CELLS.values() for v in c.variants}
+    assert {v for v, _ in pairs} == in_grid and len(pairs) >= len(learning.CELLS)
+
+
+def test_runs_the_suite_groups_for_sharing_have_one_recipe_offline_key(tmp_path):
+    """The queue's ``sharing_key`` (from ``learning_grid.ONLINE_ONLY``) puts two runs in one
+    group exactly when the recipe's offline cache gives them one key (U-maze, seed 0)."""
+    from torchrl_dual.recipe import ALGORITHMS, compose_checked
+    from torchrl_dual.recipe.offline_cache import offline_key_config
+
+    runs = [
+        learning.Run(name, variant, 0, (*cell.overrides, *learning.VARIANTS[variant]))
+        for name, cell in learning.CELLS.items()
+        if "env=pointmaze_umaze" in cell.overrides
+        for variant in cell.variants
+    ]
+    keys = {}
+    for run in runs:
+        cfg = compose_checked(
+            REPO / "recipes" / "config",
+            [*run.overrides, "budget=default", f"output_dir={tmp_path}"],
+        )
+        online = getattr(ALGORITHMS[cfg.algo].learner, "online_keys", ())
+        keys[run] = json.dumps(offline_key_config(cfg, online), sort_keys=True, default=str)
+    for a in runs:
+        for b in runs:
+            same_group = a.sharing_key() == b.sharing_key()
+            assert same_group == (keys[a] == keys[b]), (a.cell, a.variant, b.cell, b.variant)
