@@ -201,6 +201,7 @@ def report(args: argparse.Namespace, command: str) -> None:
         budget=args.budget,
         header=header_text(args.budget),
         cell_about={name: cell.about for name, cell in CELLS.items()},
+        dual_from={name: cell.dual_from for name, cell in CELLS.items() if cell.dual_from},
         variant_order=list(VARIANTS),
         figures=figures,
         command=command,

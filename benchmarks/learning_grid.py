@@ -70,6 +70,9 @@ class Cell:
     variants: tuple[str, ...]
     seeds: int
     about: str
+    dual_from: str | None = None
+    """The cell whose ``dual`` runs this cell's DUAL variants share their offline phases
+    with and are paired against (``None``: this cell's own ``dual``)."""
 
 
 CELLS: dict[str, Cell] = {
@@ -84,6 +87,7 @@ CELLS: dict[str, Cell] = {
     "umaze_online": Cell(
         ("env=pointmaze_umaze",), ONLINE_TUNING_VARIANTS, 5,
         "PointMaze U-maze: DUAL with offline share 0.75 or UTD 0.25 online (`dual`: 0.5 and 0.5)",
+        dual_from="umaze",
     ),
     "umaze_ablations": Cell(
         ("env=pointmaze_umaze",), ABLATION_VARIANTS, 3,

@@ -1,5 +1,6 @@
-"""DUAL against its base critic, per cell of the learning suite: the paper's Table 2
-comparison (IQL, Cal-QL, SO2 + OFF2ON, each with and without DUAL on top).
+"""Paired comparisons of the learning suite: DUAL against its base critic, per cell (the
+paper's Table 2: IQL, Cal-QL, SO2 + OFF2ON, each with and without DUAL on top), and DUAL's
+online variants (ablations and online settings) against DUAL on the same offline phase.
 
 Each pair is compared on the seeds both variants ran, which share their data and
 environment seeds: the table gives both means ± 95 % t intervals and the *paired*
@@ -65,5 +66,71 @@ def critic_pairs_table(cells: dict[str, dict[str, list[dict]]], order: Sequence[
             text = f"{mean:+.1f}" if n < 2 else f"{mean:+.1f} ± {half:.1f}"
             lines.append(
                 f"| {cell} | {critic} | {n} | {finals[0]} | {finals[1]} | {text} {marker} |"
+            )
+    return "\n".join(lines)
+
+
+ONLINE_VARIANTS: dict[str, str] = {
+    "dual_no_uq": "w/o epistemic UQ (M = 0)",
+    "dual_lambda0": "λ = 0",
+    "dual_offline_frac75": "offline share 0.75",
+    "dual_utd025": "UTD 0.25",
+}
+"""DUAL's variants that change only what the online phase reads (they load ``dual``'s
+offline phase from the suite's cache) -> what they change."""
+
+
+def _same_offline(variant: list[dict], dual: list[dict]) -> str:
+    """``k/n``: on how many of the paired seeds both runs scored the same offline (they
+    loaded one offline phase; a code change between the runs can make them differ)."""
+    by_seed = {r["seed"]: r["offline_score"] for r in dual}
+    paired = [r for r in variant if r["seed"] in by_seed]
+    same = sum(abs(r["offline_score"] - by_seed[r["seed"]]) < 1e-9 for r in paired)
+    return f"{same}/{len(paired)}"
+
+
+def online_pairs_table(
+    cells: dict[str, dict[str, list[dict]]],
+    order: Sequence[str],
+    dual_from: dict[str, str] | None = None,
+) -> str:
+    """Markdown rows ``cell | variant | n | same offline | DUAL final | variant final |
+    paired final and AUC differences`` for every :data:`ONLINE_VARIANTS` entry a cell ran,
+    against the ``dual`` runs of ``dual_from[cell]`` (default: the cell itself).
+
+    Examples:
+        >>> run = lambda s, off, fin: {"seed": s, "offline_score": off, "final_score": fin,
+        ...                             "auc": fin}
+        >>> cells = {"u": {"dual": [run(0, 9.0, 50.0), run(1, 8.0, 60.0)]},
+        ...          "u_online": {"dual_utd025": [run(0, 9.0, 47.0), run(1, 7.0, 55.0)]}}
+        >>> print(online_pairs_table(cells, ["u", "u_online"], {"u_online": "u"})
+        ...       .splitlines()[-1])
+        | u_online | `dual_utd025`: UTD 0.25 | 2 | 1/2 | 55.0 ± 63.5 | 51.0 ± 50.8 | -4.0 ± 12.7 ≈ | -4.0 ± 12.7 ≈ |
+    """
+    dual_from = dual_from or {}
+    lines = [
+        "| cell | variant | n (paired) | same offline phase | `dual`: final | variant: final "
+        "| variant − `dual`: final | variant − `dual`: AUC |",
+        "|---|---|---:|---:|---|---|---|---|",
+    ]
+    for cell in sorted(cells, key=lambda c: order.index(c) if c in order else len(order)):
+        dual = cells.get(dual_from.get(cell, cell), {}).get("dual")
+        for variant, about in ONLINE_VARIANTS.items():
+            runs = cells[cell].get(variant)
+            if not runs or not dual:
+                continue
+            n, final, marker = paired_difference(runs, dual)
+            if final is None:
+                continue
+            _, auc, auc_marker = paired_difference(runs, dual, key="auc")
+            seeds = {r["seed"] for r in runs} & {r["seed"] for r in dual}
+            finals = [
+                fmt(t_interval([r["final_score"] for r in side if r["seed"] in seeds]))
+                for side in (dual, runs)
+            ]
+            texts = [f"{m:+.1f}" if n < 2 else f"{m:+.1f} ± {h:.1f}" for m, h in (final, auc)]
+            lines.append(
+                f"| {cell} | `{variant}`: {about} | {n} | {_same_offline(runs, dual)} | "
+                f"{finals[0]} | {finals[1]} | {texts[0]} {marker} | {texts[1]} {auc_marker} |"
             )
     return "\n".join(lines)

@@ -282,11 +282,13 @@ def render_section(
     results_dir: str,
     date: str,
     machine: str,
+    dual_from: dict[str, str] | None = None,
 ) -> str:
     """The markdown between the markers: ``header`` (what the cells are, how to run),
     one table per cell (in the order of ``cell_about``: name -> title), the
-    equal-compute comparison and the figures (``figures``: cell or ``"latency"`` -> path
-    relative to the docs file)."""
+    equal-compute comparison, the paired comparisons (``dual_from``: cell -> the cell
+    whose ``dual`` its DUAL variants pair with) and the figures (``figures``: cell or
+    ``"latency"`` -> path relative to the docs file)."""
     cell_order = list(cell_about)
     everything = [r for variants in cells.values() for rs in variants.values() for r in rs]
     commits = ", ".join(json.loads(c) or "?" for c in _unique(everything, "commit"))
@@ -336,7 +338,23 @@ def render_section(
             "stage under heavy load, against ×2.9 in wall time).",
             table,
         ]
-    from learning_pairs import critic_pairs_table  # it reads this module's statistics
+    from learning_pairs import critic_pairs_table, online_pairs_table  # read this module
+
+    online = online_pairs_table(cells, cell_order, dual_from)
+    if online.count("\n") > 1:
+        parts += [
+            "### DUAL's online variants against DUAL on the same offline phase",
+            "The ablations and online settings that change only what the online phase "
+            "reads load `dual`'s offline phase (same env, data and seed; the suite's "
+            "offline cache), so their difference to `dual` is measured seed by seed: "
+            "*variant − `dual`* is the mean of the per-seed differences ± its 95 % t "
+            "half-width, ▲ / ▼ when that interval excludes 0, ≈ when it holds 0. *Same "
+            "offline phase*: on how many of the paired seeds the two runs' offline scores "
+            "are identical; a run made after a code change that alters the offline "
+            "computation starts from another offline phase, and its pair then also "
+            "carries the offline phase's variance.",
+            online,
+        ]
 
     pairs = critic_pairs_table(cells, cell_order)
     if pairs.count("\n") > 1:

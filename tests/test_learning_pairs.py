@@ -1,0 +1,46 @@
+"""``benchmarks/learning_pairs.py``: DUAL's online variants paired with DUAL by seed."""
+
+from __future__ import annotations
+
+import doctest
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "benchmarks"))  # the scripts' directory is not a package
+import learning_pairs  # noqa: E402
+
+
+def _run(seed: int, offline: float, final: float, auc: float | None = None) -> dict:
+    return {"seed": seed, "offline_score": offline, "final_score": final, "auc": auc or final}
+
+
+def test_the_module_examples_run():
+    assert doctest.testmod(learning_pairs).failed == 0
+
+
+def test_online_variants_pair_with_dual_by_seed_and_report_shared_offline_phases():
+    dual = [_run(0, 20.0, 50.0, 40.0), _run(1, 30.0, 60.0, 50.0), _run(2, 25.0, 55.0, 45.0)]
+    no_uq = [_run(0, 20.0, 48.0, 41.0), _run(1, 30.0, 57.0, 50.0), _run(2, 25.0, 51.0, 45.0)]
+    lambda0 = [_run(1, 31.0, 70.0), _run(3, 10.0, 99.0)]  # seed 3: no DUAL partner
+    cells = {
+        "umaze": {"dual": dual, "dual_no_uq": no_uq, "dual_lambda0": lambda0, "iql": dual},
+        "umaze_online": {"dual_utd025": [_run(0, 20.0, 45.0), _run(2, 25.0, 50.0)]},
+        "no_dual": {"dual_lambda0": lambda0},  # no `dual` to pair with: no row
+    }
+    rows = learning_pairs.online_pairs_table(
+        cells, ["umaze", "umaze_online", "no_dual"], {"umaze_online": "umaze"}
+    ).splitlines()[2:]
+    assert [r.split(" | ")[:4] for r in rows] == [
+        ["| umaze", "`dual_no_uq`: w/o epistemic UQ (M = 0)", "3", "3/3"],
+        ["| umaze", "`dual_lambda0`: λ = 0", "1", "0/1"],
+        ["| umaze_online", "`dual_utd025`: UTD 0.25", "2", "2/2"],
+    ]
+    # no-UQ − DUAL: -2, -3, -4 (final, sd 1) and +1, 0, 0 (AUC, sd √(1/3)); t(2) = 4.3027
+    final, auc = 4.3027 / 3**0.5, 4.3027 * (1 / 3) ** 0.5 / 3**0.5
+    assert rows[0].endswith(f"| -3.0 ± {final:.1f} ▼ | +0.3 ± {auc:.1f} ≈ |")
+    assert rows[1].endswith("| +10.0 ? | +20.0 ? |")  # one pair: no interval
+    n, (mean, _), _ = learning_pairs.paired_difference(cells["umaze_online"]["dual_utd025"], dual)
+    assert (n, mean) == (2, pytest.approx(-5.0))
