@@ -234,8 +234,9 @@ def header_text(budget: str) -> str:
         "online keys (the shifts, `laplace.num_samples`, `exploration.shift_weight`, "
         "`online.offline_fraction`, `online.utd_ratio`, ...: `learning_grid.ONLINE_ONLY`) share "
         "one offline phase (`offline_cache=`), trained once per env and seed. One run of "
-        "the `default` budget on U-maze takes about 10 (IQL) to 19 (DUAL) minutes of one "
-        "core (the measured wall and CPU minutes are in the tables)."
+        "the `default` budget on U-maze takes about 10 minutes of one core for IQL or for DUAL "
+        "(DUAL: 19 with the code before 2026-12-02; the measured wall and CPU minutes of "
+        "each run are in the tables)."
     )
 
 
