@@ -36,7 +36,7 @@ from pathlib import Path
 
 from learning_backends import BACKENDS, Outcome, add_arguments, check_arguments, machine
 from learning_cost import queue_cost_text
-from learning_grid import CELLS, ONLINE_ONLY, VARIANTS, Cell  # noqa: F401 - the grid
+from learning_grid import CELLS, ONLINE_ONLY, VARIANTS, Cell, dual_cells  # noqa: F401 - the grid
 from learning_plots import latency_points, plot_cell_curves, plot_latency_vs_score
 from learning_report import compact_result, load_results, render_section, replace_section
 from tqdm.auto import tqdm
@@ -201,7 +201,7 @@ def report(args: argparse.Namespace, command: str) -> None:
         budget=args.budget,
         header=header_text(args.budget),
         cell_about={name: cell.about for name, cell in CELLS.items()},
-        dual_from={name: cell.dual_from for name, cell in CELLS.items() if cell.dual_from},
+        dual_from=dual_cells(),
         variant_order=list(VARIANTS),
         figures=figures,
         command=command,

@@ -16,10 +16,6 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     "diffql_la": ("algo=diffql_la",),
     "dual_no_uq": ("algo=dual", "laplace.num_samples=0"),
     "dual_lambda0": ("algo=dual", "exploration.shift_weight=0"),
-    # IQL given DUAL's wall time: its offline stage runs the updates DUAL's planner and
-    # distillation take the time of (measured: DUAL ≈ 17.6 min, IQL ≈ 7.2 min per run at
-    # 25 IQL updates/s on one core: + 15000 offline updates); same online frames and UTD
-    "iql_equal_wall": ("algo=iql", "budget.offline_updates=20000"),
     "dual_no_planner": ("algo=dual", "actor.init=scratch"),
     "dual_no_distillation": (
         "algo=dual",
@@ -70,9 +66,6 @@ class Cell:
     variants: tuple[str, ...]
     seeds: int
     about: str
-    dual_from: str | None = None
-    """The cell whose ``dual`` runs this cell's DUAL variants share their offline phases
-    with and are paired against (``None``: this cell's own ``dual``)."""
 
 
 CELLS: dict[str, Cell] = {
@@ -84,10 +77,15 @@ CELLS: dict[str, Cell] = {
         ), 5,
         "PointMaze U-maze",
     ),
+    # the same two algorithms with twice the offline actor-critic updates: a DUAL run then
+    # costs ≈ 16 CPU-min with today's code, under a `default_v1` run's ≈ 18 (docs/results.md)
+    "umaze_20k": Cell(
+        ("env=pointmaze_umaze", "budget.offline_updates=20000"), ("dual", "iql"), 5,
+        "PointMaze U-maze, 20000 offline actor-critic updates (`default`: 10000)",
+    ),
     "umaze_online": Cell(
         ("env=pointmaze_umaze",), ONLINE_TUNING_VARIANTS, 5,
         "PointMaze U-maze: DUAL with offline share 0.75 or UTD 0.25 online (`dual`: 0.5 and 0.5)",
-        dual_from="umaze",
     ),
     "umaze_ablations": Cell(
         ("env=pointmaze_umaze",), ABLATION_VARIANTS, 3,
@@ -130,3 +128,36 @@ ONLINE_ONLY = (
     "online.offline_fraction=",
     "online.utd_ratio=",
 )
+
+
+def online_variants() -> dict[str, str]:
+    """DUAL's variants that change only what the online phase reads (``algo=dual`` and
+    :data:`ONLINE_ONLY` overrides: they load ``dual``'s offline phase) -> those overrides.
+
+        >>> online_variants()["dual_no_uq"]
+        'laplace.num_samples=0'
+    """
+    return {
+        name: " ".join(overrides[1:])
+        for name, overrides in VARIANTS.items()
+        if overrides[0] == "algo=dual"
+        and len(overrides) > 1
+        and all(o.startswith(ONLINE_ONLY) for o in overrides[1:])
+    }
+
+
+def dual_cells() -> dict[str, str]:
+    """Cell -> the cell whose ``dual`` runs its DUAL variants pair with: itself when it runs
+    ``dual``, else the cell with the same overrides that does (cells with neither are left
+    out). Both share the offline phase, so the pair differs only online.
+
+        >>> dual_cells()["umaze_online"]
+        'umaze'
+    """
+    out = {}
+    for name, cell in CELLS.items():
+        for other, candidate in CELLS.items():
+            if candidate.overrides == cell.overrides and "dual" in candidate.variants:
+                out[name] = name if "dual" in cell.variants else other
+                break
+    return out

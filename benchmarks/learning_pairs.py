@@ -16,8 +16,9 @@ is only read as a result when the interval excludes 0.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
+from learning_grid import online_variants
 from learning_report import fmt, t_interval
 
 CRITIC_PAIRS: tuple[tuple[str, str, str], ...] = (
@@ -70,16 +71,6 @@ def critic_pairs_table(cells: dict[str, dict[str, list[dict]]], order: Sequence[
     return "\n".join(lines)
 
 
-ONLINE_VARIANTS: dict[str, str] = {
-    "dual_no_uq": "w/o epistemic UQ (M = 0)",
-    "dual_lambda0": "λ = 0",
-    "dual_offline_frac75": "offline share 0.75",
-    "dual_utd025": "UTD 0.25",
-}
-"""DUAL's variants that change only what the online phase reads (they load ``dual``'s
-offline phase from the suite's cache) -> what they change."""
-
-
 def _same_offline(variant: list[dict], dual: list[dict]) -> str:
     """``k/n``: on how many of the paired seeds both runs scored the same offline (they
     loaded one offline phase; a code change between the runs can make them differ)."""
@@ -93,10 +84,12 @@ def online_pairs_table(
     cells: dict[str, dict[str, list[dict]]],
     order: Sequence[str],
     dual_from: dict[str, str] | None = None,
+    variants: Mapping[str, str] | None = None,
 ) -> str:
     """Markdown rows ``cell | variant | n | same offline | DUAL final | variant final |
-    paired final and AUC differences`` for every :data:`ONLINE_VARIANTS` entry a cell ran,
-    against the ``dual`` runs of ``dual_from[cell]`` (default: the cell itself).
+    paired final and AUC differences`` for every online variant a cell ran (``variants``:
+    name -> its online overrides; default :func:`learning_grid.online_variants`), against
+    the ``dual`` runs of ``dual_from[cell]`` (default: the cell itself).
 
     Examples:
         >>> run = lambda s, off, fin: {"seed": s, "offline_score": off, "final_score": fin,
@@ -105,9 +98,10 @@ def online_pairs_table(
         ...          "u_online": {"dual_utd025": [run(0, 9.0, 47.0), run(1, 7.0, 55.0)]}}
         >>> print(online_pairs_table(cells, ["u", "u_online"], {"u_online": "u"})
         ...       .splitlines()[-1])
-        | u_online | `dual_utd025`: UTD 0.25 | 2 | 1/2 | 55.0 ± 63.5 | 51.0 ± 50.8 | -4.0 ± 12.7 ≈ | -4.0 ± 12.7 ≈ |
+        | u_online | `dual_utd025` (`online.utd_ratio=0.25`) | 2 | 1/2 | 55.0 ± 63.5 | 51.0 ± 50.8 | -4.0 ± 12.7 ≈ | -4.0 ± 12.7 ≈ |
     """
     dual_from = dual_from or {}
+    variants = online_variants() if variants is None else variants
     lines = [
         "| cell | variant | n (paired) | same offline phase | `dual`: final | variant: final "
         "| variant − `dual`: final | variant − `dual`: AUC |",
@@ -115,7 +109,7 @@ def online_pairs_table(
     ]
     for cell in sorted(cells, key=lambda c: order.index(c) if c in order else len(order)):
         dual = cells.get(dual_from.get(cell, cell), {}).get("dual")
-        for variant, about in ONLINE_VARIANTS.items():
+        for variant, overrides in variants.items():
             runs = cells[cell].get(variant)
             if not runs or not dual:
                 continue
@@ -130,7 +124,7 @@ def online_pairs_table(
             ]
             texts = [f"{m:+.1f}" if n < 2 else f"{m:+.1f} ± {h:.1f}" for m, h in (final, auc)]
             lines.append(
-                f"| {cell} | `{variant}`: {about} | {n} | {_same_offline(runs, dual)} | "
+                f"| {cell} | `{variant}` (`{overrides}`) | {n} | {_same_offline(runs, dual)} | "
                 f"{finals[0]} | {finals[1]} | {texts[0]} {marker} | {texts[1]} {auc_marker} |"
             )
     return "\n".join(lines)

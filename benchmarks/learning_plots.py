@@ -22,7 +22,6 @@ LATENCY_CANDIDATE = {
     "dual_no_distillation": "dual_m5_n8",
     "dual_latent_uq": "dual_m5_latent",
     "iql": "iql_actor",
-    "iql_equal_wall": "iql_actor",
     "iql_la": "iql_la_m5",
     "diffql": "diffql_n5",
     "diffql_la": "diffql_la_m5",

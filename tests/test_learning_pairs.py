@@ -34,9 +34,9 @@ def test_online_variants_pair_with_dual_by_seed_and_report_shared_offline_phases
         cells, ["umaze", "umaze_online", "no_dual"], {"umaze_online": "umaze"}
     ).splitlines()[2:]
     assert [r.split(" | ")[:4] for r in rows] == [
-        ["| umaze", "`dual_no_uq`: w/o epistemic UQ (M = 0)", "3", "3/3"],
-        ["| umaze", "`dual_lambda0`: λ = 0", "1", "0/1"],
-        ["| umaze_online", "`dual_utd025`: UTD 0.25", "2", "2/2"],
+        ["| umaze", "`dual_no_uq` (`laplace.num_samples=0`)", "3", "3/3"],
+        ["| umaze", "`dual_lambda0` (`exploration.shift_weight=0`)", "1", "0/1"],
+        ["| umaze_online", "`dual_utd025` (`online.utd_ratio=0.25`)", "2", "2/2"],
     ]
     # no-UQ − DUAL: -2, -3, -4 (final, sd 1) and +1, 0, 0 (AUC, sd √(1/3)); t(2) = 4.3027
     final, auc = 4.3027 / 3**0.5, 4.3027 * (1 / 3) ** 0.5 / 3**0.5
