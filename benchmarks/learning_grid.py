@@ -16,6 +16,10 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     "diffql_la": ("algo=diffql_la",),
     "dual_no_uq": ("algo=dual", "laplace.num_samples=0"),
     "dual_lambda0": ("algo=dual", "exploration.shift_weight=0"),
+    # IQL given DUAL's CPU time on U-maze (measured 2026-12-03 with today's code: DUAL
+    # 590 CPU-s per run, IQL 301 CPU-s of which 187 for its 10000 offline updates, i.e.
+    # 18.7 ms per update: +16000 updates ≈ 600 CPU-s); same online frames and UTD
+    "iql_equal_time": ("algo=iql", "budget.offline_updates=26000"),
     "dual_no_planner": ("algo=dual", "actor.init=scratch"),
     "dual_no_distillation": (
         "algo=dual",
@@ -42,6 +46,9 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     "dual_utd025": ("algo=dual", "online.utd_ratio=0.25"),
 }
 """Variant name -> recipe overrides."""
+
+IQL_VARIANTS = ("iql", "iql_equal_time")
+"""The IQL runs DUAL is compared with at equal steps (``iql``) and equal time (both)."""
 
 ABLATION_VARIANTS = ("dual_no_planner", "dual_no_distillation", "dual_latent_uq")
 """The paper's other ablation rows (beyond the issue's grid)."""

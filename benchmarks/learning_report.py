@@ -239,30 +239,37 @@ def _at_time(results: list[dict], seconds: float, clock: str) -> str:
     return text if len(done) == len(scores) else f"{text} ({len(scores) - len(done)} offline)"
 
 
-def equal_compute_table(cells: dict[str, dict[str, list[dict]]], order: Sequence[str]) -> str:
-    """DUAL vs IQL per cell: final scores (equal steps) and scores at equal time, on CPU
-    seconds when every run of the cell's pair has them (:func:`clock_of`), else wall."""
+def equal_compute_table(
+    cells: dict[str, dict[str, list[dict]]],
+    order: Sequence[str],
+    iql_variants: Sequence[str] = ("iql", "iql_equal_time"),
+) -> str:
+    """DUAL vs each IQL variant of a cell: final scores (equal steps for ``iql``) and the
+    scores at equal time, on CPU seconds when every run of the pair has them
+    (:func:`clock_of`), else wall."""
     lines = [
-        "| cell | final dual | final iql | clock | T₁ (min) | dual at T₁ | iql at T₁ "
-        "| T₂ (min) | dual at T₂ | iql at T₂ |",
-        "|---|---|---|---|---:|---|---|---:|---|---|",
+        "| cell | IQL variant | final dual | final iql | clock | T₁ (min) | dual at T₁ "
+        "| iql at T₁ | T₂ (min) | dual at T₂ | iql at T₂ |",
+        "|---|---|---|---|---|---:|---|---|---:|---|---|",
     ]
     for cell in sorted(cells, key=lambda c: order.index(c) if c in order else len(order)):
-        dual, iql = cells[cell].get("dual"), cells[cell].get("iql")
-        if not dual or not iql:
-            continue
-        clock = clock_of([*dual, *iql])
-        total = {
-            k: statistics.fmean(run_seconds(r, clock)[1] for r in rs)
-            for k, rs in (("d", dual), ("i", iql))
-        }
-        t1, t2 = min(total.values()), total["i"]
-        lines.append(
-            f"| {cell} | {fmt(t_interval([r['final_score'] for r in dual]))} "
-            f"| {fmt(t_interval([r['final_score'] for r in iql]))} | {clock} | {t1 / 60:.1f} "
-            f"| {_at_time(dual, t1, clock)} | {_at_time(iql, t1, clock)} | {t2 / 60:.1f} "
-            f"| {_at_time(dual, t2, clock)} | {_at_time(iql, t2, clock)} |"
-        )
+        dual = cells[cell].get("dual")
+        for name in iql_variants:
+            iql = cells[cell].get(name)
+            if not dual or not iql:
+                continue
+            clock = clock_of([*dual, *iql])
+            total = {
+                k: statistics.fmean(run_seconds(r, clock)[1] for r in rs)
+                for k, rs in (("d", dual), ("i", iql))
+            }
+            t1, t2 = min(total.values()), total["i"]
+            lines.append(
+                f"| {cell} | `{name}` | {fmt(t_interval([r['final_score'] for r in dual]))} "
+                f"| {fmt(t_interval([r['final_score'] for r in iql]))} | {clock} "
+                f"| {t1 / 60:.1f} | {_at_time(dual, t1, clock)} | {_at_time(iql, t1, clock)} "
+                f"| {t2 / 60:.1f} | {_at_time(dual, t2, clock)} | {_at_time(iql, t2, clock)} |"
+            )
     return "\n".join(lines)
 
 
@@ -324,7 +331,8 @@ def render_section(
         parts += [
             "### DUAL vs IQL at equal steps and at equal wall time",
             "*Equal steps* compares the final scores after the same number of online "
-            "frames and updates. *Equal wall time* compares the scores each algorithm has "
+            "frames and updates (the `iql` rows). `iql_equal_time` is IQL given DUAL's CPU "
+            "time per run, spent on more offline updates (its overrides above). *Equal wall time* compares the scores each algorithm has "
             "reached after the same wall-clock time: a run's evaluations are placed on a "
             "time axis at offline_seconds + (frames / final frames) × online_seconds "
             "(the online phase taken as linear in frames, evaluation time included), "

@@ -121,7 +121,13 @@ def test_score_at_wall_time_interpolates_on_the_run_time_axis():
     dual = [_result("dual", s, [0.0, 10.0, 30.0]) for s in (0, 1)]
     table = lr.equal_compute_table({"umaze": {"dual": dual, "iql": iql}}, ["umaze"])
     # T1 = T2 = IQL's 200 s: DUAL at 10 (its 50-frame point), IQL at its final 8
-    assert "| umaze | 30.0 ± 0.0 | 8.0 ± 0.0 | wall | 3.3 | 10.0 ± 0.0 | 8.0 ± 0.0 | 3.3 |" in table
+    row = "| umaze | `iql` | 30.0 ± 0.0 | 8.0 ± 0.0 | wall | 3.3 | 10.0 ± 0.0 | 8.0 ± 0.0 | 3.3 |"
+    assert row in table
+    # every IQL variant of the cell gets its row against the same DUAL runs
+    both = lr.equal_compute_table(
+        {"umaze": {"dual": dual, "iql": iql, "iql_equal_time": iql[:1]}}, ["umaze"]
+    ).splitlines()[2:]
+    assert [r.split(" | ")[1] for r in both] == ["`iql`", "`iql_equal_time`"]
 
 
 def test_equal_time_uses_cpu_seconds_when_every_run_of_the_pair_has_them():
@@ -138,7 +144,8 @@ def test_equal_time_uses_cpu_seconds_when_every_run_of_the_pair_has_them():
     # 200 CPU seconds, so at 150 s it is 40/90 of the way from 5.0 to 8.0
     iql_t1 = 5.0 + (150.0 - 110.0) / 90.0 * 3.0
     assert (
-        f"| umaze | 30.0 ± 0.0 | 8.0 ± 0.0 | cpu | 2.5 | 30.0 ± 0.0 | {iql_t1:.1f} ± 0.0 |" in table
+        f"| umaze | `iql` | 30.0 ± 0.0 | 8.0 ± 0.0 | cpu | 2.5 | 30.0 ± 0.0 | {iql_t1:.1f} ± 0.0 |"
+        in table
     )
     # one run without CPU seconds: the whole pair falls back to wall-clock time
     iql[1]["cpu_seconds"] = None
