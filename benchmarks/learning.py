@@ -176,6 +176,32 @@ class Suite:
         return failed
 
 
+def queue_status(suite: Suite, runs: list[Run], jobs: int) -> tuple[list[Run], str]:
+    """The runs of ``runs`` without a result yet, and a line of how many and their cost."""
+    todo = [run for run in runs if not suite.result_path(run).exists()]
+    leaders = {run.sharing_key(): run for run in reversed(todo)}  # each key's first
+    shares = [leaders[run.sharing_key()] is not run for run in todo]
+    results = load_results(suite.args.results / suite.args.budget)
+    return todo, (
+        f"{len(runs)} runs in the grid, {len(runs) - len(todo)} already done, "
+        f"{len(todo)} to run\n{queue_cost_text(todo, results, jobs, shares)}"
+    )
+
+
+def cost_text(args: argparse.Namespace, cells: dict[str, dict[str, list[dict]]]) -> str:
+    """The report's cost paragraph: what the finished runs took, what the grid has left."""
+    done = [r for variants in cells.values() for rs in variants.values() for r in rs]
+    cpu = sum(r.get("cpu_seconds") or r.get("wall_seconds") or 0.0 for r in done) / 3600
+    wall = sum(r.get("wall_seconds") or 0.0 for r in done) / 3600
+    runs, _ = build_queue(list(CELLS), None, None)
+    _, status = queue_status(Suite(args, []), runs, jobs=os.cpu_count() or 1)
+    return (
+        f"**Cost.** The {len(done)} runs here took {cpu:.1f} CPU-hours ({wall:.1f} hours of "
+        "wall time summed over runs, which shared the cores; runs from before CPU seconds "
+        f"were recorded count their wall time). The whole grid: {status.replace(chr(10), '; ')}."
+    )
+
+
 def report(args: argparse.Namespace, command: str) -> None:
     """Regenerates the marker section of ``--docs`` and its PNGs from ``--results``."""
     order = list(VARIANTS)
@@ -199,7 +225,7 @@ def report(args: argparse.Namespace, command: str) -> None:
     section = render_section(
         cells,
         budget=args.budget,
-        header=header_text(args.budget),
+        header=header_text(args.budget) + "\n\n" + cost_text(args, cells),
         cell_about={name: cell.about for name, cell in CELLS.items()},
         dual_from=dual_cells(),
         variant_order=list(VARIANTS),
@@ -233,10 +259,8 @@ def header_text(budget: str) -> str:
         "`torchrl_dual.recipe.ALGORITHMS` is skipped with a note. Runs that differ only in "
         "online keys (the shifts, `laplace.num_samples`, `exploration.shift_weight`, "
         "`online.offline_fraction`, `online.utd_ratio`, ...: `learning_grid.ONLINE_ONLY`) share "
-        "one offline phase (`offline_cache=`), trained once per env and seed. One run of "
-        "the `default` budget on U-maze takes about 10 minutes of one core for IQL or for DUAL "
-        "(DUAL: 19 with the code before 2026-12-02; the measured wall and CPU minutes of "
-        "each run are in the tables)."
+        "one offline phase (`offline_cache=`), trained once per env and seed. The measured "
+        "wall and CPU minutes of each run are in the tables."
     )
 
 
@@ -275,13 +299,8 @@ def main(argv: list[str] | None = None) -> int:
         runs, notes = build_queue(args.cells, args.variants, args.seeds)
         for note in notes:
             print(note)
-        todo = [run for run in runs if not suite.result_path(run).exists()]
-        print(
-            f"{len(runs)} runs in the grid, {len(runs) - len(todo)} already done, {len(todo)} to run"
-        )
-        leaders = {run.sharing_key(): run for run in reversed(todo)}  # each key's first
-        shares = [leaders[run.sharing_key()] is not run for run in todo]
-        print(queue_cost_text(todo, load_results(args.results / args.budget), args.jobs, shares))
+        todo, status = queue_status(suite, runs, args.jobs)
+        print(status)
         if args.dry_run:
             for run in todo:
                 print(shlex.join(suite.command(run)[1:]))

@@ -181,6 +181,9 @@ def test_report_keeps_hand_written_text_and_is_idempotent(tmp_path, capsys):
         "| `iql` | 3 | 0.0 ± 0.0 | 5.0 ± 2.5 | 2.5 ± 1.2 | 5.0 | — | ▼ / ▼ |" in first
     )  # t(2)=4.3027
     assert "### DUAL vs IQL at equal steps and at equal wall time" in first
+    # the cost paragraph: the finished runs' total and the rest of the grid (6 done)
+    assert "**Cost.** The 6 runs here took 0.5 CPU-hours (0.5 hours of wall time" in first
+    assert ", 6 already done, " in first.split("**Cost.**")[1].split("\n")[0]
     for png in ("learning_smoke_umaze.png", "latency_vs_score_smoke.png"):
         assert (tmp_path / "figures" / png).stat().st_size > 1000
         assert f"(figures/{png})" in first
