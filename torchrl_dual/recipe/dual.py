@@ -139,9 +139,12 @@ class DualLearner(Learner):
             self.augmenter.after_updates()
 
     def batch_metrics(self, batch: TensorDictBase) -> dict:
+        """d_t, the ensemble's epistemic std and the executed action's std
+        sqrt(σ² + λ d_t) (Eq. 10), each averaged over the collected batch."""
         return {
             "shift_distance": float(batch["shift_distance"].mean()),
             "epistemic_std": float(batch["epistemic_variance"].mean().sqrt()),
+            "exploration_std": float(batch["exploration_scale"].mean()),
         }
 
     # ------------------------------------------------------------------ offline stages

@@ -22,6 +22,7 @@ import matplotlib.pyplot as plt  # noqa: E402  (after choosing the file-only bac
 ONLINE_SIGNALS: dict[str, str] = {
     "epistemic_std": "epistemic std",
     "shift_distance": "shift distance $d_t$",
+    "exploration_std": "executed action std",
 }
 """Per-batch metrics of the online phase that the plot draws (key: panel label)."""
 
