@@ -402,3 +402,15 @@ def test_ensemble_eval_benchmark_checks_equality_and_prints_the_ratio():
     assert proc.returncode == 0, proc.stderr[-3000:]
     rows = [line for line in proc.stdout.splitlines() if line.startswith("| 2 |")]
     assert len(rows) == 1 and rows[0].endswith("x |")
+
+
+import commit_speed  # noqa: E402
+
+
+def test_commit_speed_imports_each_side_from_its_own_exported_tree(tmp_path):
+    """The speed comparison is only meaningful if the ``before`` process runs the exported
+    revision's code, not this checkout's (Python puts the working directory first)."""
+    tree = commit_speed.export_tree("HEAD", tmp_path / "before")
+    assert (tree / "recipes" / "o2o.py").is_file() and not (tree / ".git").exists()
+    assert commit_speed.imported_from(tree, tmp_path) == tree
+    assert commit_speed.imported_from(REPO, tmp_path) == REPO
