@@ -23,6 +23,8 @@ import statistics
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
+from learning_grid import IQL_VARIANTS
+
 
 def markers(budget: str) -> tuple[str, str]:
     """The begin and end markers of one budget's generated section: each budget's suite
@@ -242,7 +244,7 @@ def _at_time(results: list[dict], seconds: float, clock: str) -> str:
 def equal_compute_table(
     cells: dict[str, dict[str, list[dict]]],
     order: Sequence[str],
-    iql_variants: Sequence[str] = ("iql", "iql_equal_time"),
+    iql_variants: Sequence[str] = IQL_VARIANTS,
 ) -> str:
     """DUAL vs each IQL variant of a cell: final scores (equal steps for ``iql``) and the
     scores at equal time, on CPU seconds when every run of the pair has them
