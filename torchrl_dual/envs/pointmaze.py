@@ -208,7 +208,6 @@ def make_pointmaze_env(
         Compose,
         DoubleToFloat,
         ExcludeTransform,
-        GymEnv,
         GymWrapper,
         StepCounter,
         TransformedEnv,
@@ -217,18 +216,12 @@ def make_pointmaze_env(
     _register()
     env_id, kwargs = _gym_kwargs(maze, max_episode_steps, continuing_task, reward_type)
     check_shift(shift, "pointmaze")
-    if shift == "none":
-        base = GymEnv(env_id, device=device, **kwargs)
-        release_maze_xml(base._env)  # TorchRL's wrapped gym env
-    else:
-        shifted = apply_shift(
-            release_maze_xml(gym.make(env_id, **kwargs)),
-            shift,
-            angle=shift_angle,
-            scale=shift_scale,
-            kind="pointmaze",
+    gym_env = release_maze_xml(gym.make(env_id, **kwargs))
+    if shift != "none":
+        gym_env = apply_shift(
+            gym_env, shift, angle=shift_angle, scale=shift_scale, kind="pointmaze"
         )
-        base = GymWrapper(shifted, device=device)
+    base = GymWrapper(gym_env, device=device)
     env = TransformedEnv(
         base,
         Compose(
