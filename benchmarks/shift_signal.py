@@ -1,0 +1,119 @@
+"""Does DUAL's shift signal ``d_t`` (Eq. 10) see a dynamics shift?
+
+``d_t = ‖ŝ_t − s_t‖`` compares the transition model's prediction for the current state
+with the state the env returned. It can only steer exploration towards shifted dynamics
+if it is larger there than where the model is merely imprecise. For a DUAL run directory
+this script prints ``d`` on three kinds of transitions, with the run's own transition
+model:
+
+* ``offline``: a sample of ``D_offline`` (the model's error on the data it was fitted on);
+* ``online <shift>``: the run's exploration policy acting in its env kit's train env
+  without a shift (``none``) and under each ``--shifts`` entry (``env.shift=``), the
+  steps right after a reset (no previous step, ``d_t = 0``) left out.
+
+Each line gives the mean, the median and the 90th percentile of ``d``, and the mean
+relative to the offline mean. With ``λ = exploration.shift_weight`` the executed
+variance gains ``λ d_t`` (Eq. 10), also listed.
+
+    python benchmarks/shift_signal.py outputs/suite/default/umaze/dual/seed0
+    python benchmarks/shift_signal.py RUN_DIR --shifts rotation damping mass --steps 3000 --json out.json
+
+The run directory is read only (its checkpoint is loaded from a temporary copy).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+import torch
+from critic_calibration import load_run  # the scripts' directory is on sys.path
+from omegaconf import OmegaConf
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from torchrl_dual.recipe import O2ORun
+from torchrl_dual.recipe.env_kits import make_train_env
+
+
+@torch.no_grad()
+def offline_distance(run: O2ORun, samples: int, seed: int = 0) -> torch.Tensor:
+    """``‖ŝ' − s'‖`` of the run's transition model on ``samples`` offline transitions."""
+    data = run.data.transitions
+    gen = torch.Generator().manual_seed(seed)
+    batch = data[torch.randperm(len(data), generator=gen)[: min(samples, len(data))]]
+    batch = batch.to(run.cfg.device)
+    predicted = run.learner.transition.predict(batch["observation"], batch["action"])
+    return (predicted - batch["next", "observation"]).norm(dim=-1).cpu()
+
+
+@torch.no_grad()
+def online_distance(run: O2ORun, shift: str, steps: int, seed: int = 0) -> torch.Tensor:
+    """``d_t`` the run's exploration policy computes over ``steps`` env steps of its train
+    env with ``env.shift=shift`` (steps without a previous step left out)."""
+    cfg = OmegaConf.merge(run.cfg, {"env": {"shift": shift}})
+    env = make_train_env(cfg, run.data)
+    env.set_seed(seed)
+    with set_exploration_type(ExplorationType.RANDOM):
+        rollout = env.rollout(steps, run.learner.policy, break_when_any_done=False)
+    env.close()
+    valid = rollout["previous_valid"].reshape(-1)
+    return rollout["shift_distance"].reshape(-1)[valid].cpu()
+
+
+def summary(d: torch.Tensor, offline_mean: float, weight: float) -> dict[str, float]:
+    """Mean, median, 90th percentile, mean / offline mean and ``λ · mean``."""
+    mean = float(d.mean())
+    return {
+        "n": len(d),
+        "mean": mean,
+        "median": float(d.median()),
+        "p90": float(d.quantile(0.9)),
+        "vs_offline": mean / offline_mean,
+        "lambda_d": weight * mean,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("run_dirs", nargs="+", type=Path)
+    parser.add_argument("--shifts", nargs="*", default=["rotation", "damping", "mass"])
+    parser.add_argument("--samples", type=int, default=20000, help="offline transitions")
+    parser.add_argument("--steps", type=int, default=3000, help="env steps per shift")
+    parser.add_argument("--json", type=Path, help="also write the figures here")
+    args = parser.parse_args(argv)
+    rows: dict[str, dict[str, dict]] = {}
+    for run_dir in args.run_dirs:
+        if not (run_dir / "checkpoint.pt").is_file():
+            print(f"error: {run_dir} has no checkpoint.pt (a run directory of the recipe)")
+            return 2
+        with tempfile.TemporaryDirectory() as workdir:
+            run = load_run(run_dir, Path(workdir))
+            if not hasattr(run.learner, "transition"):
+                print(f"error: {run_dir} is not a DUAL run (algo={run.cfg.algo})")
+                return 2
+            weight = float(run.cfg.exploration.shift_weight)
+            offline = offline_distance(run, args.samples)
+            base = float(offline.mean())
+            table = {"offline": summary(offline, base, weight)}
+            for shift in ["none", *args.shifts]:
+                d = online_distance(run, shift, args.steps)
+                table[f"online {shift}"] = summary(d, base, weight)
+        rows[str(run_dir)] = table
+        print(f"\n{run_dir} (frames {run.frames}, λ = {weight:g})")
+        print(f"{'transitions':<18} {'n':>6} {'mean d':>7} {'median':>7} {'p90':>7} "
+              f"{'/ offline':>9} {'λ·mean':>7}")  # fmt: skip
+        for name, s in table.items():
+            print(
+                f"{name:<18} {s['n']:>6} {s['mean']:>7.3f} {s['median']:>7.3f} "
+                f"{s['p90']:>7.3f} {s['vs_offline']:>8.2f}x {s['lambda_d']:>7.3f}"
+            )
+    if args.json is not None:
+        args.json.write_text(json.dumps(rows, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
