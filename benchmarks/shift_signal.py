@@ -13,7 +13,8 @@ model:
 
 Each line gives the mean, the median and the 90th percentile of ``d``, and the mean
 relative to the offline mean. With ``λ = exploration.shift_weight`` the executed
-variance gains ``λ d_t`` (Eq. 10), also listed.
+variance gains ``λ d_t`` (Eq. 10), also listed; the online lines add the policy's Eq. 9
+std ``σ_θ`` and the executed std ``sqrt(σ_θ² + λ d_t)``, to set ``λ d_t`` against.
 
     python benchmarks/shift_signal.py outputs/suite/default/umaze/dual/seed0
     python benchmarks/shift_signal.py RUN_DIR --shifts rotation damping mass --steps 3000 --json out.json
@@ -32,6 +33,7 @@ from pathlib import Path
 import torch
 from critic_calibration import load_run  # the scripts' directory is on sys.path
 from omegaconf import OmegaConf
+from tensordict import TensorDictBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchrl_dual.recipe import O2ORun
@@ -50,17 +52,21 @@ def offline_distance(run: O2ORun, samples: int, seed: int = 0) -> torch.Tensor:
 
 
 @torch.no_grad()
-def online_distance(run: O2ORun, shift: str, steps: int, seed: int = 0) -> torch.Tensor:
-    """``d_t`` the run's exploration policy computes over ``steps`` env steps of its train
-    env with ``env.shift=shift`` (steps without a previous step left out)."""
+def online_rollout(run: O2ORun, shift: str, steps: int, seed: int = 0) -> TensorDictBase:
+    """``steps`` env steps of the run's exploration policy in its train env with
+    ``env.shift=shift``, without the steps that have no previous step (after a reset)."""
     cfg = OmegaConf.merge(run.cfg, {"env": {"shift": shift}})
     env = make_train_env(cfg, run.data)
     env.set_seed(seed)
     with set_exploration_type(ExplorationType.RANDOM):
         rollout = env.rollout(steps, run.learner.policy, break_when_any_done=False)
     env.close()
-    valid = rollout["previous_valid"].reshape(-1)
-    return rollout["shift_distance"].reshape(-1)[valid].cpu()
+    return rollout[rollout["previous_valid"].reshape(-1)].cpu()
+
+
+def online_distance(run: O2ORun, shift: str, steps: int, seed: int = 0) -> torch.Tensor:
+    """``d_t`` the policy computed on :func:`online_rollout`'s steps."""
+    return online_rollout(run, shift, steps, seed)["shift_distance"].reshape(-1)
 
 
 def summary(d: torch.Tensor, offline_mean: float, weight: float) -> dict[str, float]:
@@ -73,6 +79,15 @@ def summary(d: torch.Tensor, offline_mean: float, weight: float) -> dict[str, fl
         "p90": float(d.quantile(0.9)),
         "vs_offline": mean / offline_mean,
         "lambda_d": weight * mean,
+    }
+
+
+def action_stds(rollout: TensorDictBase) -> dict[str, float]:
+    """The Eq. 9 ensemble std ``σ_θ(s)`` and the executed ``sqrt(σ² + λ d_t)`` (Eq. 10),
+    averaged over steps and action dimensions."""
+    return {
+        "policy_std": float(rollout["scale"].mean()),
+        "executed_std": float(rollout["exploration_scale"].mean()),
     }
 
 
@@ -99,16 +114,18 @@ def main(argv: list[str] | None = None) -> int:
             base = float(offline.mean())
             table = {"offline": summary(offline, base, weight)}
             for shift in ["none", *args.shifts]:
-                d = online_distance(run, shift, args.steps)
-                table[f"online {shift}"] = summary(d, base, weight)
+                rollout = online_rollout(run, shift, args.steps)
+                d = rollout["shift_distance"].reshape(-1)
+                table[f"online {shift}"] = {**summary(d, base, weight), **action_stds(rollout)}
         rows[str(run_dir)] = table
         print(f"\n{run_dir} (frames {run.frames}, λ = {weight:g})")
         print(f"{'transitions':<18} {'n':>6} {'mean d':>7} {'median':>7} {'p90':>7} "
-              f"{'/ offline':>9} {'λ·mean':>7}")  # fmt: skip
+              f"{'/ offline':>9} {'λ·mean':>7} {'σ_θ':>6} {'executed':>8}")  # fmt: skip
         for name, s in table.items():
+            stds = f"{s['policy_std']:>6.3f} {s['executed_std']:>8.3f}" if "policy_std" in s else ""
             print(
                 f"{name:<18} {s['n']:>6} {s['mean']:>7.3f} {s['median']:>7.3f} "
-                f"{s['p90']:>7.3f} {s['vs_offline']:>8.2f}x {s['lambda_d']:>7.3f}"
+                f"{s['p90']:>7.3f} {s['vs_offline']:>8.2f}x {s['lambda_d']:>7.3f} {stds}"
             )
     if args.json is not None:
         args.json.write_text(json.dumps(rows, indent=1) + "\n")

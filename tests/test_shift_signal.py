@@ -58,5 +58,7 @@ def test_the_signal_is_eq_10s_distance_on_each_kind_of_transition(tmp_path):
     table = json.loads(out.read_text())[str(run_dir)]
     assert list(table) == ["offline", "online none", "online mass"]
     assert table["offline"]["n"] == 100 and table["offline"]["vs_offline"] == 1.0
-    assert table["online mass"]["lambda_d"] == 0.5 * table["online mass"]["mean"]
+    mass = table["online mass"]
+    assert mass["lambda_d"] == 0.5 * mass["mean"]
+    assert 0 < mass["policy_std"] < mass["executed_std"]  # λ d_t > 0 adds to σ_θ²
     assert shift_signal.main([str(tmp_path / "nothing")]) == 2
