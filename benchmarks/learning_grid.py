@@ -44,6 +44,9 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     # "Budget split"): a larger offline share of each batch, or half the updates per frame
     "dual_offline_frac75": ("algo=dual", "online.offline_fraction=0.75"),
     "dual_utd025": ("algo=dual", "online.utd_ratio=0.25"),
+    # λ max(d_t − d_0, 0) with d_0 the transition model's error on D_offline (beyond the
+    # paper): d_t is 0.27 on the data and 0.31 online without a shift (shift_signal.py)
+    "dual_shift_floor": ("algo=dual", "exploration.shift_floor=offline"),
 }
 """Variant name -> recipe overrides."""
 
@@ -80,15 +83,23 @@ CELLS: dict[str, Cell] = {
         ("env=pointmaze_umaze",),
         tuple(
             v for v in VARIANTS
-            if v not in (*ABLATION_VARIANTS, *PAPER_BASELINES, *ONLINE_TUNING_VARIANTS)
+            if v not in (*ABLATION_VARIANTS, *PAPER_BASELINES, *ONLINE_TUNING_VARIANTS,
+                         "dual_shift_floor")
         ), 5,
         "PointMaze U-maze",
     ),
-    # the same two algorithms with twice the offline actor-critic updates: a DUAL run then
-    # costs ≈ 16 CPU-min with today's code, under a `default_v1` run's ≈ 18 (docs/results.md)
+    # DUAL and IQL with twice the offline actor-critic updates (DUAL: ≈ 1.4x the CPU time of
+    # its `default` run), and DUAL's noise floor on those offline phases
     "umaze_20k": Cell(
-        ("env=pointmaze_umaze", "budget.offline_updates=20000"), ("dual", "iql"), 5,
-        "PointMaze U-maze, 20000 offline actor-critic updates (`default`: 10000)",
+        ("env=pointmaze_umaze", "budget.offline_updates=20000"), ("dual", "iql", "dual_shift_floor"),
+        5, "PointMaze U-maze, 20000 offline actor-critic updates (`default`: 10000)",
+    ),
+    # the shift-aware noise with and without its floor d_0, on umaze_20k's offline phases
+    "umaze_20k_rotation": Cell(
+        ("env=pointmaze_umaze", "budget.offline_updates=20000", "env.shift=rotation"),
+        ("dual", "dual_lambda0", "dual_shift_floor"), 3,
+        "U-maze with 20000 offline updates, online actions rotated by 60°: λ = 0.5, λ = 0 "
+        "and the floor d_0",
     ),
     "umaze_online": Cell(
         ("env=pointmaze_umaze",), ONLINE_TUNING_VARIANTS, 5,
@@ -129,6 +140,7 @@ ONLINE_ONLY = (
     "laplace.num_samples=",
     "laplace.uq=",
     "exploration.shift_weight=",
+    "exploration.shift_floor=",
     "augment.",
     "replay=",
     "critic.online_steps_per_update=",

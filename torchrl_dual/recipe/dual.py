@@ -13,6 +13,7 @@ import torch
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
 
+from torchrl_dual.modules import ShiftAwareNoise
 from torchrl_dual.objectives import progressive_distillation
 from torchrl_dual.recipe import networks
 from torchrl_dual.recipe.critics import CRITICS, POLICY_CRITICS, policy_view
@@ -31,7 +32,13 @@ class DualLearner(Learner):
     title = "DUAL"
     # offline_cache: DUAL's online ablations (no UQ, λ = 0) and every shift share these
     shared_stages = ("planner", "distillation", "actor_critic")
-    online_keys = ("laplace.num_samples", "laplace.uq", "exploration.shift_weight", "augment")
+    online_keys = (
+        "laplace.num_samples",
+        "laplace.uq",
+        "exploration.shift_weight",
+        "exploration.shift_floor",
+        "augment",
+    )
 
     def __init__(self, run: O2ORun) -> None:
         self.run = run
@@ -58,6 +65,7 @@ class DualLearner(Learner):
         # the one decision point of the no-UQ and latent-UQ ablations: no posterior to fit
         self.uses_posterior = cfg.laplace.uq == "laplace" and cfg.laplace.num_samples > 0
         self.exploration_policy = self.policy  # Eq. 9 + Eq. 10
+        self.noise = next(m for m in self.policy.modules() if isinstance(m, ShiftAwareNoise))
         self.evaluation_policy = self.ensemble  # the MAP mean under DETERMINISTIC
         self.updates_since_refit = 0
         # augment.kind=planner: guided teacher windows added to D_online (Alg. 1 l. 14);
@@ -91,7 +99,10 @@ class DualLearner(Learner):
         return shared
 
     def state_dict(self) -> dict:
-        state = {"updates_since_refit": self.updates_since_refit}
+        state = {
+            "updates_since_refit": self.updates_since_refit,
+            "shift_floor": float(self.noise.shift_floor),
+        }
         if self.augmenter:
             state["augment"] = self.augmenter.state_dict()
         if self.labels:
@@ -100,6 +111,7 @@ class DualLearner(Learner):
 
     def load_state_dict(self, state: dict) -> None:
         self.updates_since_refit = state["updates_since_refit"]
+        self.noise.shift_floor.fill_(state.get("shift_floor", 0.0))  # 0: before the floor
         if self.augmenter:
             self.augmenter.load_state_dict(state["augment"])
         if self.labels:
@@ -115,7 +127,13 @@ class DualLearner(Learner):
             ("distillation", self.distill),  # l.5: N=32 -> 1, π_θ and p(s'|s,a)
             ("actor_critic", self.run.pretrain_updates),  # l.6-8: IQL + Eq. 7
             ("laplace", self.fit_laplace),  # l.9: Eq. 8
+            # d_0 of the noise (beyond the paper; none with the default d_0 = 0, Eq. 10)
+            *([("shift_floor", self.set_shift_floor)] if self.uses_shift_floor else []),
         ]
+
+    @property
+    def uses_shift_floor(self) -> bool:
+        return self.cfg.exploration.shift_floor != 0
 
     def update(self, batch: TensorDictBase) -> dict:
         """One critic (IQL, Cal-QL's TD + bounded penalty, or SO2's ensemble TD: one step
@@ -189,6 +207,21 @@ class DualLearner(Learner):
                 weight_fn=self.actor_loss.advantage_weights if advantage else None,
             )
         self.run.log({"prior_precision": laplace.prior_precision}, self.run.updates, "laplace/")
+
+    def set_shift_floor(self) -> None:
+        """``exploration.shift_floor``: ``d_0`` of the noise's ``λ max(d_t − d_0, 0)``; a
+        number, or ``offline``: the frozen transition model's mean ``‖ŝ' − s'‖`` on (up
+        to 20000 of) D_offline's transitions, its error where it was fitted."""
+        floor = self.cfg.exploration.shift_floor
+        if floor == "offline":
+            data = self.run.data.transitions
+            gen = torch.Generator().manual_seed(int(self.cfg.seed))
+            batch = data[torch.randperm(len(data), generator=gen)[:20000]].to(self.cfg.device)
+            with torch.no_grad():
+                predicted = self.transition.predict(batch["observation"], batch["action"])
+                floor = (predicted - batch["next", "observation"]).norm(dim=-1).mean()
+        self.noise.shift_floor.fill_(float(floor))
+        self.run.log({"shift_floor": float(floor)}, self.run.updates, "exploration/")
 
 
 def run_dual(cfg: DictConfig) -> O2ORun:

@@ -78,6 +78,10 @@ class ExplorationSettings:
     """Shift-aware exploration (Eq. 10)."""
 
     shift_weight: float = key(Real(0), "λ of the shift-aware variance")
+    shift_floor: Any = key(
+        Either((Choice(("offline",)), Real(0)), "must be 'offline' or a number >= 0"),
+        "d_0 of λ max(d_t − d_0, 0); 0 = Eq. 10",
+    )
     transition_model: str = key(Choice(TRANSITION_MODELS), "where ŝ_t comes from")
 
 

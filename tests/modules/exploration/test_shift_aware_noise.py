@@ -201,17 +201,35 @@ def test_custom_keys_are_read_and_written():
     assert noise.out_keys == ["act", "d", "total_std", "logp"]
 
 
-def test_shift_weight_is_the_only_state():
-    noise = ShiftAwareNoise(shift_weight=0.25)
-    assert list(noise.state_dict()) == ["shift_weight"]
+def test_shift_weight_and_floor_are_the_only_state():
+    noise = ShiftAwareNoise(shift_weight=0.25, shift_floor=0.5)
+    assert list(noise.state_dict()) == ["shift_weight", "shift_floor"]
     assert noise.state_dict()["shift_weight"] == 0.25
     restored = ShiftAwareNoise()
     restored.load_state_dict(noise.state_dict())
     out = restored(make_td(4, shift=2.0))
     torch.testing.assert_close(
-        out["exploration_scale"], (0.01 + 0.25 * 2.0) ** 0.5 * torch.ones(4, 2)
+        out["exploration_scale"], (0.01 + 0.25 * (2.0 - 0.5)) ** 0.5 * torch.ones(4, 2)
     )
-    assert "shift_weight=0.25" in repr(restored)
+    assert "shift_weight=0.25, shift_floor=0.5" in repr(restored)
+
+
+def test_the_floor_adds_only_the_excess_of_d_over_it_and_leaves_d_as_logged():
+    """Variance σ² + λ max(d − d_0, 0): d below the floor adds nothing (the plain ensemble
+    Gaussian), d above it adds λ (d − d_0); the logged shift_distance is d itself. A floor
+    set after construction (``fill_``, as the recipe does) acts the same way."""
+    torch.manual_seed(0)
+    noise = ShiftAwareNoise(shift_weight=0.5)
+    noise.shift_floor.fill_(1.0)
+    d = torch.tensor([0.0, 0.6, 1.0, 3.0]).view(4, 1, 1)
+    out = noise(make_td(4, 20000, shift=d))
+    torch.testing.assert_close(out["shift_distance"][:, 0], d[:, 0])
+    expected = torch.tensor([0.1, 0.1, 0.1, (0.1**2 + 0.5 * 2.0) ** 0.5])
+    torch.testing.assert_close(out["exploration_scale"][:, 0, 0], expected)
+    measured = (out["action"] - 0.3).std(dim=(1, 2))
+    torch.testing.assert_close(measured, expected, rtol=0.02, atol=0)
+    with pytest.raises(ValueError, match=r"shift_floor \(d_0, subtracted from d_t\) must be >= 0"):
+        ShiftAwareNoise(shift_floor=-0.1)
 
 
 # ----------------------------------------------------------------------------- errors
