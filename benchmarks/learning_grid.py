@@ -65,6 +65,9 @@ PAPER_BASELINES = ("diffuser", "dacer", "edis", "dual_augment", *CRITIC_VARIANTS
 ONLINE_TUNING_VARIANTS = ("dual_offline_frac75", "dual_utd025")
 """DUAL with other online settings, on the offline phases of ``dual``'s seeds."""
 
+NOISE_VARIANTS = ("dual_shift_floor",)
+"""DUAL's noise beyond the paper, run on the umaze_20k cells."""
+
 SHIFT_VARIANTS = ("dual", "iql", "dual_lambda0")
 
 
@@ -84,20 +87,20 @@ CELLS: dict[str, Cell] = {
         tuple(
             v for v in VARIANTS
             if v not in (*ABLATION_VARIANTS, *PAPER_BASELINES, *ONLINE_TUNING_VARIANTS,
-                         "dual_shift_floor")
+                         *NOISE_VARIANTS)
         ), 5,
         "PointMaze U-maze",
     ),
     # DUAL and IQL with twice the offline actor-critic updates (DUAL: ≈ 1.4x the CPU time of
     # its `default` run), and DUAL's noise floor on those offline phases
     "umaze_20k": Cell(
-        ("env=pointmaze_umaze", "budget.offline_updates=20000"), ("dual", "iql", "dual_shift_floor"),
+        ("env=pointmaze_umaze", "budget.offline_updates=20000"), ("dual", "iql", *NOISE_VARIANTS),
         5, "PointMaze U-maze, 20000 offline actor-critic updates (`default`: 10000)",
     ),
     # the shift-aware noise with and without its floor d_0, on umaze_20k's offline phases
     "umaze_20k_rotation": Cell(
         ("env=pointmaze_umaze", "budget.offline_updates=20000", "env.shift=rotation"),
-        ("dual", "dual_lambda0", "dual_shift_floor"), 3,
+        ("dual", "dual_lambda0", *NOISE_VARIANTS), 3,
         "U-maze with 20000 offline updates, online actions rotated by 60°: λ = 0.5, λ = 0 "
         "and the floor d_0",
     ),
@@ -173,10 +176,10 @@ def dual_cells() -> dict[str, str]:
         >>> dual_cells()["umaze_online"]
         'umaze'
     """
+    with_dual = [name for name, cell in CELLS.items() if "dual" in cell.variants]
     out = {}
     for name, cell in CELLS.items():
-        for other, candidate in CELLS.items():
-            if candidate.overrides == cell.overrides and "dual" in candidate.variants:
-                out[name] = name if "dual" in cell.variants else other
-                break
+        partners = [n for n in with_dual if CELLS[n].overrides == cell.overrides]
+        if partners:
+            out[name] = name if name in partners else partners[0]
     return out

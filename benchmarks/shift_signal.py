@@ -40,15 +40,10 @@ from torchrl_dual.recipe import O2ORun
 from torchrl_dual.recipe.env_kits import make_train_env
 
 
-@torch.no_grad()
 def offline_distance(run: O2ORun, samples: int, seed: int = 0) -> torch.Tensor:
-    """``‖ŝ' − s'‖`` of the run's transition model on ``samples`` offline transitions."""
-    data = run.data.transitions
-    gen = torch.Generator().manual_seed(seed)
-    batch = data[torch.randperm(len(data), generator=gen)[: min(samples, len(data))]]
-    batch = batch.to(run.cfg.device)
-    predicted = run.learner.transition.predict(batch["observation"], batch["action"])
-    return (predicted - batch["next", "observation"]).norm(dim=-1).cpu()
+    """``‖ŝ' − s'‖`` of the run's transition model on ``samples`` offline transitions
+    (:meth:`~torchrl_dual.recipe.DualLearner.offline_shift_distances`)."""
+    return run.learner.offline_shift_distances(samples, seed)
 
 
 @torch.no_grad()

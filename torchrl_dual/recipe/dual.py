@@ -210,18 +210,23 @@ class DualLearner(Learner):
 
     def set_shift_floor(self) -> None:
         """``exploration.shift_floor``: ``d_0`` of the noise's ``λ max(d_t − d_0, 0)``; a
-        number, or ``offline``: the frozen transition model's mean ``‖ŝ' − s'‖`` on (up
-        to 20000 of) D_offline's transitions, its error where it was fitted."""
+        number, or ``offline``: the mean of :meth:`offline_shift_distances` (up to 20000
+        transitions), the transition model's error where it was fitted."""
         floor = self.cfg.exploration.shift_floor
         if floor == "offline":
-            data = self.run.data.transitions
-            gen = torch.Generator().manual_seed(int(self.cfg.seed))
-            batch = data[torch.randperm(len(data), generator=gen)[:20000]].to(self.cfg.device)
-            with torch.no_grad():
-                predicted = self.transition.predict(batch["observation"], batch["action"])
-                floor = (predicted - batch["next", "observation"]).norm(dim=-1).mean()
+            floor = self.offline_shift_distances(20000, int(self.cfg.seed)).mean()
         self.noise.shift_floor.fill_(float(floor))
         self.run.log({"shift_floor": float(floor)}, self.run.updates, "exploration/")
+
+    @torch.no_grad()
+    def offline_shift_distances(self, samples: int, seed: int) -> torch.Tensor:
+        """``‖ŝ' − s'‖`` of the transition model on ``samples`` of D_offline's transitions
+        (drawn without replacement with ``seed``): Eq. 10's ``d`` on the fitted data."""
+        data = self.run.data.transitions
+        gen = torch.Generator().manual_seed(seed)
+        batch = data[torch.randperm(len(data), generator=gen)[:samples]].to(self.cfg.device)
+        predicted = self.transition.predict(batch["observation"], batch["action"])
+        return (predicted - batch["next", "observation"]).norm(dim=-1).cpu()
 
 
 def run_dual(cfg: DictConfig) -> O2ORun:
