@@ -57,10 +57,22 @@ def test_backends_agree_before_they_are_timed():
 @pytest.mark.skipif(not torch.backends.mkl.is_available(), reason="MKL_VERBOSE needs MKL")
 def test_script_traces_a_recipe_update_and_writes_json(tmp_path):
     out = tmp_path / "gemm.json"
-    args = ("--algo", "iql", "--updates", "2", "--rounds", "1", "--reps", "1")
+    args = (
+        "--algo",
+        "iql",
+        "--updates",
+        "2",
+        "--rounds",
+        "1",
+        "--reps",
+        "1",
+        "--update-rounds",
+        "1",
+    )
     proc = run_script("benchmarks/gemm_backends.py", *args, "--json", str(out))
     assert proc.returncode == 0, proc.stderr[-3000:]
     result = json.loads(out.read_text())
     assert result["gemm_calls_per_update"] > 0
     assert 0 < sum(result["gemm_ms_by_shape"].values()) < result["ms_per_update"]
     assert "projected update" in proc.stdout
+    assert 0 < result["floor_ms_per_update"] and len(result["floor_ms_per_update_rounds"]) == 1
