@@ -152,19 +152,21 @@ ONLINE_ONLY = (
 )
 
 
-def online_variants() -> dict[str, str]:
-    """DUAL's variants that change only what the online phase reads (``algo=dual`` and
-    :data:`ONLINE_ONLY` overrides: they load ``dual``'s offline phase) -> those overrides.
+def dual_variants() -> dict[str, str]:
+    """DUAL's ablations and settings: ``algo=dual`` with more overrides, on its own critic
+    (``critic=`` variants are compared against that critic instead) -> those overrides.
+    Those whose overrides are all :data:`ONLINE_ONLY` load ``dual``'s offline phase; the
+    others (no planner, no distillation) train their own.
 
-        >>> online_variants()["dual_no_uq"]
-        'laplace.num_samples=0'
+        >>> dual_variants()["dual_no_uq"], dual_variants()["dual_no_planner"]
+        ('laplace.num_samples=0', 'actor.init=scratch')
     """
     return {
         name: " ".join(overrides[1:])
         for name, overrides in VARIANTS.items()
         if overrides[0] == "algo=dual"
         and len(overrides) > 1
-        and all(o.startswith(ONLINE_ONLY) for o in overrides[1:])
+        and not any(o.startswith("critic=") for o in overrides[1:])
     }
 
 

@@ -1,6 +1,6 @@
 """Paired comparisons of the learning suite: DUAL against its base critic, per cell (the
 paper's Table 2: IQL, Cal-QL, SO2 + OFF2ON, each with and without DUAL on top), and DUAL's
-online variants (ablations and online settings) against DUAL on the same offline phase.
+variants (ablations and settings) against DUAL, on its offline phase where they share it.
 
 Each pair is compared on the seeds both variants ran, which share their data and
 environment seeds: the table gives both means ± 95 % t intervals and the *paired*
@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 
-from learning_grid import online_variants
+from learning_grid import dual_variants
 from learning_report import fmt, t_interval
 
 CRITIC_PAIRS: tuple[tuple[str, str, str], ...] = (
@@ -80,28 +80,28 @@ def _same_offline(variant: list[dict], dual: list[dict]) -> str:
     return f"{same}/{len(paired)}"
 
 
-def online_pairs_table(
+def dual_variant_pairs_table(
     cells: dict[str, dict[str, list[dict]]],
     order: Sequence[str],
     dual_from: dict[str, str] | None = None,
     variants: Mapping[str, str] | None = None,
 ) -> str:
     """Markdown rows ``cell | variant | n | same offline | DUAL final | variant final |
-    paired final and AUC differences`` for every online variant a cell ran (``variants``:
-    name -> its online overrides; default :func:`learning_grid.online_variants`), against
-    the ``dual`` runs of ``dual_from[cell]`` (default: the cell itself).
+    paired final and AUC differences`` for every DUAL variant a cell ran (``variants``:
+    name -> its overrides; default :func:`learning_grid.dual_variants`), against the
+    ``dual`` runs of ``dual_from[cell]`` (default: the cell itself).
 
     Examples:
         >>> run = lambda s, off, fin: {"seed": s, "offline_score": off, "final_score": fin,
         ...                             "auc": fin}
         >>> cells = {"u": {"dual": [run(0, 9.0, 50.0), run(1, 8.0, 60.0)]},
         ...          "u_online": {"dual_utd025": [run(0, 9.0, 47.0), run(1, 7.0, 55.0)]}}
-        >>> print(online_pairs_table(cells, ["u", "u_online"], {"u_online": "u"})
+        >>> print(dual_variant_pairs_table(cells, ["u", "u_online"], {"u_online": "u"})
         ...       .splitlines()[-1])
         | u_online | `dual_utd025` (`online.utd_ratio=0.25`) | 2 | 1/2 | 55.0 ± 63.5 | 51.0 ± 50.8 | -4.0 ± 12.7 ≈ | -4.0 ± 12.7 ≈ |
     """
     dual_from = dual_from or {}
-    variants = online_variants() if variants is None else variants
+    variants = dual_variants() if variants is None else variants
     lines = [
         "| cell | variant | n (paired) | same offline phase | `dual`: final | variant: final "
         "| variant − `dual`: final | variant − `dual`: AUC |",

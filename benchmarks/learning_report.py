@@ -348,22 +348,23 @@ def render_section(
             "stage under heavy load, against ×2.9 in wall time).",
             table,
         ]
-    from learning_pairs import critic_pairs_table, online_pairs_table  # read this module
+    from learning_pairs import critic_pairs_table, dual_variant_pairs_table  # this module
 
-    online = online_pairs_table(cells, cell_order, dual_from)
-    if online.count("\n") > 1:
+    variant_pairs = dual_variant_pairs_table(cells, cell_order, dual_from)
+    if variant_pairs.count("\n") > 1:
         parts += [
-            "### DUAL's online variants against DUAL on the same offline phase",
-            "The ablations and online settings that change only what the online phase "
-            "reads load `dual`'s offline phase (same env, data and seed; the suite's "
-            "offline cache), so their difference to `dual` is measured seed by seed: "
-            "*variant − `dual`* is the mean of the per-seed differences ± its 95 % t "
-            "half-width, ▲ / ▼ when that interval excludes 0, ≈ when it holds 0. *Same "
-            "offline phase*: on how many of the paired seeds the two runs' offline scores "
-            "are identical; a run made after a code change that alters the offline "
-            "computation starts from another offline phase, and its pair then also "
+            "### DUAL's variants against DUAL, seed by seed",
+            "DUAL's ablations and settings run on `dual`'s data and env seeds, so their "
+            "difference to `dual` is measured seed by seed: *variant − `dual`* is the "
+            "mean of the per-seed differences ± its 95 % t half-width, ▲ / ▼ when that "
+            "interval excludes 0, ≈ when it holds 0. Those that change only what the "
+            "online phase reads also load `dual`'s offline phase (the suite's offline "
+            "cache). *Same offline phase*: on how many of the paired seeds the two runs' "
+            "offline scores are identical; the ablations that change the offline phase "
+            "(no planner, no distillation) train their own (0/n), as does a run made "
+            "after a code change that alters the offline computation: such a pair also "
             "carries the offline phase's variance.",
-            online,
+            variant_pairs,
         ]
 
     pairs = critic_pairs_table(cells, cell_order)

@@ -58,17 +58,18 @@ def test_runs_the_suite_groups_for_sharing_have_one_recipe_offline_key(tmp_path)
             assert same_group == (keys[a] == keys[b]), (a.cell, a.variant, b.cell, b.variant)
 
 
-def test_online_variants_and_their_dual_cells_are_derived_from_the_grid():
-    """The paired table's rows come from the grid: DUAL variants whose overrides are all
-    online-only, paired with the ``dual`` of the cell with the same env overrides."""
+def test_dual_variants_and_their_dual_cells_are_derived_from_the_grid():
+    """The paired table's rows come from the grid: DUAL's variants on its own critic,
+    paired with the ``dual`` of the cell with the same env overrides."""
     import doctest
 
     import learning_grid
 
     assert doctest.testmod(learning_grid).failed == 0
-    online = learning_grid.online_variants()
-    assert {"dual_no_uq", "dual_lambda0", "dual_utd025", "dual_latent_uq"} <= set(online)
-    assert not {"dual", "dual_calql", "dual_so2", "dual_no_planner", "iql"} & set(online)
+    variants = learning_grid.dual_variants()
+    assert {"dual_no_uq", "dual_lambda0", "dual_utd025", "dual_latent_uq"} <= set(variants)
+    assert {"dual_no_planner", "dual_no_distillation", "dual_augment"} <= set(variants)
+    assert not {"dual", "dual_calql", "dual_so2", "iql", "iql_la"} & set(variants)
     pairs = learning_grid.dual_cells()
     assert pairs["umaze"] == "umaze" and pairs["umaze_ablations"] == "umaze"
     assert pairs["umaze_rotation"] == "umaze_rotation" and pairs["umaze_20k"] == "umaze_20k"

@@ -1,4 +1,4 @@
-"""``benchmarks/learning_pairs.py``: DUAL's online variants paired with DUAL by seed."""
+"""``benchmarks/learning_pairs.py``: DUAL's variants paired with DUAL by seed."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ def test_the_module_examples_run():
     assert doctest.testmod(learning_pairs).failed == 0
 
 
-def test_online_variants_pair_with_dual_by_seed_and_report_shared_offline_phases():
+def test_dual_variants_pair_with_dual_by_seed_and_report_shared_offline_phases():
     dual = [_run(0, 20.0, 50.0, 40.0), _run(1, 30.0, 60.0, 50.0), _run(2, 25.0, 55.0, 45.0)]
     no_uq = [_run(0, 20.0, 48.0, 41.0), _run(1, 30.0, 57.0, 50.0), _run(2, 25.0, 51.0, 45.0)]
     lambda0 = [_run(1, 31.0, 70.0), _run(3, 10.0, 99.0)]  # seed 3: no DUAL partner
@@ -30,7 +30,7 @@ def test_online_variants_pair_with_dual_by_seed_and_report_shared_offline_phases
         "umaze_online": {"dual_utd025": [_run(0, 20.0, 45.0), _run(2, 25.0, 50.0)]},
         "no_dual": {"dual_lambda0": lambda0},  # no `dual` to pair with: no row
     }
-    rows = learning_pairs.online_pairs_table(
+    rows = learning_pairs.dual_variant_pairs_table(
         cells, ["umaze", "umaze_online", "no_dual"], {"umaze_online": "umaze"}
     ).splitlines()[2:]
     assert [r.split(" | ")[:4] for r in rows] == [
