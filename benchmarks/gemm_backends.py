@@ -130,7 +130,8 @@ def parse_trace(lines: list[str], updates: int) -> dict:
 
 
 # ---------------------------------------------------------------------- the backends
-def median_us(fn, reps: int) -> float:
+def mean_us(fn, reps: int) -> float:
+    """Mean µs per call of ``fn`` over ``reps`` calls, after 5 warm-up calls."""
     for _ in range(5):
         fn()
     start = time.perf_counter()
@@ -184,8 +185,8 @@ def compare_backends(shapes: list[str], rounds: int, reps: int) -> dict[str, dic
             raise RuntimeError(f"oneDNN and MKL disagree on {shape}: relative error {error:.1e}")
         times: dict[str, list[float]] = {"mkl": [], "onednn": []}
         for _ in range(rounds):
-            times["mkl"].append(median_us(mkl, reps))
-            times["onednn"].append(median_us(onednn, reps))
+            times["mkl"].append(mean_us(mkl, reps))
+            times["onednn"].append(mean_us(onednn, reps))
         mkl_us, onednn_us = (statistics.median(v) for v in times.values())
         out[shape] = {
             "mkl_us": mkl_us,
