@@ -47,15 +47,37 @@ Outcome = dict[str, Any]
 """One run's end: ``error`` (``""`` on success), ``seconds`` and the ``machine`` it ran on."""
 
 
+def cpu_model() -> str:
+    """The CPU's model name (``/proc/cpuinfo`` on Linux, else ``platform.processor()``):
+    two VMs with the same platform string can run on different CPUs, whose float
+    rounding and speed differ (``""`` when unknown).
+
+    Examples:
+        >>> isinstance(cpu_model(), str)
+        True
+    """
+    try:
+        with open("/proc/cpuinfo") as cpuinfo:
+            for line in cpuinfo:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor()
+
+
 def machine() -> str:
-    """This node: platform, CPU count and the torch / torchrl versions (not imported).
+    """This node: platform, CPU model and count, the torch / torchrl versions (not
+    imported).
 
     Examples:
         >>> "torch 2." in machine() and "CPUs" in machine()
         True
     """
     versions = ", ".join(f"{n} {importlib.metadata.version(n)}" for n in ("torch", "torchrl"))
-    return f"{platform.platform()}, {os.cpu_count()} CPUs, {versions}"
+    model = cpu_model()
+    cpus = f"{os.cpu_count()} CPUs" + (f" ({model})" if model else "")
+    return f"{platform.platform()}, {cpus}, {versions}"
 
 
 def run_recipe(
