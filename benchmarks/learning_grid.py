@@ -79,6 +79,9 @@ class Cell:
     variants: tuple[str, ...]
     seeds: int
     about: str
+    reference: str | None = None
+    """The cell whose ``dual`` runs this cell's DUAL variants pair with (same overrides);
+    ``None``: :func:`dual_cells` picks itself or the first such cell."""
 
 
 CELLS: dict[str, Cell] = {
@@ -108,14 +111,18 @@ CELLS: dict[str, Cell] = {
         ("env=pointmaze_umaze",), ONLINE_TUNING_VARIANTS, 5,
         "PointMaze U-maze: DUAL with offline share 0.75 or UTD 0.25 online (`dual`: 0.5 and 0.5)",
     ),
+    # its own `dual` runs: the online-only ablations (latent UQ, and DUAL + EDIS below) ran
+    # on another machine than `umaze`'s (docs/results.md), so they pair with these, which
+    # share their offline phase
     "umaze_ablations": Cell(
-        ("env=pointmaze_umaze",), ABLATION_VARIANTS, 3,
+        ("env=pointmaze_umaze",), ("dual", *ABLATION_VARIANTS), 3,
         "PointMaze U-maze: w/o planner, w/o distillation (N = 8), latent UQ",
     ),
     "umaze_baselines": Cell(
         ("env=pointmaze_umaze",), PAPER_BASELINES, 3,
         "PointMaze U-maze: Diffuser, DACER, EDIS (IQL + planner augmentation), DUAL + EDIS, "
         "Cal-QL and SO2 + OFF2ON, each alone and under DUAL",
+        reference="umaze_ablations",
     ),
     "umaze_rotation": Cell(
         ("env=pointmaze_umaze", "env.shift=rotation"), (*SHIFT_VARIANTS, *CRITIC_VARIANTS), 3,
@@ -171,17 +178,25 @@ def dual_variants() -> dict[str, str]:
 
 
 def dual_cells() -> dict[str, str]:
-    """Cell -> the cell whose ``dual`` runs its DUAL variants pair with: itself when it runs
-    ``dual``, else the cell with the same overrides that does (cells with neither are left
-    out). Both share the offline phase, so the pair differs only online.
+    """Cell -> the cell whose ``dual`` runs its DUAL variants pair with: its
+    :attr:`Cell.reference` when set, else itself when it runs ``dual``, else the first cell
+    with the same overrides that does (cells with neither are left out). Both share the
+    offline phase, so the pair differs only online.
 
-        >>> dual_cells()["umaze_online"]
-        'umaze'
+        >>> dual_cells()["umaze_online"], dual_cells()["umaze_baselines"]
+        ('umaze', 'umaze_ablations')
     """
     with_dual = [name for name, cell in CELLS.items() if "dual" in cell.variants]
     out = {}
     for name, cell in CELLS.items():
         partners = [n for n in with_dual if CELLS[n].overrides == cell.overrides]
-        if partners:
+        if cell.reference is not None:
+            if cell.reference not in partners:
+                raise ValueError(
+                    f"cell {name!r}: its reference {cell.reference!r} must run `dual` with the "
+                    "same overrides"
+                )
+            out[name] = cell.reference
+        elif partners:
             out[name] = name if name in partners else partners[0]
     return out

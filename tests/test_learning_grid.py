@@ -7,6 +7,8 @@ import json
 import sys
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "benchmarks"))  # the scripts' directory is not a package
 import learning  # noqa: E402
@@ -71,8 +73,26 @@ def test_dual_variants_and_their_dual_cells_are_derived_from_the_grid():
     assert {"dual_no_planner", "dual_no_distillation", "dual_augment"} <= set(variants)
     assert not {"dual", "dual_calql", "dual_so2", "iql", "iql_la"} & set(variants)
     pairs = learning_grid.dual_cells()
-    assert pairs["umaze"] == "umaze" and pairs["umaze_ablations"] == "umaze"
+    assert pairs["umaze"] == "umaze" and pairs["umaze_online"] == "umaze"
+    assert pairs["umaze_ablations"] == "umaze_ablations"  # its own `dual` (another machine)
+    assert pairs["umaze_baselines"] == "umaze_ablations"  # Cell.reference
     assert pairs["umaze_rotation"] == "umaze_rotation" and pairs["umaze_20k"] == "umaze_20k"
     for cell, partner in pairs.items():
         assert learning.CELLS[cell].overrides == learning.CELLS[partner].overrides
         assert "dual" in learning.CELLS[partner].variants
+
+
+def test_a_cell_reference_must_run_dual_with_the_same_overrides(monkeypatch):
+    """A :attr:`Cell.reference` pointing at a cell without ``dual``, or with other
+    overrides, is a grid error, not a silent pairing with unrelated runs."""
+    import learning_grid
+
+    bad = {
+        **learning_grid.CELLS,
+        "umaze_baselines": learning_grid.Cell(
+            ("env=pointmaze_umaze",), ("dual_augment",), 3, "x", reference="medium"
+        ),
+    }
+    monkeypatch.setattr(learning_grid, "CELLS", bad)
+    with pytest.raises(ValueError, match="reference 'medium' must run `dual`"):
+        learning_grid.dual_cells()
