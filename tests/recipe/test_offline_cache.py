@@ -179,3 +179,21 @@ def test_the_lock_makes_a_second_run_wait_for_the_first(tmp_path):
     for thread in threads:
         thread.join(20)
     assert order == ["first in", "first out", "second in, snapshot found"]
+
+
+def test_an_augmenting_follower_loads_the_offline_phase_of_a_plain_one(shared_runs, tmp_path):
+    """``augment.kind=planner`` is online-only: its run loads the offline phase of a run
+    without the augmenter (whose learner state has no augmenter counters) and augments."""
+    out = tmp_path / "augment"
+    augment = ("augment.kind=planner", "augment.every=20", "augment.num_windows=4")
+    budget = ("augment.guider_updates=2", "augment.reward_updates=2")
+    proc = succeeded(
+        run_recipe(
+            out, shared_runs["data"], *FAST, f"offline_cache={shared_runs['cache']}",
+            *augment, *budget,
+        )
+    )  # fmt: skip
+    assert "offline stages planner, distillation, actor_critic: loaded from" in proc.stdout
+    leader = summary(shared_runs["leader"])["history"][0]
+    assert summary(out)["history"][0] == leader  # the same offline policy, evaluated
+    assert scalars(out, "augment"), "no augmentation round ran online"

@@ -112,8 +112,8 @@ class DualLearner(Learner):
     def load_state_dict(self, state: dict) -> None:
         self.updates_since_refit = state["updates_since_refit"]
         self.noise.shift_floor.fill_(state.get("shift_floor", 0.0))  # 0: before the floor
-        if self.augmenter:
-            self.augmenter.load_state_dict(state["augment"])
+        if self.augmenter and "augment" in state:  # absent: a shared offline phase
+            self.augmenter.load_state_dict(state["augment"])  # written without one
         if self.labels:
             self.labels.load_state_dict(state["mc_labels"])
 
