@@ -137,6 +137,9 @@ def test_online_keys_share_the_key_and_offline_keys_do_not():
         "online.utd_ratio=1.0",
         "budget.online_frames=100",
         "collector=multi_async",
+        "progress=false",  # display and error display: a run with a progress bar or
+        "debug=true",  # tracebacks shares with the suite's, which has neither
+        "data_cache_dir=/elsewhere",
     ):
         assert key(online) == base, online
     for offline in ("planner.lr=0.001", "seed=1", "budget.offline_updates=7", "actor.init=scratch"):

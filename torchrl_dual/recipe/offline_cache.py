@@ -49,6 +49,9 @@ ONLINE_KEYS: tuple[str, ...] = (
     "resume",
     "interrupt_at_frames",
     "offline_cache",
+    "data_cache_dir",  # where the data set is cached, not what it holds
+    "progress",  # display only
+    "debug",  # error display only
     "budget.name",
     "budget.online_frames",
     "budget.frames_per_batch",
