@@ -98,3 +98,25 @@ def test_unknown_maze_fails_before_generating(tmp_path):
     with pytest.raises(ValueError, match="Valid names"):
         load_or_generate_maze_dataset("spiral", 10, 0, tmp_path)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_goal_cell_fixes_the_data_goal_and_has_its_own_cache_entry(tmp_path):
+    """The data's task goal (observation and reward) lies in ``goal_cell`` in every
+    episode, the references are computed for it, and the entry sits next to the
+    random-goal one instead of replacing it."""
+    kwargs = dict(max_episode_steps=50, num_reference_episodes=1, verbose=False)
+    free = load_or_generate_maze_dataset("umaze", 200, 0, tmp_path, **kwargs)
+    fixed = load_or_generate_maze_dataset("umaze", 200, 0, tmp_path, goal_cell=[3, 1], **kwargs)
+    goals = fixed.transitions["observation"][:, 4:]
+    # umaze cell (3, 1) is the bottom-left one: x < -0.5, y < -0.5 (cells of size 1)
+    assert (goals[:, 0] < -0.5).all() and (goals[:, 1] < -0.5).all()
+    assert free.transitions["observation"][:, 4:].unique(dim=0).shape[0] > 1
+    assert fixed.metadata["goal_cell"] == [3, 1] and free.metadata["goal_cell"] is None
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "pointmaze-umaze-goal3_1-n200-seed0",
+        "pointmaze-umaze-n200-seed0",
+    ]
+    again = load_or_generate_maze_dataset("umaze", 200, 0, tmp_path, goal_cell=[3, 1], **kwargs)
+    assert torch.equal(again.transitions["observation"], fixed.transitions["observation"])
+    with pytest.raises(ValueError, match="not an open cell of the umaze maze"):
+        load_or_generate_maze_dataset("umaze", 200, 0, tmp_path, goal_cell=[2, 1], **kwargs)

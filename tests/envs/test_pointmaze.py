@@ -10,8 +10,10 @@ from torchrl_dual.data import MazeWaypointController
 from torchrl_dual.envs import (
     default_max_episode_steps,
     flatten_pointmaze_obs,
+    goal_maze_map,
     make_pointmaze_env,
     make_pointmaze_gym_env,
+    open_cells,
 )
 
 
@@ -94,3 +96,36 @@ def test_episodic_task_terminates_when_the_goal_is_reached():
             break
     assert terminated and reward == 1.0
     assert flatten_pointmaze_obs(obs).shape == (6,)
+
+
+def _cell_of(env, xy: np.ndarray) -> tuple[int, int]:
+    maze = env.unwrapped.maze
+    row, col = maze.cell_xy_to_rowcol(np.asarray(xy))
+    return int(row), int(col)
+
+
+def test_a_goal_cell_fixes_every_episodes_goal_and_only_the_goal():
+    """``goal_cell``: the goal lies in that cell at every reset (D4RL maze2d style), the
+    start stays random among the other open cells; without it the goal cell varies."""
+    fixed = make_pointmaze_gym_env("medium", goal_cell=(6, 6))
+    free = make_pointmaze_gym_env("medium")
+    goals, starts, free_goals = set(), set(), set()
+    for seed in range(12):
+        obs, _ = fixed.reset(seed=seed)
+        goals.add(_cell_of(fixed, obs["desired_goal"]))
+        starts.add(_cell_of(fixed, obs["achieved_goal"]))
+        free_obs, _ = free.reset(seed=seed)
+        free_goals.add(_cell_of(free, free_obs["desired_goal"]))
+    assert goals == {(6, 6)}
+    assert len(starts) > 4 and (6, 6) not in starts
+    assert len(free_goals) > 4
+    assert open_cells("umaze") == [(1, 1), (1, 2), (1, 3), (2, 3), (3, 1), (3, 2), (3, 3)]
+
+
+@pytest.mark.parametrize("cell", [(0, 0), (3, 1), (9, 9), (6,)])
+def test_a_goal_cell_that_is_not_an_open_cell_names_the_open_cells(cell):
+    with pytest.raises(
+        ValueError, match=r"not an open cell of the medium maze.*open cells: \[\[1, 1\]"
+    ):
+        make_pointmaze_env("medium", goal_cell=cell)
+    assert goal_maze_map("medium", (6, 6))[6][6] == "g"

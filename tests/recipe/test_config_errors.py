@@ -161,6 +161,14 @@ CASES = [
         "collector=multi_async: critic=calql labels one stream of online episodes with "
         "Monte-Carlo returns; use collector=single with it",
     ),
+    (
+        "env=pointmaze_medium env.goal_cell=[0,0]",
+        "env.goal_cell=[0, 0]: goal_cell [0, 0] is not an open cell of the medium maze (a "
+        "[row, col] pair, row 0 at the top); open cells: [[1, 1], [1, 2], [1, 5], [1, 6], "
+        "[2, 1], [2, 2], [2, 4], [2, 5], [2, 6], [3, 2], [3, 3], [3, 4], [4, 1], [4, 2], "
+        "[4, 4], [4, 5], [4, 6], [5, 1], [5, 3], [5, 4], [5, 6], [6, 1], [6, 2], [6, 3], "
+        "[6, 5], [6, 6]].",
+    ),
 ]
 
 

@@ -81,6 +81,34 @@ def test_pointmaze_offline_data_is_requested_exactly_as_without_a_shift(
     assert "shift" not in str(calls[0])
 
 
+def test_env_goal_cell_reaches_the_data_the_train_env_and_the_evaluator(tmp_path, monkeypatch):
+    """``env.goal_cell`` is one setting of the task: the data, the online env and the
+    evaluation episodes all have their goal in that cell."""
+    cfg = compose(tmp_path, "env.goal_cell=[3,1]", "budget.dataset_transitions=300")
+    data = env_kits.make_offline_dataset(cfg)
+    assert data.metadata["goal_cell"] == [3, 1]
+    goal = data.transitions["observation"][0, 4:]
+    assert (goal < -0.5).all()  # umaze cell (3, 1): the bottom-left one
+    env = env_kits.make_train_env(cfg)
+    for episode in range(6):  # each reset draws a new start (and, without it, a new goal)
+        assert (env.reset()["observation"][4:] < -0.5).all(), episode
+    seen = []
+    real = env_kits.make_pointmaze_gym_env
+    monkeypatch.setattr(
+        env_kits,
+        "make_pointmaze_gym_env",
+        lambda *args, **kwargs: seen.append(kwargs.get("goal_cell")) or real(*args, **kwargs),
+    )
+    still = TensorDictModule(
+        lambda obs: torch.zeros(*obs.shape[:-1], 2), in_keys=["observation"], out_keys=["action"]
+    )
+    evaluate = env_kits.make_evaluator(
+        compose(tmp_path, "env.goal_cell=[3,1]", "budget.eval_episodes=1"), data
+    )
+    assert evaluate(still)["return"] >= 0.0
+    assert seen and set(map(tuple, seen)) == {(3, 1)}
+
+
 # ----------------------------------------------------------------------------- online env
 def _velocity_after_one_step(env) -> torch.Tensor:
     td = env.reset()
@@ -172,6 +200,8 @@ ERRORS = [
     ("env.shift_scale=0", "env.shift_scale=0: must be null or a number in (0, 1000]"),
     ("env.shift_scale=-2.5", "env.shift_scale=-2.5: must be null or a number in (0, 1000]"),
     ("env=frozenlake env.shift_angle=30", "unknown key 'env.shift_angle'"),
+    ("env.goal_cell=[2,1]", "env.goal_cell=[2, 1]: goal_cell [2, 1] is not an open cell of"),
+    ("env.goal_cell=3", "env.goal_cell=3: must be null or a list of integers >= 0"),
 ]
 
 

@@ -15,6 +15,7 @@ episodes: ``random_return`` (uniform actions in ``[-1, 1]``) and ``controller_re
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -53,6 +54,7 @@ def compute_maze_references(
     action_noise: float = 0.5,
     continuing_task: bool = True,
     reward_type: str = "sparse",
+    goal_cell: Sequence[int] | None = None,
 ) -> dict[str, Any]:
     """Average returns and success rates of the random policy and of the goal-chasing controller.
 
@@ -66,6 +68,8 @@ def compute_maze_references(
         action_noise (float): controller action-noise std. Defaults to 0.5.
         continuing_task (bool): as in :func:`~torchrl_dual.envs.make_pointmaze_env`.
         reward_type (str): ``"sparse"`` or ``"dense"``.
+        goal_cell (sequence of int, optional): a fixed goal cell ``(row, col)``, as in
+            :func:`~torchrl_dual.envs.make_pointmaze_env`; ``None``: random goals.
 
     Returns:
         a dict with ``random_return``, ``controller_return``, their standard deviations,
@@ -82,6 +86,7 @@ def compute_maze_references(
         max_episode_steps=max_episode_steps,
         continuing_task=continuing_task,
         reward_type=reward_type,
+        goal_cell=goal_cell,
     )
     results: dict[str, Any] = {"num_episodes": int(num_episodes)}
     for name in ("random", "controller"):
@@ -121,6 +126,7 @@ def generate_maze_dataset(
     num_reference_episodes: int = 50,
     continuing_task: bool = True,
     reward_type: str = "sparse",
+    goal_cell: Sequence[int] | None = None,
 ) -> OfflineDataset:
     """Generates D4RL-maze2d-like PointMaze transitions (see the module docstring).
 
@@ -138,6 +144,9 @@ def generate_maze_dataset(
         num_reference_episodes (int): episodes per reference policy (0 skips the references).
         continuing_task (bool): as in :func:`~torchrl_dual.envs.make_pointmaze_env`.
         reward_type (str): ``"sparse"`` (default) or ``"dense"``.
+        goal_cell (sequence of int, optional): a fixed task goal cell ``(row, col)`` for
+            every episode (the reward and the observation's goal); the controller still
+            chases its own random goals. ``None`` (default): a random goal per episode.
 
     Returns:
         An :class:`OfflineDataset` with ``reference_min = random_return`` and
@@ -154,7 +163,11 @@ def generate_maze_dataset(
     start = time.perf_counter()
     steps = max_episode_steps or default_max_episode_steps(maze)
     env = make_pointmaze_gym_env(
-        maze, max_episode_steps=steps, continuing_task=continuing_task, reward_type=reward_type
+        maze,
+        max_episode_steps=steps,
+        continuing_task=continuing_task,
+        reward_type=reward_type,
+        goal_cell=goal_cell,
     )
     rng = np.random.default_rng([seed, 0])
     ctrl = _controller(env, action_noise, rng)
@@ -205,6 +218,7 @@ def generate_maze_dataset(
         "goal_tolerance": float(goal_tolerance),
         "continuing_task": bool(continuing_task),
         "reward_type": reward_type,
+        "goal_cell": None if goal_cell is None else [int(v) for v in goal_cell],
         "generator_version": MAZE_GENERATOR_VERSION,
         "own_goals_reached": int(goals_reached),
         "reward_fraction": float((rew_buf > 0).mean()),
@@ -221,6 +235,7 @@ def generate_maze_dataset(
             action_noise=action_noise,
             continuing_task=continuing_task,
             reward_type=reward_type,
+            goal_cell=goal_cell,
         )
         refs["reference_seconds"] = round(time.perf_counter() - start, 3)
         metadata["references"] = refs
@@ -244,8 +259,9 @@ def load_or_generate_maze_dataset(
 ) -> OfflineDataset:
     """Loads the PointMaze data set from the disk cache, generating it on a miss.
 
-    The entry lives in ``<cache_dir>/pointmaze-<maze>-n<num_transitions>-seed<seed>``; it
-    is regenerated when its recorded arguments or :data:`MAZE_GENERATOR_VERSION` differ.
+    The entry lives in ``<cache_dir>/pointmaze-<maze>-n<num_transitions>-seed<seed>``
+    (``pointmaze-<maze>-goal<row>_<col>-...`` with a fixed ``goal_cell``); it is
+    regenerated when its recorded arguments or :data:`MAZE_GENERATOR_VERSION` differ.
 
     Args:
         maze (str): ``"umaze"``, ``"medium"`` or ``"large"``.
@@ -266,10 +282,16 @@ def load_or_generate_maze_dataset(
         >>> bool((a.transitions["observation"] == b.transitions["observation"]).all())
         True
     """
-    from torchrl_dual.envs.pointmaze import pointmaze_env_id
+    from torchrl_dual.envs.pointmaze import goal_maze_map, pointmaze_env_id
 
     pointmaze_env_id(maze)  # fail fast on an unknown maze
     root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    goal_cell = kwargs.get("goal_cell")
+    if goal_cell is None:  # the random-goal data keep their entries of before the option
+        kwargs.pop("goal_cell", None)
+    else:
+        goal_maze_map(maze, goal_cell)  # fail fast on a wall or a cell outside the maze
+        kwargs["goal_cell"] = [int(v) for v in goal_cell]
     spec = {
         "generator": "pointmaze_local",
         "generator_version": MAZE_GENERATOR_VERSION,
@@ -278,7 +300,8 @@ def load_or_generate_maze_dataset(
         "seed": int(seed),
         **kwargs,
     }
-    path = root / f"pointmaze-{maze}-n{num_transitions}-seed{seed}"
+    goal = "" if goal_cell is None else "-goal{}_{}".format(*kwargs["goal_cell"])
+    path = root / f"pointmaze-{maze}{goal}-n{num_transitions}-seed{seed}"
 
     def generate() -> OfflineDataset:
         data = generate_maze_dataset(maze, num_transitions, seed=seed, **kwargs)

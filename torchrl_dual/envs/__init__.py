@@ -32,8 +32,10 @@ from torchrl_dual.envs.pointmaze import (
     POINTMAZE_IDS,
     default_max_episode_steps,
     flatten_pointmaze_obs,
+    goal_maze_map,
     make_pointmaze_env,
     make_pointmaze_gym_env,
+    open_cells,
     pointmaze_env_id,
 )
 from torchrl_dual.envs.robotics import register_robotics_envs
@@ -78,6 +80,7 @@ __all__ = [
     "FrozenLakeSolution",
     "default_max_episode_steps",
     "flatten_pointmaze_obs",
+    "goal_maze_map",
     "frozenlake_mdp",
     "frozenlake_num_states",
     "frozenlake_optimal_policy",
@@ -87,6 +90,7 @@ __all__ = [
     "make_frozenlake_env",
     "make_pointmaze_env",
     "make_pointmaze_gym_env",
+    "open_cells",
     "register_robotics_envs",
     "release_maze_xml",
     "pointmaze_env_id",

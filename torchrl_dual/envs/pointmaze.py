@@ -11,10 +11,14 @@ Conventions (the Gymnasium-Robotics defaults, which mirror D4RL ``maze2d``):
   ``max_episode_steps`` steps (300 for ``umaze``, 600 for ``medium``, 800 for ``large``)
   and ends with ``truncated=True``. A return is therefore "steps spent at the goal".
   Pass ``continuing_task=False`` to terminate on success instead.
+* goal: a random open cell per episode (Gymnasium-Robotics); ``goal_cell=(row, col)``
+  fixes it, as D4RL maze2d fixes one target per maze (the start stays random), which
+  makes the task single-goal instead of goal-conditioned.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -63,11 +67,50 @@ def pointmaze_env_id(maze: str) -> str:
     return POINTMAZE_IDS[key]
 
 
+def open_cells(maze: str) -> list[tuple[int, int]]:
+    """The ``(row, col)`` cells of a layout that are not walls, in reading order.
+
+    Examples:
+        >>> open_cells("umaze")
+        [(1, 1), (1, 2), (1, 3), (2, 3), (3, 1), (3, 2), (3, 3)]
+    """
+    _register()
+    maze_map = gym.spec(pointmaze_env_id(maze)).kwargs["maze_map"]
+    return [(i, j) for i, row in enumerate(maze_map) for j, cell in enumerate(row) if cell != 1]
+
+
+def goal_maze_map(maze: str, goal_cell: Sequence[int]) -> list[list[Any]]:
+    """The layout's Gymnasium-Robotics ``maze_map`` with ``goal_cell`` as its only goal
+    cell (``"g"``): every episode's goal lies there, resets stay random among the other
+    open cells.
+
+    Raises:
+        ValueError: ``goal_cell`` is not a ``(row, col)`` pair of an open cell; the message
+            lists the open cells.
+
+    Examples:
+        >>> goal_maze_map("umaze", (3, 1))[3]
+        [1, 'g', 0, 0, 1]
+    """
+    cells = open_cells(maze)
+    cell = tuple(goal_cell)
+    if cell not in cells:
+        raise ValueError(
+            f"goal_cell {list(goal_cell)} is not an open cell of the {maze} maze (a "
+            f"[row, col] pair, row 0 at the top); open cells: {[list(c) for c in cells]}."
+        )
+    _register()
+    maze_map = [list(row) for row in gym.spec(pointmaze_env_id(maze)).kwargs["maze_map"]]
+    maze_map[cell[0]][cell[1]] = "g"
+    return maze_map
+
+
 def _gym_kwargs(
     maze: str,
     max_episode_steps: int | None,
     continuing_task: bool,
     reward_type: str,
+    goal_cell: Sequence[int] | None = None,
 ) -> tuple[str, dict[str, Any]]:
     env_id = pointmaze_env_id(maze)
     if reward_type not in _REWARD_TYPES:
@@ -81,6 +124,8 @@ def _gym_kwargs(
     }
     if max_episode_steps is not None:
         kwargs["max_episode_steps"] = int(max_episode_steps)
+    if goal_cell is not None:
+        kwargs["maze_map"] = goal_maze_map(maze, goal_cell)
     return env_id, kwargs
 
 
@@ -104,6 +149,7 @@ def make_pointmaze_gym_env(
     shift: str = "none",
     shift_angle: float | None = None,
     shift_scale: float | None = None,
+    goal_cell: Sequence[int] | None = None,
 ) -> gym.Env:
     """Builds the raw Gymnasium PointMaze env (dict observations) with the factory's settings.
 
@@ -120,6 +166,8 @@ def make_pointmaze_gym_env(
         shift_angle (float, optional): degrees of ``"rotation"`` (60 by default).
         shift_scale (float, optional): factor of ``"damping"`` / ``"mass"`` (the
             shift's default if ``None``).
+        goal_cell (sequence of int, optional): ``(row, col)`` of a fixed goal cell
+            (:func:`goal_maze_map`); ``None`` (default): a random open cell per episode.
 
     Examples:
         >>> env = make_pointmaze_gym_env("umaze", max_episode_steps=5)
@@ -128,7 +176,7 @@ def make_pointmaze_gym_env(
         (6,)
     """
     _register()
-    env_id, kwargs = _gym_kwargs(maze, max_episode_steps, continuing_task, reward_type)
+    env_id, kwargs = _gym_kwargs(maze, max_episode_steps, continuing_task, reward_type, goal_cell)
     check_shift(shift, "pointmaze")
     return apply_shift(
         release_maze_xml(gym.make(env_id, **kwargs)),
@@ -166,6 +214,7 @@ def make_pointmaze_env(
     shift: str = "none",
     shift_angle: float | None = None,
     shift_scale: float | None = None,
+    goal_cell: Sequence[int] | None = None,
 ):
     """Creates a TorchRL PointMaze environment with a flat float32 ``"observation"``.
 
@@ -190,10 +239,12 @@ def make_pointmaze_env(
             Gymnasium env. Defaults to ``"none"``.
         shift_angle (float, optional): degrees of ``"rotation"`` (60 by default).
         shift_scale (float, optional): factor of ``"damping"`` / ``"mass"``.
+        goal_cell (sequence of int, optional): ``(row, col)`` of a fixed goal cell;
+            ``None`` (default): a random open cell per episode.
 
     Raises:
-        ValueError: unknown maze name (the message lists the valid ones), reward type
-            or shift.
+        ValueError: unknown maze name (the message lists the valid ones), reward type,
+            shift or goal cell.
 
     Examples:
         >>> env = make_pointmaze_env("umaze", max_episode_steps=20, seed=0)
@@ -214,7 +265,7 @@ def make_pointmaze_env(
     )
 
     _register()
-    env_id, kwargs = _gym_kwargs(maze, max_episode_steps, continuing_task, reward_type)
+    env_id, kwargs = _gym_kwargs(maze, max_episode_steps, continuing_task, reward_type, goal_cell)
     check_shift(shift, "pointmaze")
     gym_env = release_maze_xml(gym.make(env_id, **kwargs))
     if shift != "none":

@@ -39,6 +39,7 @@ from torchrl_dual.envs import (
     flatten_pointmaze_obs,
     frozenlake_num_states,
     frozenlake_success_probability,
+    goal_maze_map,
     make_frozenlake_env,
     make_pointmaze_env,
     make_pointmaze_gym_env,
@@ -46,9 +47,9 @@ from torchrl_dual.envs import (
 )
 from torchrl_dual.evaluation import evaluate_episodes, frozenlake_policy_actions
 from torchrl_dual.recipe.env_kit import EnvKit, EnvSettings, Evaluator
-from torchrl_dual.recipe.errors import UserError
+from torchrl_dual.recipe.errors import ConfigError, UserError
 from torchrl_dual.recipe.minari_kits import MINARI_KITS
-from torchrl_dual.recipe.rules import Choice, Either, Maybe, Real, key
+from torchrl_dual.recipe.rules import Choice, Either, IntegerList, Maybe, Real, key
 from torchrl_dual.transforms import PreviousTransition
 
 
@@ -64,10 +65,27 @@ class PointMazeSettings(EnvSettings):
         Maybe(Either((Real(0, 1000, low_open=True),), "must be a number in (0, 1000]")),
         "factor of shift=damping / mass (null: the shift's default)",
     )
+    goal_cell: Any = key(
+        Maybe(IntegerList(0)), "fixed goal cell [row, col] (null: a random open cell per episode)"
+    )
+
+
+def _check_pointmaze(cfg: DictConfig) -> None:
+    """``env.goal_cell`` is an open cell of ``env.maze`` (a ``[row, col]`` pair)."""
+    goal_cell = cfg.env.goal_cell
+    if goal_cell is not None:
+        try:
+            goal_maze_map(cfg.env.maze, list(goal_cell))
+        except ValueError as err:
+            raise ConfigError("env.goal_cell", list(goal_cell), str(err)) from err
 
 
 def _pointmaze_shift(env: DictConfig) -> dict[str, Any]:
     return {"shift": env.shift, "shift_angle": env.shift_angle, "shift_scale": env.shift_scale}
+
+
+def _pointmaze_goal(env: DictConfig) -> list[int] | None:
+    return None if env.goal_cell is None else list(env.goal_cell)
 
 
 def _pointmaze_data(cfg: DictConfig) -> OfflineDataset:
@@ -78,6 +96,7 @@ def _pointmaze_data(cfg: DictConfig) -> OfflineDataset:
         cfg.seed,
         cfg.data_cache_dir,
         max_episode_steps=env.max_episode_steps,
+        goal_cell=_pointmaze_goal(env),
     )
 
 
@@ -88,6 +107,7 @@ def _pointmaze_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
         max_episode_steps=env.max_episode_steps,
         seed=cfg.seed,
         device="cpu",
+        goal_cell=_pointmaze_goal(env),
         **_pointmaze_shift(env),
     )
 
@@ -98,7 +118,10 @@ def _pointmaze_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
     def returns(policy: nn.Module, shift: dict[str, Any]) -> np.ndarray:
         return evaluate_episodes(
             lambda: make_pointmaze_gym_env(
-                env.maze, max_episode_steps=env.max_episode_steps, **shift
+                env.maze,
+                max_episode_steps=env.max_episode_steps,
+                goal_cell=_pointmaze_goal(env),
+                **shift,
             ),
             policy,
             cfg.budget.eval_episodes,
@@ -198,7 +221,13 @@ def one_hot_argmax(action: torch.Tensor) -> torch.Tensor:
 
 # ----------------------------------------------------------------------------- the table
 ENV_KITS: dict[str, EnvKit] = {
-    "pointmaze": EnvKit(PointMazeSettings, _pointmaze_data, _pointmaze_env, _pointmaze_evaluator),
+    "pointmaze": EnvKit(
+        PointMazeSettings,
+        _pointmaze_data,
+        _pointmaze_env,
+        _pointmaze_evaluator,
+        check=_check_pointmaze,
+    ),
     "frozenlake": EnvKit(
         FrozenLakeSettings,
         _frozenlake_data,
