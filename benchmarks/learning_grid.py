@@ -136,6 +136,13 @@ CELLS: dict[str, Cell] = {
         ("env=pointmaze_umaze", "env.shift=mass"), SHIFT_VARIANTS, 3, "U-maze, online mass × 20"
     ),
     "medium": Cell(("env=pointmaze_medium",), SHIFT_VARIANTS, 3, "PointMaze Medium"),
+    # Medium as D4RL maze2d poses it (one goal cell, random starts) with 4x the offline
+    # updates: `medium` (a random goal per episode, 10000 updates) leaves every method at 0
+    "medium_goal": Cell(
+        ("env=pointmaze_medium", "env.goal_cell=[6,6]", "budget.offline_updates=40000"),
+        SHIFT_VARIANTS, 3,
+        "PointMaze Medium, goal fixed in cell (6, 6), 40000 offline actor-critic updates",
+    ),
     "frozenlake8x8_slip": Cell(
         ("env=frozenlake", "env.map_name=8x8", "env.shift=biased_slip"), SHIFT_VARIANTS, 3,
         "Frozen-Lake 8x8, slips biased counter-clockwise online",
