@@ -166,6 +166,16 @@ ONLINE_ONLY = (
 )
 
 
+def baseline_variants() -> tuple[str, ...]:
+    """The variants that are not DUAL (``algo`` other than ``dual``): what DUAL is
+    compared against, in grid order.
+
+        >>> baseline_variants()[:3]
+        ('iql', 'iql_la', 'diffql')
+    """
+    return tuple(name for name, overrides in VARIANTS.items() if overrides[0] != "algo=dual")
+
+
 def dual_variants() -> dict[str, str]:
     """DUAL's ablations and settings: ``algo=dual`` with more overrides, on its own critic
     (``critic=`` variants are compared against that critic instead) -> those overrides.

@@ -1,6 +1,7 @@
-"""Paired comparisons of the learning suite: DUAL against its base critic, per cell (the
-paper's Table 2: IQL, Cal-QL, SO2 + OFF2ON, each with and without DUAL on top), and DUAL's
-variants (ablations and settings) against DUAL, on its offline phase where they share it.
+"""Paired comparisons of the learning suite: DUAL against every baseline (the paper's
+Table 1 claim), DUAL against its base critic, per cell (the paper's Table 2: IQL, Cal-QL,
+SO2 + OFF2ON, each with and without DUAL on top), and DUAL's variants (ablations and
+settings) against DUAL, on its offline phase where they share it.
 
 Each pair is compared on the seeds both variants ran, which share their data and
 environment seeds: the table gives both means ± 95 % t intervals and the *paired*
@@ -18,7 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 
-from learning_grid import dual_variants
+from learning_grid import baseline_variants, dual_variants
 from learning_report import fmt, t_interval
 
 CRITIC_PAIRS: tuple[tuple[str, str, str], ...] = (
@@ -128,3 +129,107 @@ def dual_variant_pairs_table(
                 f"{finals[0]} | {finals[1]} | {texts[0]} {marker} | {texts[1]} {auc_marker} |"
             )
     return "\n".join(lines)
+
+
+def _signed(diff: tuple[float, float], n: int) -> str:
+    mean, half = diff
+    return f"{mean:+.1f}" if n < 2 else f"{mean:+.1f} ± {half:.1f}"
+
+
+def baseline_pairs_table(
+    cells: dict[str, dict[str, list[dict]]],
+    order: Sequence[str],
+    dual_from: dict[str, str] | None = None,
+    baselines: Sequence[str] | None = None,
+) -> str:
+    """Markdown rows ``cell | baseline | n | DUAL's cell | baseline final | DUAL final |
+    paired DUAL − baseline: final and AUC`` for every baseline run of a cell (default
+    :func:`learning_grid.baseline_variants`) against the ``dual`` runs of
+    ``dual_from[cell]`` (default: the cell itself), on the seeds both ran.
+
+    Examples:
+        >>> run = lambda s, fin: {"seed": s, "final_score": fin, "auc": fin / 2}
+        >>> cells = {"u": {"dual": [run(0, 50.0), run(1, 60.0)]},
+        ...          "u_base": {"edis": [run(0, 40.0), run(1, 45.0)]}}
+        >>> print(baseline_pairs_table(cells, ["u", "u_base"], {"u_base": "u"}, ["edis"])
+        ...       .splitlines()[-1])
+        | u_base | `edis` | 2 | u | 42.5 ± 31.8 | 55.0 ± 63.5 | +12.5 ± 31.8 ≈ | +6.2 ± 15.9 ≈ |
+    """
+    dual_from = dual_from or {}
+    baselines = baseline_variants() if baselines is None else baselines
+    lines = [
+        "| cell | baseline | n (paired) | `dual` of | baseline: final | `dual`: final "
+        "| DUAL − baseline: final | DUAL − baseline: AUC |",
+        "|---|---|---:|---|---|---|---|---|",
+    ]
+    for cell in sorted(cells, key=lambda c: order.index(c) if c in order else len(order)):
+        reference = dual_from.get(cell, cell)
+        dual = cells.get(reference, {}).get("dual")
+        for base in baselines:
+            runs = cells[cell].get(base)
+            if not runs or not dual:
+                continue
+            n, final, marker = paired_difference(dual, runs)
+            if final is None:
+                continue
+            _, auc, auc_marker = paired_difference(dual, runs, key="auc")
+            seeds = {r["seed"] for r in runs} & {r["seed"] for r in dual}
+            finals = [
+                fmt(t_interval([r["final_score"] for r in side if r["seed"] in seeds]))
+                for side in (runs, dual)
+            ]
+            lines.append(
+                f"| {cell} | `{base}` | {n} | {reference} | {finals[0]} | {finals[1]} | "
+                f"{_signed(final, n)} {marker} | {_signed(auc, n)} {auc_marker} |"
+            )
+    return "\n".join(lines)
+
+
+def pairs_sections(
+    cells: dict[str, dict[str, list[dict]]],
+    order: Sequence[str],
+    dual_from: dict[str, str] | None = None,
+) -> list[str]:
+    """The report's paired comparisons, each a heading, what it measures and its table
+    (those with no pair yet are left out)."""
+    parts: list[str] = []
+    sections = (
+        (
+            "DUAL against every baseline, seed by seed",
+            "The paper's claim that DUAL beats IQL, Diff-QL (with and without LA), "
+            "Diffuser, DACER and EDIS, on the suite's runs: each baseline against the "
+            "`dual` runs of the same env settings (*`dual` of*: the cell they come from; "
+            "a cell without its own `dual` uses the one its `Cell.reference` or its "
+            "overrides name), on the seeds both ran, which share data and env seeds. "
+            "*DUAL − baseline*: the mean of the per-seed differences ± its 95 % t "
+            "half-width; ▲ / ▼ when that interval excludes 0, ≈ when it holds 0.",
+            baseline_pairs_table(cells, order, dual_from),
+        ),
+        (
+            "DUAL's variants against DUAL, seed by seed",
+            "DUAL's ablations and settings run on `dual`'s data and env seeds, so their "
+            "difference to `dual` is measured seed by seed: *variant − `dual`* is the "
+            "mean of the per-seed differences ± its 95 % t half-width, ▲ / ▼ when that "
+            "interval excludes 0, ≈ when it holds 0. Those that change only what the "
+            "online phase reads also load `dual`'s offline phase (the suite's offline "
+            "cache). *Same offline phase*: on how many of the paired seeds the two runs' "
+            "offline scores are identical; the ablations that change the offline phase "
+            "(no planner, no distillation) train their own (0/n), as does a run made "
+            "after a code change that alters the offline computation, or on another "
+            "CPU: such a pair also carries the offline phase's variance.",
+            dual_variant_pairs_table(cells, order, dual_from),
+        ),
+        (
+            "DUAL on each critic against the critic alone",
+            "The paper's Table 2 comparison on the suite's runs: each base critic's own "
+            "algorithm (`iql`, `calql`, `so2`) against DUAL on that critic (`dual`, "
+            "`dual_calql`, `dual_so2`), on the seeds both ran (same data and env seeds). "
+            "*DUAL − base*: the mean of the per-seed differences ± its 95 % t half-width; "
+            "▲ / ▼ when that interval excludes 0, ≈ when it holds 0 (inside the noise).",
+            critic_pairs_table(cells, order),
+        ),
+    )
+    for title, about, table in sections:
+        if table.count("\n") > 1:
+            parts += [f"### {title}", about, table]
+    return parts

@@ -348,36 +348,9 @@ def render_section(
             "stage under heavy load, against ×2.9 in wall time).",
             table,
         ]
-    from learning_pairs import critic_pairs_table, dual_variant_pairs_table  # this module
+    from learning_pairs import pairs_sections  # imports this module
 
-    variant_pairs = dual_variant_pairs_table(cells, cell_order, dual_from)
-    if variant_pairs.count("\n") > 1:
-        parts += [
-            "### DUAL's variants against DUAL, seed by seed",
-            "DUAL's ablations and settings run on `dual`'s data and env seeds, so their "
-            "difference to `dual` is measured seed by seed: *variant − `dual`* is the "
-            "mean of the per-seed differences ± its 95 % t half-width, ▲ / ▼ when that "
-            "interval excludes 0, ≈ when it holds 0. Those that change only what the "
-            "online phase reads also load `dual`'s offline phase (the suite's offline "
-            "cache). *Same offline phase*: on how many of the paired seeds the two runs' "
-            "offline scores are identical; the ablations that change the offline phase "
-            "(no planner, no distillation) train their own (0/n), as does a run made "
-            "after a code change that alters the offline computation: such a pair also "
-            "carries the offline phase's variance.",
-            variant_pairs,
-        ]
-
-    pairs = critic_pairs_table(cells, cell_order)
-    if pairs.count("\n") > 1:
-        parts += [
-            "### DUAL on each critic against the critic alone",
-            "The paper's Table 2 comparison on the suite's runs: each base critic's own "
-            "algorithm (`iql`, `calql`, `so2`) against DUAL on that critic (`dual`, "
-            "`dual_calql`, `dual_so2`), on the seeds both ran (same data and env seeds). "
-            "*DUAL − base*: the mean of the per-seed differences ± its 95 % t half-width; "
-            "▲ / ▼ when that interval excludes 0, ≈ when it holds 0 (inside the noise).",
-            pairs,
-        ]
+    parts += pairs_sections(cells, cell_order, dual_from)
     if "latency" in figures:
         parts += [
             "### Action latency vs final score",

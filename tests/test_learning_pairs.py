@@ -44,3 +44,34 @@ def test_dual_variants_pair_with_dual_by_seed_and_report_shared_offline_phases()
     assert rows[1].endswith("| +10.0 ? | +20.0 ? |")  # one pair: no interval
     n, (mean, _), _ = learning_pairs.paired_difference(cells["umaze_online"]["dual_utd025"], dual)
     assert (n, mean) == (2, pytest.approx(-5.0))
+
+
+def test_every_baseline_pairs_with_the_dual_runs_of_its_reference_cell():
+    """The paper's main claim, seed by seed: each non-DUAL variant against the `dual` of
+    its own cell, or of the cell ``dual_from`` names (umaze_baselines: umaze_ablations);
+    DUAL's own variants and cells without a reference have no row."""
+    import learning_grid
+
+    dual = [_run(0, 20.0, 50.0, 40.0), _run(1, 30.0, 60.0, 50.0), _run(2, 25.0, 55.0, 45.0)]
+    cells = {
+        "umaze": {
+            "dual": dual,
+            "iql": [_run(0, 9.0, 30.0), _run(1, 9.0, 41.0)],
+            "dual_no_uq": dual,
+        },
+        "umaze_ablations": {"dual": [_run(s, 0.0, 10.0 + s) for s in range(3)]},
+        "umaze_baselines": {"edis": [_run(s, 0.0, 5.0) for s in range(3)]},
+        "medium": {"iql": dual},  # no dual there: no row
+    }
+    order = ["umaze", "umaze_ablations", "umaze_baselines", "medium"]
+    dual_from = {"umaze_baselines": "umaze_ablations"}
+    rows = learning_pairs.baseline_pairs_table(cells, order, dual_from).splitlines()[2:]
+    assert [r.split(" | ")[:4] for r in rows] == [
+        ["| umaze", "`iql`", "2", "umaze"],
+        ["| umaze_baselines", "`edis`", "3", "umaze_ablations"],
+    ]
+    # DUAL − iql: +20, +19 (t(1) = 12.706, sd 1/√2); DUAL − edis: +5, +6, +7 (sd 1)
+    assert rows[0].split(" | ")[6] == f"+19.5 ± {12.706 * 0.5:.1f} ▲"
+    assert rows[1].split(" | ")[6] == f"+6.0 ± {4.3027 / 3**0.5:.1f} ▲"
+    assert set(learning_grid.baseline_variants()) >= {"iql", "diffuser", "dacer", "edis"}
+    assert not {"dual", "dual_no_uq", "dual_calql"} & set(learning_grid.baseline_variants())
