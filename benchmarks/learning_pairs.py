@@ -44,6 +44,22 @@ def paired_difference(dual: list[dict], base: list[dict], key: str = "final_scor
     return len(diffs), (mean, half), marker
 
 
+def _pair_cells(minuend: list[dict], subtrahend: list[dict]) -> tuple[int, list[str]] | None:
+    """``(n, [subtrahend final, minuend final, paired final difference, paired AUC
+    difference])`` as table cells, on the seeds both ran; ``None`` without a pair."""
+    n, final, marker = paired_difference(minuend, subtrahend)
+    if final is None:
+        return None
+    _, auc, auc_marker = paired_difference(minuend, subtrahend, key="auc")
+    seeds = {r["seed"] for r in minuend} & {r["seed"] for r in subtrahend}
+    finals = [
+        fmt(t_interval([r["final_score"] for r in side if r["seed"] in seeds]))
+        for side in (subtrahend, minuend)
+    ]
+    texts = [f"{m:+.1f}" if n < 2 else f"{m:+.1f} ± {h:.1f}" for m, h in (final, auc)]
+    return n, [*finals, f"{texts[0]} {marker}", f"{texts[1]} {auc_marker}"]
+
+
 def critic_pairs_table(cells: dict[str, dict[str, list[dict]]], order: Sequence[str]) -> str:
     """Markdown rows ``cell | critic | n | base final | DUAL final | paired DUAL − base``
     for every pair of :data:`CRITIC_PAIRS` that a cell has both sides of."""
@@ -114,26 +130,16 @@ def dual_variant_pairs_table(
             runs = cells[cell].get(variant)
             if not runs or not dual:
                 continue
-            n, final, marker = paired_difference(runs, dual)
-            if final is None:
+            pair = _pair_cells(runs, dual)
+            if pair is None:
                 continue
-            _, auc, auc_marker = paired_difference(runs, dual, key="auc")
-            seeds = {r["seed"] for r in runs} & {r["seed"] for r in dual}
-            finals = [
-                fmt(t_interval([r["final_score"] for r in side if r["seed"] in seeds]))
-                for side in (dual, runs)
-            ]
-            texts = [f"{m:+.1f}" if n < 2 else f"{m:+.1f} ± {h:.1f}" for m, h in (final, auc)]
+            n, values = pair
             lines.append(
                 f"| {cell} | `{variant}` (`{overrides}`) | {n} | {_same_offline(runs, dual)} | "
-                f"{finals[0]} | {finals[1]} | {texts[0]} {marker} | {texts[1]} {auc_marker} |"
+                + " | ".join(values)
+                + " |"
             )
     return "\n".join(lines)
-
-
-def _signed(diff: tuple[float, float], n: int) -> str:
-    mean, half = diff
-    return f"{mean:+.1f}" if n < 2 else f"{mean:+.1f} ± {half:.1f}"
 
 
 def baseline_pairs_table(
@@ -169,19 +175,11 @@ def baseline_pairs_table(
             runs = cells[cell].get(base)
             if not runs or not dual:
                 continue
-            n, final, marker = paired_difference(dual, runs)
-            if final is None:
+            pair = _pair_cells(dual, runs)
+            if pair is None:
                 continue
-            _, auc, auc_marker = paired_difference(dual, runs, key="auc")
-            seeds = {r["seed"] for r in runs} & {r["seed"] for r in dual}
-            finals = [
-                fmt(t_interval([r["final_score"] for r in side if r["seed"] in seeds]))
-                for side in (runs, dual)
-            ]
-            lines.append(
-                f"| {cell} | `{base}` | {n} | {reference} | {finals[0]} | {finals[1]} | "
-                f"{_signed(final, n)} {marker} | {_signed(auc, n)} {auc_marker} |"
-            )
+            n, values = pair
+            lines.append(f"| {cell} | `{base}` | {n} | {reference} | " + " | ".join(values) + " |")
     return "\n".join(lines)
 
 
