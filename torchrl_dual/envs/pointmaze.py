@@ -74,9 +74,15 @@ def open_cells(maze: str) -> list[tuple[int, int]]:
         >>> open_cells("umaze")
         [(1, 1), (1, 2), (1, 3), (2, 3), (3, 1), (3, 2), (3, 3)]
     """
+    return [
+        (i, j) for i, row in enumerate(_maze_map(maze)) for j, cell in enumerate(row) if cell != 1
+    ]
+
+
+def _maze_map(maze: str) -> list[list[Any]]:
+    """A copy of the layout's registered Gymnasium-Robotics ``maze_map`` (1 = wall)."""
     _register()
-    maze_map = gym.spec(pointmaze_env_id(maze)).kwargs["maze_map"]
-    return [(i, j) for i, row in enumerate(maze_map) for j, cell in enumerate(row) if cell != 1]
+    return [list(row) for row in gym.spec(pointmaze_env_id(maze)).kwargs["maze_map"]]
 
 
 def goal_maze_map(maze: str, goal_cell: Sequence[int]) -> list[list[Any]]:
@@ -99,8 +105,7 @@ def goal_maze_map(maze: str, goal_cell: Sequence[int]) -> list[list[Any]]:
             f"goal_cell {list(goal_cell)} is not an open cell of the {maze} maze (a "
             f"[row, col] pair, row 0 at the top); open cells: {[list(c) for c in cells]}."
         )
-    _register()
-    maze_map = [list(row) for row in gym.spec(pointmaze_env_id(maze)).kwargs["maze_map"]]
+    maze_map = _maze_map(maze)
     maze_map[cell[0]][cell[1]] = "g"
     return maze_map
 
