@@ -17,7 +17,7 @@ is only read as a result when the interval excludes 0.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 
 from learning_grid import baseline_variants, dual_variants
 from learning_report import fmt, t_interval
@@ -58,6 +58,23 @@ def _pair_cells(minuend: list[dict], subtrahend: list[dict]) -> tuple[int, list[
     ]
     texts = [f"{m:+.1f}" if n < 2 else f"{m:+.1f} ± {h:.1f}" for m, h in (final, auc)]
     return n, [*finals, f"{texts[0]} {marker}", f"{texts[1]} {auc_marker}"]
+
+
+def _against_dual(
+    cells: dict[str, dict[str, list[dict]]],
+    order: Sequence[str],
+    dual_from: dict[str, str],
+    names: Iterable[str],
+) -> Iterator[tuple[str, str, str, list[dict], list[dict]]]:
+    """``(cell, reference cell, name, runs, reference dual runs)`` for every run set of
+    ``names`` a cell has, in cell order, when ``dual_from.get(cell, cell)`` ran ``dual``."""
+    for cell in sorted(cells, key=lambda c: order.index(c) if c in order else len(order)):
+        reference = dual_from.get(cell, cell)
+        dual = cells.get(reference, {}).get("dual")
+        for name in names:
+            runs = cells[cell].get(name)
+            if runs and dual:
+                yield cell, reference, name, runs, dual
 
 
 def critic_pairs_table(cells: dict[str, dict[str, list[dict]]], order: Sequence[str]) -> str:
@@ -124,20 +141,13 @@ def dual_variant_pairs_table(
         "| variant − `dual`: final | variant − `dual`: AUC |",
         "|---|---|---:|---:|---|---|---|---|",
     ]
-    for cell in sorted(cells, key=lambda c: order.index(c) if c in order else len(order)):
-        dual = cells.get(dual_from.get(cell, cell), {}).get("dual")
-        for variant, overrides in variants.items():
-            runs = cells[cell].get(variant)
-            if not runs or not dual:
-                continue
-            pair = _pair_cells(runs, dual)
-            if pair is None:
-                continue
+    for cell, _, variant, runs, dual in _against_dual(cells, order, dual_from, variants):
+        pair = _pair_cells(runs, dual)
+        if pair is not None:
             n, values = pair
             lines.append(
-                f"| {cell} | `{variant}` (`{overrides}`) | {n} | {_same_offline(runs, dual)} | "
-                + " | ".join(values)
-                + " |"
+                f"| {cell} | `{variant}` (`{variants[variant]}`) | {n} | "
+                f"{_same_offline(runs, dual)} | " + " | ".join(values) + " |"
             )
     return "\n".join(lines)
 
@@ -168,16 +178,9 @@ def baseline_pairs_table(
         "| DUAL − baseline: final | DUAL − baseline: AUC |",
         "|---|---|---:|---|---|---|---|---|",
     ]
-    for cell in sorted(cells, key=lambda c: order.index(c) if c in order else len(order)):
-        reference = dual_from.get(cell, cell)
-        dual = cells.get(reference, {}).get("dual")
-        for base in baselines:
-            runs = cells[cell].get(base)
-            if not runs or not dual:
-                continue
-            pair = _pair_cells(dual, runs)
-            if pair is None:
-                continue
+    for cell, reference, base, runs, dual in _against_dual(cells, order, dual_from, baselines):
+        pair = _pair_cells(dual, runs)
+        if pair is not None:
             n, values = pair
             lines.append(f"| {cell} | `{base}` | {n} | {reference} | " + " | ".join(values) + " |")
     return "\n".join(lines)
