@@ -20,6 +20,10 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     # 590 CPU-s per run, IQL 301 CPU-s of which 187 for its 10000 offline updates, i.e.
     # 18.7 ms per update: +16000 updates ≈ 600 CPU-s); same online frames and UTD
     "iql_equal_time": ("algo=iql", "budget.offline_updates=26000"),
+    # IQL given DUAL's CPU time on medium_goal_long, spent online instead (its offline phase
+    # is medium_goal's): measured 2026-12-03, DUAL 1130 CPU-s offline + 150 per 8000 frames,
+    # IQL 630 + 90, so IQL's 1100 CPU-s after its offline phase buy ≈ 96000 frames
+    "iql_equal_time_online": ("algo=iql", "budget.online_frames=96000"),
     "dual_no_planner": ("algo=dual", "actor.init=scratch"),
     "dual_no_distillation": (
         "algo=dual",
@@ -50,7 +54,7 @@ VARIANTS: dict[str, tuple[str, ...]] = {
 }
 """Variant name -> recipe overrides."""
 
-IQL_VARIANTS = ("iql", "iql_equal_time")
+IQL_VARIANTS = ("iql", "iql_equal_time", "iql_equal_time_online")
 """The IQL runs DUAL is compared with at equal steps (``iql``) and equal time (both)."""
 
 ABLATION_VARIANTS = ("dual_no_planner", "dual_no_distillation", "dual_latent_uq")
@@ -90,7 +94,7 @@ CELLS: dict[str, Cell] = {
         tuple(
             v for v in VARIANTS
             if v not in (*ABLATION_VARIANTS, *PAPER_BASELINES, *ONLINE_TUNING_VARIANTS,
-                         *NOISE_VARIANTS)
+                         *NOISE_VARIANTS, "iql_equal_time_online")
         ), 5,
         "PointMaze U-maze",
     ),
@@ -143,6 +147,17 @@ CELLS: dict[str, Cell] = {
         SHIFT_VARIANTS, 3,
         "PointMaze Medium, goal fixed in cell (6, 6), 40000 offline actor-critic updates",
     ),
+    # the same offline phases (budget.online_frames is an online key) with 4x the online
+    # frames: DUAL's medium_goal curve still climbs at 8000 frames (13 episodes)
+    "medium_goal_long": Cell(
+        (
+            "env=pointmaze_medium", "env.goal_cell=[6,6]", "budget.offline_updates=40000",
+            "budget.online_frames=32000",
+        ),
+        (*SHIFT_VARIANTS, "iql_equal_time_online"), 3,
+        "PointMaze Medium, goal (6, 6), 40000 offline updates, 32000 online frames "
+        "(`default`: 8000)",
+    ),
     "frozenlake8x8_slip": Cell(
         ("env=frozenlake", "env.map_name=8x8", "env.shift=biased_slip"), SHIFT_VARIANTS, 3,
         "Frozen-Lake 8x8, slips biased counter-clockwise online",
@@ -153,6 +168,7 @@ CELLS: dict[str, Cell] = {
 # Overrides that only the online phase reads: runs differing only in these share the
 # offline phase (torchrl_dual.recipe.offline_cache.ONLINE_KEYS).
 ONLINE_ONLY = (
+    "budget.online_frames=",
     "env.shift=",
     "laplace.num_samples=",
     "laplace.uq=",
