@@ -334,7 +334,9 @@ def render_section(
             "### DUAL vs IQL at equal steps and at equal wall time",
             "*Equal steps* compares the final scores after the same number of online "
             "frames and updates (the `iql` rows). `iql_equal_time` is IQL given DUAL's CPU "
-            "time per run, spent on more offline updates (its overrides above). *Equal wall time* compares the scores each algorithm has "
+            "time per run, spent on more offline updates, `iql_equal_time_online` the same "
+            "spent on more online frames (their overrides above). *Equal wall time* "
+            "compares the scores each algorithm has "
             "reached after the same wall-clock time: a run's evaluations are placed on a "
             "time axis at offline_seconds + (frames / final frames) × online_seconds "
             "(the online phase taken as linear in frames, evaluation time included), "
