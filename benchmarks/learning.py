@@ -36,7 +36,14 @@ from pathlib import Path
 
 from learning_backends import BACKENDS, Outcome, add_arguments, check_arguments, machine
 from learning_cost import queue_cost_text
-from learning_grid import CELLS, ONLINE_ONLY, VARIANTS, Cell, dual_cells  # noqa: F401 - the grid
+from learning_grid import (  # noqa: F401 - the grid
+    CELLS,
+    ONLINE_ONLY,
+    VARIANTS,
+    Cell,
+    active_cells,
+    dual_cells,
+)
 from learning_plots import latency_points, plot_cell_curves, plot_latency_vs_score
 from learning_report import compact_result, load_results, render_section, replace_section
 from tqdm.auto import tqdm
@@ -193,7 +200,7 @@ def cost_text(args: argparse.Namespace, cells: dict[str, dict[str, list[dict]]])
     done = [r for variants in cells.values() for rs in variants.values() for r in rs]
     cpu = sum(r.get("cpu_seconds") or r.get("wall_seconds") or 0.0 for r in done) / 3600
     wall = sum(r.get("wall_seconds") or 0.0 for r in done) / 3600
-    runs, _ = build_queue(list(CELLS), None, None)
+    runs, _ = build_queue(active_cells(), None, None)
     _, status = queue_status(Suite(args, []), runs, jobs=os.cpu_count() or 1)
     return (
         f"**Cost.** The {len(done)} runs here took {cpu:.1f} CPU-hours ({wall:.1f} hours of "
@@ -226,7 +233,10 @@ def report(args: argparse.Namespace, command: str) -> None:
         cells,
         budget=args.budget,
         header=header_text(args.budget) + "\n\n" + cost_text(args, cells),
-        cell_about={name: cell.about for name, cell in CELLS.items()},
+        cell_about={
+            name: cell.about + (" (retired)" if cell.retired else "")
+            for name, cell in CELLS.items()
+        },
         dual_from=dual_cells(),
         variant_order=list(VARIANTS),
         figures=figures,
@@ -243,7 +253,8 @@ def report(args: argparse.Namespace, command: str) -> None:
 def header_text(budget: str) -> str:
     rows = "\n".join(
         f"| {name} | {cell.about} | `{' '.join(cell.overrides)}` | "
-        f"{', '.join(f'`{v}`' for v in cell.variants)} | {cell.seeds} |"
+        f"{', '.join(f'`{v}`' for v in cell.variants)} | "
+        f"{f'retired: {cell.retired}' if cell.retired else cell.seeds} |"
         for name, cell in CELLS.items()
     )
     variants = "; ".join(f"`{v}` = `{' '.join(o)}`" for v, o in VARIANTS.items())
@@ -275,7 +286,13 @@ def main(argv: list[str] | None = None) -> int:
     flags, extra = split_argv(argv)
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--budget", default="default")
-    parser.add_argument("--cells", nargs="+", choices=list(CELLS), default=list(CELLS))
+    parser.add_argument(
+        "--cells",
+        nargs="+",
+        choices=list(CELLS),
+        default=active_cells(),
+        help="default: every cell but the retired ones",
+    )
     parser.add_argument("--variants", nargs="+", choices=list(VARIANTS))
     parser.add_argument("--seeds", nargs="+", type=int)
     add_arguments(parser)  # --backend, --jobs, --ray-address, --ray-retries

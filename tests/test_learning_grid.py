@@ -96,3 +96,18 @@ def test_a_cell_reference_must_run_dual_with_the_same_overrides(monkeypatch):
     monkeypatch.setattr(learning_grid, "CELLS", bad)
     with pytest.raises(ValueError, match="reference 'medium' must run `dual`"):
         learning_grid.dual_cells()
+
+
+def test_a_retired_cell_is_queued_only_when_named_and_stays_in_the_report(tmp_path, capsys):
+    """``Cell.retired``: the default queue leaves the cell out (its finished runs are not
+    redone, its missing ones not started), ``--cells`` can still name it, and the report's
+    header says why it was retired."""
+    assert learning.CELLS["medium"].retired and "medium" not in learning.active_cells()
+    results = ["--results", str(tmp_path / "results"), "--dry-run"]
+    assert learning.main(results) == 0
+    queued = capsys.readouterr().out
+    assert "/default/medium_goal/" in queued and "/default/medium/" not in queued
+    assert learning.main([*results, "--cells", "medium"]) == 0
+    assert "/default/medium/dual/seed0" in capsys.readouterr().out
+    header = learning.header_text("default")
+    assert "| medium | PointMaze Medium |" in header and "| retired: a new goal cell" in header
