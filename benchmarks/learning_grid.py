@@ -51,6 +51,14 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     # λ max(d_t − d_0, 0) with d_0 the transition model's error on D_offline (beyond the
     # paper): d_t is 0.27 on the data and 0.31 online without a shift (shift_signal.py)
     "dual_shift_floor": ("algo=dual", "exploration.shift_floor=offline"),
+    # Eq. 10's control (beyond the paper): λ = 0 and a constant variance v_c = 0.15, i.e.
+    # λ = 0.5 times the mean d_t of DUAL's medium_goal_long runs (0.30): the same noise, with no
+    # dependence on where the transition model errs
+    "dual_constant_noise": (
+        "algo=dual",
+        "exploration.shift_weight=0",
+        "exploration.extra_variance=0.15",
+    ),
 }
 """Variant name -> recipe overrides."""
 
@@ -71,6 +79,9 @@ ONLINE_TUNING_VARIANTS = ("dual_offline_frac75", "dual_utd025")
 
 NOISE_VARIANTS = ("dual_shift_floor",)
 """DUAL's noise beyond the paper, run on the umaze_20k cells."""
+
+NOISE_CONTROLS = ("dual_constant_noise",)
+"""Eq. 10's state-independent control, run where λ made a difference (Medium)."""
 
 SHIFT_VARIANTS = ("dual", "iql", "dual_lambda0")
 
@@ -97,7 +108,7 @@ CELLS: dict[str, Cell] = {
         tuple(
             v for v in VARIANTS
             if v not in (*ABLATION_VARIANTS, *PAPER_BASELINES, *ONLINE_TUNING_VARIANTS,
-                         *NOISE_VARIANTS, "iql_equal_time_online")
+                         *NOISE_VARIANTS, *NOISE_CONTROLS, "iql_equal_time_online")
         ), 5,
         "PointMaze U-maze",
     ),
@@ -161,7 +172,7 @@ CELLS: dict[str, Cell] = {
             "env=pointmaze_medium", "env.goal_cell=[6,6]", "budget.offline_updates=40000",
             "budget.online_frames=32000",
         ),
-        (*SHIFT_VARIANTS, "iql_equal_time_online"), 3,
+        (*SHIFT_VARIANTS, "iql_equal_time_online", *NOISE_CONTROLS), 3,
         "PointMaze Medium, goal (6, 6), 40000 offline updates, 32000 online frames "
         "(`default`: 8000)",
     ),
@@ -181,6 +192,7 @@ ONLINE_ONLY = (
     "laplace.uq=",
     "exploration.shift_weight=",
     "exploration.shift_floor=",
+    "exploration.extra_variance=",
     "augment.",
     "replay=",
     "critic.online_steps_per_update=",

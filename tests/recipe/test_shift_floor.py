@@ -1,6 +1,7 @@
 """``exploration.shift_floor``: DUAL's noise adds ``λ max(d_t − d_0, 0)`` (beyond the
 paper's Eq. 10, whose ``d_0`` is 0); ``offline`` measures ``d_0`` as the transition
-model's mean error on D_offline after the offline stages; checkpointed with the run."""
+model's mean error on D_offline after the offline stages; checkpointed with the run.
+``exploration.extra_variance``: the constant ``v_c`` added to the variance."""
 
 from __future__ import annotations
 
@@ -76,3 +77,21 @@ def test_a_resumed_run_acts_with_the_floor_of_its_checkpoint(tmp_path):
 def test_a_bad_floor_is_a_config_error(value, tmp_path):
     with pytest.raises(ConfigError, match=r"exploration.shift_floor.*'offline' or a number >= 0"):
         cfg_for(tmp_path, tmp_path, f"exploration.shift_floor={value}")
+
+
+def test_extra_variance_reaches_the_acting_noise_and_is_an_online_key(tmp_path):
+    """``exploration.extra_variance`` sets the acting noise's ``v_c`` (0 by default: Eq. 10)
+    and, like λ, is read online only: runs that differ in it share one offline phase."""
+    from torchrl_dual.recipe.offline_cache import offline_key_config
+
+    cfg = cfg_for(tmp_path / "run", tmp_path / "data", "exploration.shift_weight=0",
+                  "exploration.extra_variance=0.15")  # fmt: skip
+    learner = O2ORun(cfg, DualLearner).learner
+    assert learner.noise.extra_variance == pytest.approx(0.15)
+    assert float(learner.noise.shift_weight) == 0.0
+    plain_cfg = cfg_for(tmp_path / "plain", tmp_path / "data")
+    assert O2ORun(plain_cfg, DualLearner).learner.noise.extra_variance == 0.0
+    online = DualLearner.online_keys
+    assert offline_key_config(cfg, online) == offline_key_config(plain_cfg, online)
+    with pytest.raises(ConfigError, match=r"exploration.extra_variance"):
+        cfg_for(tmp_path, tmp_path, "exploration.extra_variance=-0.1")

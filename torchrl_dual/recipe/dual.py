@@ -37,6 +37,7 @@ class DualLearner(Learner):
         "laplace.uq",
         "exploration.shift_weight",
         "exploration.shift_floor",
+        "exploration.extra_variance",
         "augment",
     )
 
@@ -66,6 +67,7 @@ class DualLearner(Learner):
         self.uses_posterior = cfg.laplace.uq == "laplace" and cfg.laplace.num_samples > 0
         self.exploration_policy = self.policy  # Eq. 9 + Eq. 10
         self.noise = next(m for m in self.policy.modules() if isinstance(m, ShiftAwareNoise))
+        self.noise.extra_variance = float(cfg.exploration.extra_variance)  # v_c, beyond Eq. 10
         self.evaluation_policy = self.ensemble  # the MAP mean under DETERMINISTIC
         self.updates_since_refit = 0
         # augment.kind=planner: guided teacher windows added to D_online (Alg. 1 l. 14);

@@ -82,6 +82,9 @@ class ExplorationSettings:
         Either((Choice(("offline",)), Real(0)), "must be 'offline' or a number >= 0"),
         "d_0 of λ max(d_t − d_0, 0); 0 = Eq. 10",
     )
+    extra_variance: float = key(
+        Real(0), "v_c added to every action's variance; 0 = Eq. 10 (λ = 0 and v_c > 0: its control)"
+    )
     transition_model: str = key(Choice(TRANSITION_MODELS), "where ŝ_t comes from")
 
 

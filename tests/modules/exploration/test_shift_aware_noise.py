@@ -232,6 +232,34 @@ def test_the_floor_adds_only_the_excess_of_d_over_it_and_leaves_d_as_logged():
         ShiftAwareNoise(shift_floor=-0.1)
 
 
+def test_extra_variance_adds_a_constant_to_every_actions_variance():
+    """``v_c`` (beyond the paper) adds to σ² with or without ŝ_t: with λ = 0 and no
+    transition model it is a state-independent noise of the same size as λ d_t (the control
+    for Eq. 10); with λ > 0 both add, and the measured action std follows. It is not state:
+    the state dict keeps only λ and d_0."""
+    torch.manual_seed(0)
+    constant = ShiftAwareNoise(shift_weight=0.0, extra_variance=0.15)
+    out = constant(make_td(2, 20000))  # no expected_observation at all
+    expected = (0.1**2 + 0.15) ** 0.5
+    torch.testing.assert_close(out["exploration_scale"], torch.full((2, 20000, 2), expected))
+    torch.testing.assert_close(
+        (out["action"] - 0.3).std(dim=(1, 2)), torch.full((2,), expected), rtol=0.02, atol=0
+    )
+    both = ShiftAwareNoise(shift_weight=0.5, extra_variance=0.15)
+    out = both(make_td(3, shift=2.0))
+    torch.testing.assert_close(
+        out["exploration_scale"], torch.full((3, 2), (0.1**2 + 0.15 + 0.5 * 2.0) ** 0.5)
+    )
+    assert list(both.state_dict()) == ["shift_weight", "shift_floor"]
+    assert "extra_variance=0.15" in repr(both)
+    plain = ShiftAwareNoise(shift_weight=0.5)(make_td(3, shift=2.0))  # v_c = 0: Eq. 10
+    torch.testing.assert_close(
+        plain["exploration_scale"], torch.full((3, 2), (0.1**2 + 0.5 * 2.0) ** 0.5)
+    )
+    with pytest.raises(ValueError, match=r"extra_variance .* must be >= 0, got -0.1"):
+        ShiftAwareNoise(extra_variance=-0.1)
+
+
 # ----------------------------------------------------------------------------- errors
 @pytest.mark.parametrize(
     "edit, error, match",

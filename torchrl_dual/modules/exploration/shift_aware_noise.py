@@ -60,6 +60,11 @@ class ShiftAwareNoise(TensorDictModuleBase):
     longer adds noise everywhere, only the excess does. ``d_0 = 0`` (the default) is Eq. 10;
     ``shift_distance`` stays the raw ``d_t`` either way.
 
+    **Beyond the paper: a constant variance** ``v_c`` (``extra_variance``), added to every
+    action's variance: ``σ² + v_c + λ max(d_t − d_0, 0)``. With ``λ = 0`` and ``v_c`` set
+    to ``λ`` times the typical ``d_t`` it is the control for Eq. 10: the same amount of
+    extra noise, independent of the state. ``v_c = 0`` (the default) is Eq. 10.
+
     Because the noise is added on the policy side (like
     :class:`~torchrl.modules.AdditiveGaussianModule`), collectors and replay buffers
     store the executed action and the ``d_t`` it was drawn with; an inverse transform
@@ -87,6 +92,8 @@ class ShiftAwareNoise(TensorDictModuleBase):
         shift_floor: ``d_0`` above (a buffer; set it later with ``shift_floor.fill_``,
             e.g. to the transition model's mean error on the offline data). Defaults to
             ``0.0`` (Eq. 10).
+        extra_variance: ``v_c`` above, ``>= 0`` (a plain attribute, set from the config;
+            not in the state dict). Defaults to ``0.0`` (Eq. 10).
 
     Keyword Args:
         observation_key, loc_key, scale_key, expected_observation_key, shift_key,
@@ -120,6 +127,9 @@ class ShiftAwareNoise(TensorDictModuleBase):
         >>> floored = ShiftAwareNoise(Bounded(-1.0, 1.0, shape=(2,)), 0.5, shift_floor=1.0)
         >>> floored(td.exclude("action"))["exploration_scale"][0]  # sqrt(0.01 + 0.5 * 0.4142)
         tensor([0.4659, 0.4659])
+        >>> constant = ShiftAwareNoise(Bounded(-1.0, 1.0, shape=(2,)), 0.0, extra_variance=0.15)
+        >>> constant(td.exclude("action"))["exploration_scale"][0]  # sqrt(0.01 + 0.15)
+        tensor([0.4000, 0.4000])
     """
 
     _SHAPE_ERR = (
@@ -134,6 +144,7 @@ class ShiftAwareNoise(TensorDictModuleBase):
         shift_weight: float = 0.5,
         *,
         shift_floor: float = 0.0,
+        extra_variance: float = 0.0,
         observation_key: NestedKey = "observation",
         loc_key: NestedKey = "loc",
         scale_key: NestedKey = "scale",
@@ -160,6 +171,11 @@ class ShiftAwareNoise(TensorDictModuleBase):
                 f"ShiftAwareNoise: shift_floor (d_0, subtracted from d_t) must be >= 0, got "
                 f"{shift_floor}."
             )
+        if not float(extra_variance) >= 0:
+            raise ValueError(
+                f"ShiftAwareNoise: extra_variance (a constant added to the variance) must be "
+                f">= 0, got {extra_variance}."
+            )
         self.observation_key = observation_key
         self.loc_key = loc_key
         self.scale_key = scale_key
@@ -175,6 +191,7 @@ class ShiftAwareNoise(TensorDictModuleBase):
         super().__init__()
         self.return_log_prob = return_log_prob
         self.action_projection = action_projection
+        self.extra_variance = float(extra_variance)
         self.register_buffer(
             "shift_weight", torch.tensor(float(shift_weight), dtype=torch.float32, device=device)
         )
@@ -306,6 +323,8 @@ class ShiftAwareNoise(TensorDictModuleBase):
             tensordict.set(self.shift_key, shift)  # d_t
             excess = (shift - self.shift_floor).clamp_min(0.0)  # d_t itself when d_0 = 0
             variance = torch.addcmul(variance, excess, self.shift_weight)  # Eq. (10)
+        if self.extra_variance:
+            variance = variance + self.extra_variance
         std = variance.clamp_min(self._MIN_VARIANCE).sqrt()
         action = self._project(torch.addcmul(loc, std, torch.randn_like(loc)))
         tensordict.set(self.action_key, action)
@@ -317,7 +336,7 @@ class ShiftAwareNoise(TensorDictModuleBase):
     def __repr__(self) -> str:
         return (
             f"{type(self).__name__}(shift_weight={self.shift_weight.item():g}, "
-            f"shift_floor={self.shift_floor.item():g}, "
+            f"shift_floor={self.shift_floor.item():g}, extra_variance={self.extra_variance:g}, "
             f"in_keys={self.in_keys}, out_keys={self.out_keys}, "
             f"projected={self._spec is not None})"
         )
