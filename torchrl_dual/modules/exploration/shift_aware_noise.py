@@ -79,7 +79,7 @@ class ShiftAwareNoise(TensorDictModuleBase):
     ``expected_observation``     ``[*B, S]``   ŝ_t (input; optional when λ = 0)
     ``shift_distance``           ``[*B, 1]``   d_t (output, RANDOM only)
     ``action``                   ``[*B, A]``   executed a_t (output)
-    ``exploration_scale``        ``[*B, A]``   sqrt(σ² + λ d) (output, RANDOM only)
+    ``exploration_scale``        ``[*B, A]``   sqrt(σ² + v_c + λ d) (output, RANDOM only)
     ``action_log_prob``          ``[*B]``      log N(a_t; μ, σ² + λ d) (output, RANDOM and
                                                ``return_log_prob=True`` only)
     ===========================  ============  ==============================================
