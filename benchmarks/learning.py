@@ -39,6 +39,7 @@ from learning_cost import queue_cost_text
 from learning_grid import (  # noqa: F401 - the grid
     CELLS,
     ONLINE_ONLY,
+    REFERENCE_SCRIPTS,
     VARIANTS,
     Cell,
     active_cells,
@@ -132,7 +133,7 @@ class Suite:
         resume = (run_dir / "checkpoint.pt").exists()
         return [
             sys.executable,
-            "recipes/o2o.py",
+            REFERENCE_SCRIPTS.get(run.variant, "recipes/o2o.py"),
             f"budget={self.args.budget}",
             *run.overrides,
             f"seed={run.seed}",

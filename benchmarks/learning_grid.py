@@ -11,6 +11,11 @@ from dataclasses import dataclass
 VARIANTS: dict[str, tuple[str, ...]] = {
     "dual": ("algo=dual",),
     "iql": ("algo=iql",),
+    # the reference implementation of `iql` on the same data, budget, replay and evaluator
+    # (d3rlpy 2.8.1's IQL as a learner of the recipe's run: benchmarks/reference_d3rlpy.py)
+    "iql_d3rlpy": ("algo=iql",),
+    # `iql` before issue 27's fix: TorchRL's TanhNormal actor with a state-dependent scale
+    "iql_tanh_normal": ("algo=iql", "actor.distribution=tanh_normal"),
     "iql_la": ("algo=iql_la",),
     "diffql": ("algo=diffql",),
     "diffql_la": ("algo=diffql_la",),
@@ -38,6 +43,8 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     "edis": ("algo=edis",),
     "dual_augment": ("algo=dual", "augment.kind=planner"),
     "calql": ("algo=calql",),  # Cal-QL (critic/calql), the base critic of the paper's Table 2
+    # the reference implementation of `calql` (d3rlpy 2.8.1's CalQL, benchmarks/reference_d3rlpy.py)
+    "calql_d3rlpy": ("algo=calql",),
     "dual_calql": ("algo=dual", "critic=calql"),  # DUAL on Cal-QL's critic (Table 2)
     # SO2 + OFF2ON and DUAL on it (Table 2), at 2 critic steps per actor step online instead
     # of SO2's 10: measured (docs/benchmarks.md) an SO2 update costs ~2.5x IQL's, so
@@ -61,6 +68,16 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     ),
 }
 """Variant name -> recipe overrides."""
+
+REFERENCE_SCRIPTS: dict[str, str] = {
+    "iql_d3rlpy": "benchmarks/reference_d3rlpy.py",
+    "calql_d3rlpy": "benchmarks/reference_d3rlpy.py",
+}
+"""Variants run by a reference implementation's script instead of ``recipes/o2o.py``: the
+script takes the same overrides and writes the same ``summary.json``."""
+
+REFERENCE_CHECKS = ("calql_d3rlpy",)
+"""Reference runs checked on one cell only (``umaze_baselines``, 3 seeds): Cal-QL's."""
 
 IQL_VARIANTS = ("iql", "iql_equal_time", "iql_equal_time_online")
 """The IQL runs DUAL is compared with at equal steps (``iql``) and equal time (both)."""
@@ -108,7 +125,8 @@ CELLS: dict[str, Cell] = {
         tuple(
             v for v in VARIANTS
             if v not in (*ABLATION_VARIANTS, *PAPER_BASELINES, *ONLINE_TUNING_VARIANTS,
-                         *NOISE_VARIANTS, *NOISE_CONTROLS, "iql_equal_time_online")
+                         *NOISE_VARIANTS, *NOISE_CONTROLS, "iql_equal_time_online",
+                         *REFERENCE_CHECKS)
         ), 5,
         "PointMaze U-maze",
     ),
@@ -137,7 +155,7 @@ CELLS: dict[str, Cell] = {
         "PointMaze U-maze: w/o planner, w/o distillation (N = 8), latent UQ",
     ),
     "umaze_baselines": Cell(
-        ("env=pointmaze_umaze",), PAPER_BASELINES, 3,
+        ("env=pointmaze_umaze",), (*PAPER_BASELINES, *REFERENCE_CHECKS), 3,
         "PointMaze U-maze: Diffuser, DACER, EDIS (IQL + planner augmentation), DUAL + EDIS, "
         "Cal-QL and SO2 + OFF2ON, each alone and under DUAL",
         reference="umaze_ablations",

@@ -18,56 +18,94 @@ from dataclasses import dataclass
 import torch
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
-from tensordict.nn import NormalParamExtractor, TensorDictModule
+from tensordict.nn import (
+    AddStateIndependentNormalScale,
+    NormalParamExtractor,
+    TensorDictModule,
+)
 from torch import nn
 from torchrl.envs.utils import ExplorationType
-from torchrl.modules import MLP, ProbabilisticActor, TanhNormal
+from torchrl.modules import MLP, IndependentNormal, ProbabilisticActor, TanhNormal
 
+from torchrl_dual.modules.actors.last_layer_actor import TanhSquash
 from torchrl_dual.recipe.algorithm import Algorithm, OnlineSettings, check_nothing
 from torchrl_dual.recipe.critics import CRITICS
 from torchrl_dual.recipe.env_kits import projected_policy
 from torchrl_dual.recipe.learner import Learner
 from torchrl_dual.recipe.o2o_loop import run_o2o
 from torchrl_dual.recipe.o2o_run import O2ORun
-from torchrl_dual.recipe.rules import Integer, Real, key
+from torchrl_dual.recipe.rules import Choice, Integer, Real, key
+
+ACTOR_DISTRIBUTIONS = ("gaussian", "tanh_normal")
+"""``actor.distribution`` of the AWR baselines: ``gaussian`` (CORL's and d3rlpy's IQL actor,
+the default) or ``tanh_normal`` (TorchRL's ``TanhNormal`` with a state-dependent scale)."""
 
 
 @dataclass
 class IQLActorSettings:
-    """``algo/iql.yaml``'s ``actor``: the tanh-Gaussian MLP actor and its AWR loss."""
+    """``algo/iql.yaml``'s ``actor``: the Gaussian MLP actor and its AWR loss."""
 
     hidden: int = key(Integer(1), "MLP width of the actor")
     depth: int = key(Integer(1), "hidden layers of the actor")
     lr: float = key(Real(0, low_open=True), "Adam learning rate")
     temperature: float = key(Real(0), "β of exp(β (Q - V)), clipped at 100 by IQLLoss")
+    distribution: str = key(
+        Choice(ACTOR_DISTRIBUTIONS),
+        "gaussian: N(tanh mean on the box, state-independent σ) as CORL and d3rlpy; "
+        "tanh_normal: TorchRL's TanhNormal(loc(s), scale(s))",
+    )
 
 
 def make_iql_actor(
-    cfg: DictConfig, obs_dim: int, action_spec, *, return_log_prob: bool = False
+    cfg: DictConfig,
+    obs_dim: int,
+    action_spec,
+    *,
+    distribution: str = "tanh_normal",
+    return_log_prob: bool = False,
 ) -> ProbabilisticActor:
-    """``π(a|s) = TanhNormal(loc(s), scale(s))`` on the action box of ``action_spec``
-    (writing ``"action_log_prob"`` too with ``return_log_prob``)."""
+    """The AWR baselines' MLP actor on the action box of ``action_spec`` (writing
+    ``"action_log_prob"`` too with ``return_log_prob``).
+
+    ``distribution="gaussian"`` is CORL's and d3rlpy's IQL actor:
+    ``π(a|s) = N(c + r ⊙ tanh(f(s)), diag σ²)`` with one learned ``σ = exp(log σ)`` per
+    action dimension (TensorDict's ``AddStateIndependentNormalScale``, initial ``σ = 1``),
+    a density over all of ``ℝ^d``, so a data action on a face of the box (61 % of
+    PointMaze's action components) has a finite log-likelihood; draws are projected onto
+    the box (``safe=True``) and the deterministic action is the mean, inside the box.
+    ``distribution="tanh_normal"`` is TorchRL's ``TanhNormal(loc(s), scale(s))`` with a
+    state-dependent scale, the SAC-style actor of ``calql`` and ``so2`` (their losses
+    need its reparameterised, box-bounded draws and its log-density): on a face,
+    ``atanh(±1)`` is clamped, and the AWR fit of such an action is dominated by the clamp.
+    """
     a = cfg.actor
     action_dim = action_spec.shape[-1]
-    net = nn.Sequential(
-        MLP(
-            in_features=obs_dim,
-            out_features=2 * action_dim,
-            num_cells=[a.hidden] * a.depth,
-            activation_class=nn.ReLU,
-        ),
-        NormalParamExtractor(),
-    )
     space = action_spec.space
+    low, high = space.low.to(cfg.device), space.high.to(cfg.device)
+    mlp = MLP(
+        in_features=obs_dim,
+        out_features=(1 if distribution == "gaussian" else 2) * action_dim,
+        num_cells=[a.hidden] * a.depth,
+        activation_class=nn.ReLU,
+    )
+    if distribution == "gaussian":
+        net = nn.Sequential(mlp, TanhSquash(low, high), AddStateIndependentNormalScale(action_dim))
+        dist_class, dist_kwargs = IndependentNormal, {}
+    elif distribution == "tanh_normal":
+        net = nn.Sequential(mlp, NormalParamExtractor())
+        dist_class, dist_kwargs = TanhNormal, {"low": low, "high": high}
+    else:
+        raise ValueError(
+            f"unknown actor distribution {distribution!r}; choose one of "
+            + ", ".join(ACTOR_DISTRIBUTIONS)
+        )
     return ProbabilisticActor(
         TensorDictModule(net, in_keys=["observation"], out_keys=["loc", "scale"]),
         in_keys=["loc", "scale"],
         spec=action_spec,
-        distribution_class=TanhNormal,
-        distribution_kwargs={
-            "low": space.low.to(cfg.device),
-            "high": space.high.to(cfg.device),
-        },
+        safe=distribution == "gaussian",
+        distribution_class=dist_class,
+        distribution_kwargs=dist_kwargs,
         default_interaction_type=ExplorationType.RANDOM,
         return_log_prob=return_log_prob,
     ).to(cfg.device)
@@ -83,7 +121,9 @@ class IQLLearner(Learner):
         self.run = run
         cfg = run.cfg
         spec = run.env.action_spec
-        self.actor = make_iql_actor(cfg, run.data.obs_dim, spec)
+        self.actor = make_iql_actor(
+            cfg, run.data.obs_dim, spec, distribution=cfg.actor.distribution
+        )
         make_critic = CRITICS[cfg.critic.name][1]
         self.critic = make_critic(
             cfg,

@@ -48,6 +48,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import torch
+from omegaconf import DictConfig
 
 from torchrl_dual import LinearHeadActor, WeightedMAPActorLoss
 from torchrl_dual.recipe.algorithm import (
@@ -57,6 +58,7 @@ from torchrl_dual.recipe.algorithm import (
     check_no_shift_weight,
 )
 from torchrl_dual.recipe.dual_settings import LaplaceSettings
+from torchrl_dual.recipe.errors import ConfigError
 from torchrl_dual.recipe.iql import IQLActorSettings, IQLLearner
 from torchrl_dual.recipe.laplace_refits import LaplaceRefits
 from torchrl_dual.recipe.o2o_run import O2ORun
@@ -135,6 +137,21 @@ class IQLLALearner(LaplaceRefits, IQLLearner):
         return (total / count).sqrt()
 
 
+def check_iql_la(cfg: DictConfig) -> None:
+    """λ = 0 (:func:`check_no_shift_weight`) and the ``TanhNormal`` actor: the posterior
+    over its ``loc`` head is exact in the pre-tanh space (a weighted Gaussian regression of
+    ``atanh(a)``); the ``gaussian`` actor's tanh mean would need the Jacobian of the tanh
+    in the Hessian (a generalized Gauss-Newton fit), which this baseline does not have."""
+    check_no_shift_weight(cfg)
+    if cfg.actor.distribution != "tanh_normal":
+        raise ConfigError(
+            "actor.distribution",
+            cfg.actor.distribution,
+            "iql_la supports tanh_normal only (its Laplace fit is over the TanhNormal's "
+            "pre-tanh loc head); write actor.distribution=tanh_normal",
+        )
+
+
 IQL_LA = Algorithm(
     sections={
         "actor": IQLActorSettings,
@@ -143,6 +160,6 @@ IQL_LA = Algorithm(
         "online": OnlineSettings,
     },
     critics=("iql",),
-    check=check_no_shift_weight,
+    check=check_iql_la,
     learner=IQLLALearner,
 )
