@@ -233,7 +233,7 @@ def baseline_variants() -> tuple[str, ...]:
     compared against, in grid order.
 
         >>> baseline_variants()[:3]
-        ('iql', 'iql_la', 'diffql')
+        ('iql', 'iql_d3rlpy', 'iql_tanh_normal')
     """
     return tuple(name for name, overrides in VARIANTS.items() if overrides[0] != "algo=dual")
 

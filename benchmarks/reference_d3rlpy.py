@@ -27,8 +27,8 @@ What each reference takes from the recipe's config (so it tracks the budget): ne
 width and depth (d3rlpy's default ``VectorEncoderFactory`` is 256 x 2 = the default
 budget's), batch size, γ, τ, learning rates, IQL's expectile and β, Cal-QL's penalty
 weight and sample count; everything else is d3rlpy's default (``max_weight=100``,
-``min/max_logstd``; Cal-QL's automatic entropy tuning and its Lagrange-tuned penalty weight
-α with threshold 10, both from 1, where ``algo=calql`` keeps α fixed).
+``min/max_logstd``, Cal-QL's automatic entropy tuning from 1); Cal-QL's penalty weight is
+fixed at ``critic.min_q_weight`` (d3rlpy's Lagrange tuning off), as ``algo=calql`` has it.
 """
 
 from __future__ import annotations

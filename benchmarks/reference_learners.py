@@ -59,7 +59,9 @@ def iql_config(cfg: DictConfig) -> Any:
 
 
 def calql_config(cfg: DictConfig) -> Any:
-    """d3rlpy's ``CalQLConfig`` with the recipe's sizes, rates and penalty constants."""
+    """d3rlpy's ``CalQLConfig`` with the recipe's sizes, rates and penalty constants; the
+    penalty's weight is ``critic.min_q_weight`` fixed (α = 1, no Lagrange tuning), as in
+    Cal-QL's own code and ``algo=calql``."""
     return d3rlpy.algos.CalQLConfig(
         batch_size=cfg.online.batch_size,
         gamma=cfg.critic.discount,
@@ -68,6 +70,8 @@ def calql_config(cfg: DictConfig) -> Any:
         critic_learning_rate=cfg.critic.lr,
         temp_learning_rate=cfg.actor.lr,
         conservative_weight=cfg.critic.min_q_weight,
+        alpha_learning_rate=0.0,  # the penalty's weight fixed (Cal-QL's code, algo=calql)
+        initial_alpha=1.0,
         n_action_samples=cfg.critic.num_random,
         actor_encoder_factory=_encoder(cfg.actor.hidden, cfg.actor.depth),
         critic_encoder_factory=_encoder(cfg.critic.hidden, cfg.critic.depth),

@@ -137,7 +137,7 @@ def test_sigma_bar_is_the_rms_of_the_iql_actor_s_std_on_the_fit_data(frozenlake)
 
 def test_the_evaluation_is_iql_s_deterministic_action_and_the_ensemble_s_map(frozenlake):
     learner = frozenlake.learner
-    assert learner.evaluation_policy is learner.actor  # the TanhNormal actor, as algo=iql
+    assert learner.evaluation_policy is learner.actor  # the TanhNormal actor, as algo=iql's tanh_normal
     td = TensorDict(observation=observations(frozenlake), batch_size=[32])
     with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
         iql_action = learner.evaluation_policy(td.clone())["action"]
@@ -146,11 +146,13 @@ def test_the_evaluation_is_iql_s_deterministic_action_and_the_ensemble_s_map(fro
 
 
 def test_iql_la_starts_from_iql_s_weights_for_the_same_seed(frozenlake, cache_dir, tmp_path):
-    def learner(algo: str, learner_class: type):
-        cfg = fast_cfg(tmp_path / algo, cache_dir, f"algo={algo}", "env=frozenlake")
+    def learner(algo: str, learner_class: type, *overrides: str):
+        cfg = fast_cfg(tmp_path / algo, cache_dir, f"algo={algo}", "env=frozenlake", *overrides)
         return O2ORun(cfg, learner_class).learner
 
-    iql, iql_la = learner("iql", IQLLearner), learner("iql_la", IQLLALearner)
+    # iql_la's actor is algo=iql's TanhNormal option (algo=iql's default is the Gaussian)
+    iql = learner("iql", IQLLearner, "actor.distribution=tanh_normal")
+    iql_la = learner("iql_la", IQLLALearner)
     for theirs, ours in ((iql.actor, iql_la.actor), (iql.critic.loss, iql_la.critic.loss)):
         expected = theirs.state_dict()
         got = ours.state_dict()
