@@ -33,6 +33,8 @@ import torch
 from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from torchrl_dual.recipe import CONFIG_DIR as RECIPE_CONFIG_DIR
+
 REPO = Path(__file__).resolve().parents[1]
 FAMILIES = {  # env= override -> stand-in data set id
     "antmaze": ("env=antmaze", "D4RL/antmaze/umaze-v1"),
@@ -87,7 +89,7 @@ def measure(family: str, updates: int, steps: int, workdir: Path) -> dict:
         "progress=false",
         f"output_dir={workdir / family}",
     ]
-    o2o = run(compose_checked(REPO / "recipes" / "config", overrides))
+    o2o = run(compose_checked(RECIPE_CONFIG_DIR, overrides))
     transitions = len(o2o.data)
     result = {
         "family": family,

@@ -45,6 +45,8 @@ from pathlib import Path
 
 import torch
 
+from torchrl_dual.recipe import CONFIG_DIR as RECIPE_CONFIG_DIR
+
 REPO = Path(__file__).resolve().parents[1]
 GEMM_LINE = re.compile(r"^MKL_VERBOSE (SGEMM_BATCH|SGEMM)\((.*)\) ([\d.]+)(ns|us|ms|s) CNR")
 UNIT_MS = {"ns": 1e-6, "us": 1e-3, "ms": 1.0, "s": 1e3}
@@ -59,7 +61,7 @@ def child(algo: str, updates: int, data_dir: str, overrides: list[str]) -> None:
 
     torch.set_num_threads(int(os.environ.get("GEMM_THREADS", "1")))
     cfg = compose_checked(
-        REPO / "recipes" / "config",
+        RECIPE_CONFIG_DIR,
         [
             "budget=default",
             f"algo={algo}",

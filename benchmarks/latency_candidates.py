@@ -9,7 +9,7 @@ own weights for ``ŝ_t``; ``dual_m5_two_pass`` runs the frozen transition model 
 separate second pass; ``dual_m5_n8`` is the "w/o distillation" ablation (an 8-step
 planner actor); ``dual_m5_latent`` the "w τ^N sampling" ablation (``laplace.uq=latent``).
 The recipe's baselines act with their exploration policies, built by the recipe's own
-builders with the actor settings of ``recipes/config/algo/<algo>.yaml`` and the width
+builders with the actor settings of ``torchrl_dual/recipe/config/algo/<algo>.yaml`` and the width
 ``cfg.hidden``: ``iql_actor`` (``algo=iql``), ``iql_la_m5`` (``algo=iql_la``),
 ``diffql_n5`` (``algo=diffql``), ``diffql_la_m5`` (``algo=diffql_la``) and ``dacer_n5``
 (``algo=dacer``);
@@ -25,7 +25,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 import torch
 from omegaconf import DictConfig, OmegaConf
@@ -52,10 +51,11 @@ from torchrl_dual.modules import (
     make_dual_policy,
 )
 from torchrl_dual.modules.exploration import EntropyRegulatedNoise, dacer_target_entropy
+from torchrl_dual.recipe import CONFIG_DIR as RECIPE_CONFIG_DIR
 from torchrl_dual.recipe.diffql import ActionBox, make_diffusion_actor
 from torchrl_dual.recipe.iql import make_iql_actor
 
-ALGO_CONFIGS = Path(__file__).resolve().parents[1] / "recipes" / "config" / "algo"
+ALGO_CONFIGS = RECIPE_CONFIG_DIR / "algo"
 
 
 @dataclass
@@ -175,7 +175,7 @@ def build_dual_m5_latent(cfg: Config) -> TensorDictModuleBase:
 
 # ------------------------------------------------------------- the recipe's baselines
 def _algo_cfg(cfg: Config, algo: str) -> DictConfig:
-    """``recipes/config/algo/<algo>.yaml``'s ``actor`` (depth, ``N``, activation as the
+    """``torchrl_dual/recipe/config/algo/<algo>.yaml``'s ``actor`` (depth, ``N``, activation as the
     recipe runs them) with the width ``--hidden`` (``budget.network_width``), on CPU."""
     actor = OmegaConf.load(ALGO_CONFIGS / f"{algo}.yaml").actor
     actor.hidden = cfg.hidden  # replaces the ${budget.network_width} interpolation

@@ -12,7 +12,6 @@ for the evaluator and ``sample_action`` for the collector, clamped to the env's 
 from __future__ import annotations
 
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import d3rlpy
@@ -25,6 +24,7 @@ from tensordict.nn import TensorDictModule
 from torch import nn
 
 from torchrl_dual.recipe import (
+    CONFIG_DIR,
     ConfigError,
     Learner,
     O2ORun,
@@ -34,8 +34,6 @@ from torchrl_dual.recipe import (
 )
 from torchrl_dual.recipe.env_kits import projected_policy  # the same projection as algo=iql
 from torchrl_dual.recipe.mc_labels import MC_RETURN, MonteCarloLabels
-
-CONFIG_DIR = Path(__file__).resolve().parents[1] / "recipes" / "config"
 
 
 def _encoder(hidden: int, depth: int) -> VectorEncoderFactory:

@@ -4,30 +4,16 @@
     python recipes/o2o.py env=frozenlake budget=smoke
     python recipes/o2o.py resume=true              # continue an interrupted run
 
-The config tree is ``recipes/config``; the run itself is
-:func:`torchrl_dual.recipe.run` (the chosen ``algo``'s entry of
-``torchrl_dual.recipe.ALGORITHMS``, for DUAL :func:`torchrl_dual.recipe.run_dual`).
-A bad config, a missing device, bad data or an unusable checkpoint ends with one
-``error:`` line and exit code 2 (``debug=true`` adds the traceback). See docs/recipe.md.
+The same program as the ``torchrl-dual`` console script and ``python -m
+torchrl_dual.recipe`` (:func:`torchrl_dual.recipe.main`), kept so that commands written
+for a clone keep working. The config tree ships in the package
+(``torchrl_dual/recipe/config``, :data:`torchrl_dual.recipe.CONFIG_DIR`); the run itself
+is the chosen ``algo``'s entry of ``torchrl_dual.recipe.ALGORITHMS``. A bad config, a
+missing device, bad data or an unusable checkpoint ends with one ``error:`` line and exit
+code 2 (``debug=true`` adds the traceback). See docs/recipe.md.
 """
 
-from __future__ import annotations
-
-from pathlib import Path
-
-import hydra
-from omegaconf import DictConfig
-
-from torchrl_dual.recipe import check_command_line, hydra_task
-
-CONFIG_DIR = Path(__file__).resolve().parent / "config"
-
-
-@hydra.main(version_base="1.3", config_path="config", config_name="config")
-def main(cfg: DictConfig) -> None:
-    hydra_task(cfg)
-
+from torchrl_dual.recipe import main
 
 if __name__ == "__main__":
-    check_command_line(CONFIG_DIR)  # composition and config errors: one line, exit 2
     main()

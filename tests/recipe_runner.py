@@ -27,8 +27,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from torchrl_dual.recipe import CONFIG_DIR
+
 REPO = Path(__file__).resolve().parents[1]
-CONFIG_DIR = REPO / "recipes" / "config"
 
 
 def run_recipe(

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from torchrl_dual.recipe import CONFIG_DIR as RECIPE_CONFIG_DIR
+
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "benchmarks"))  # the scripts' directory is not a package
 import learning  # noqa: E402
@@ -27,7 +29,7 @@ def test_every_cell_and_variant_of_the_grid_is_a_valid_recipe_config(tmp_path):
     for variant, name in sorted(pairs):
         overrides = [*learning.CELLS[name].overrides, *learning.VARIANTS[variant]]
         cfg = compose_checked(
-            REPO / "recipes" / "config", [*overrides, "budget=default", f"output_dir={tmp_path}"]
+            RECIPE_CONFIG_DIR, [*overrides, "budget=default", f"output_dir={tmp_path}"]
         )
         assert cfg.algo == learning.VARIANTS[variant][0].split("=")[1], (name, variant)
     in_grid = {v for c in learning.CELLS.values() for v in c.variants}
@@ -49,7 +51,7 @@ def test_runs_the_suite_groups_for_sharing_have_one_recipe_offline_key(tmp_path)
     keys = {}
     for run in runs:
         cfg = compose_checked(
-            REPO / "recipes" / "config",
+            RECIPE_CONFIG_DIR,
             [*run.overrides, "budget=default", f"output_dir={tmp_path}"],
         )
         online = getattr(ALGORITHMS[cfg.algo].learner, "online_keys", ())

@@ -20,15 +20,13 @@ from types import SimpleNamespace
 
 import pytest
 import torch
-from recipe_runner import REPO
 from tensordict.nn import TensorDictModule
 from torch import nn
 
-from torchrl_dual.recipe import O2ORun, compose_checked, run
+from torchrl_dual.recipe import CONFIG_DIR, O2ORun, compose_checked, run
 from torchrl_dual.recipe.collectors import COLLECTORS, assign_episodes
 
 pytestmark = pytest.mark.long_running(seconds=55)  # starts first under xdist
-CONFIG_DIR = REPO / "recipes" / "config"
 # DUAL at the smoke budget cut down: 120 online frames in batches of 20 (episodes of 15
 # steps, so some end inside a batch and some span two), interrupted after 60
 FAST = [

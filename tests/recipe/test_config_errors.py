@@ -18,10 +18,9 @@ from pathlib import Path
 import pytest
 import torch
 
-from torchrl_dual.recipe import ConfigError, compose_checked
+from torchrl_dual.recipe import CONFIG_DIR, ConfigError, compose_checked
 
 REPO = Path(__file__).resolve().parents[2]
-CONFIG_DIR = REPO / "recipes" / "config"
 ENVS = (
     "adroit, antmaze, frozenlake, halfcheetah, hopper, pointmaze_large, pointmaze_medium, "
     "pointmaze_umaze, walker2d"

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import torch
 from omegaconf import OmegaConf
-from recipe_runner import REPO, run_recipe, succeeded
+from recipe_runner import run_recipe, succeeded
 from tensordict import TensorDict
 from torch import nn
 from torchrl.data import Bounded
@@ -22,11 +22,10 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchrl_dual import DDPMLastStepActor, WeightedMAPActorLoss, make_dual_policy
 from torchrl_dual.objectives.diffql_actor_loss import DiffQLActorLoss, min_q
-from torchrl_dual.recipe import O2ORun, check_command_line, compose_checked, run
+from torchrl_dual.recipe import CONFIG_DIR, O2ORun, check_command_line, compose_checked, run
 from torchrl_dual.recipe.critics import make_iql_critic
 from torchrl_dual.recipe.diffql import ActionBox, DiffQLLALearner, make_diffusion_actor
 
-CONFIG_DIR = REPO / "recipes" / "config"
 # the smoke budget cut further: 10 offline updates, 100 online frames in 2 blocks of 50,
 # each followed by 10 updates (UTD 0.2) and a Laplace refit (diffql_la)
 FAST = [

@@ -7,11 +7,12 @@ from pathlib import Path
 
 import pytest
 import torch
-from recipe_runner import REPO, run_recipe, succeeded
+from recipe_runner import run_recipe, succeeded
 from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchrl_dual.modules import PlannerSampler
+from torchrl_dual.recipe import CONFIG_DIR as RECIPE_CONFIG_DIR
 from torchrl_dual.recipe import O2ORun, compose_checked
 from torchrl_dual.recipe.diffuser import DiffuserLearner
 
@@ -23,7 +24,7 @@ def cache_dir(tmp_path_factory) -> Path:
 
 def learner(tmp_path: Path, cache_dir: Path, *overrides: str) -> DiffuserLearner:
     cfg = compose_checked(
-        REPO / "recipes" / "config",
+        RECIPE_CONFIG_DIR,
         [
             "algo=diffuser",
             "budget=smoke",

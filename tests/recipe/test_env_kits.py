@@ -18,9 +18,7 @@ from torchrl_dual.envs import (
     frozenlake_optimal_policy,
     frozenlake_success_probability,
 )
-from torchrl_dual.recipe import ConfigError, compose_checked, env_kits
-
-CONFIG_DIR = Path(__file__).resolve().parents[2] / "recipes" / "config"
+from torchrl_dual.recipe import CONFIG_DIR, ConfigError, compose_checked, env_kits
 
 
 def compose(tmp_path: Path, *overrides: str):

@@ -19,11 +19,17 @@ from tensordict import TensorDict
 from test_o2o import checkpoint_state, csv_steps, run_recipe, succeeded
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from torchrl_dual.recipe import IQLLearner, O2ORun, check_command_line, compose_checked, run
+from torchrl_dual.recipe import (
+    CONFIG_DIR,
+    IQLLearner,
+    O2ORun,
+    check_command_line,
+    compose_checked,
+    run,
+)
 from torchrl_dual.recipe.iql_la import IQLLALearner
 
 REPO = Path(__file__).resolve().parents[2]
-CONFIG_DIR = REPO / "recipes" / "config"
 # the smoke budget cut further: 20 offline updates, 100 online frames in 2 blocks of 25
 # updates, a refit after every block
 FAST = [
@@ -137,7 +143,9 @@ def test_sigma_bar_is_the_rms_of_the_iql_actor_s_std_on_the_fit_data(frozenlake)
 
 def test_the_evaluation_is_iql_s_deterministic_action_and_the_ensemble_s_map(frozenlake):
     learner = frozenlake.learner
-    assert learner.evaluation_policy is learner.actor  # the TanhNormal actor, as algo=iql's tanh_normal
+    assert (
+        learner.evaluation_policy is learner.actor
+    )  # the TanhNormal actor, as algo=iql's tanh_normal
     td = TensorDict(observation=observations(frozenlake), batch_size=[32])
     with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
         iql_action = learner.evaluation_policy(td.clone())["action"]

@@ -23,7 +23,7 @@ from torchrl_dual.data.minari_standins import (  # noqa: E402
     UMAZE_MAP,
     write_standin_dataset,
 )
-from torchrl_dual.recipe import ConfigError, UserError, compose_checked, env_kits, run  # noqa: E402
+from torchrl_dual.recipe import CONFIG_DIR, ConfigError, UserError, compose_checked, env_kits, run  # noqa: E402
 from torchrl_dual.recipe.minari_kits import (  # noqa: E402
     OBSERVATION_STD_EPS,
     _gym_env,
@@ -35,7 +35,6 @@ ANTMAZE_ID, HOPPER_ID, PEN_ID = (
     "mujoco/hopper/medium-v0",
     "D4RL/pen/cloned-v2",
 )
-CONFIG_DIR = Path(__file__).resolve().parents[2] / "recipes" / "config"
 FAST = [
     "budget.offline_updates=10",
     "online.utd_ratio=0.2",

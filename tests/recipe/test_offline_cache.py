@@ -13,8 +13,9 @@ import threading
 from pathlib import Path
 
 import pytest
-from recipe_runner import REPO, failed, run_recipe, succeeded
+from recipe_runner import failed, run_recipe, succeeded
 
+from torchrl_dual.recipe import CONFIG_DIR as RECIPE_CONFIG_DIR
 from torchrl_dual.recipe import compose_checked, offline_cache
 from torchrl_dual.recipe.dual import DualLearner
 from torchrl_dual.recipe.offline_cache import OfflinePhaseCache, offline_key_config
@@ -126,7 +127,7 @@ def test_a_corrupt_snapshot_is_named_with_the_fix(shared_runs, tmp_path):
 def key(*overrides: str) -> str:
     # a fresh output_dir (not part of the key): the default one may hold a user's run
     fresh = f"output_dir={tempfile.mkdtemp()}"
-    cfg = compose_checked(REPO / "recipes" / "config", ["budget=smoke", fresh, *overrides])
+    cfg = compose_checked(RECIPE_CONFIG_DIR, ["budget=smoke", fresh, *overrides])
     return OfflinePhaseCache("/unused", offline_key_config(cfg, DualLearner.online_keys), "x").key
 
 

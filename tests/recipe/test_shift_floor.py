@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 import torch
-from recipe_runner import REPO
 
+from torchrl_dual.recipe import CONFIG_DIR as RECIPE_CONFIG_DIR
 from torchrl_dual.recipe import ConfigError, DualLearner, O2ORun, compose_checked, run
 
 pytestmark = pytest.mark.long_running(seconds=30)
@@ -32,7 +32,7 @@ SHORT = (
 
 def cfg_for(out: Path, cache: Path, *overrides: str):
     args = [*SHORT, f"output_dir={out}", f"data_cache_dir={cache}", *overrides]
-    return compose_checked(REPO / "recipes" / "config", args)
+    return compose_checked(RECIPE_CONFIG_DIR, args)
 
 
 def test_offline_floor_is_the_transition_models_mean_error_on_the_data(tmp_path):

@@ -1,7 +1,9 @@
 """The offline-to-online recipe as a library: tables, a validated config, Algorithm 1.
 
-``recipes/o2o.py`` is the Hydra entry point; everything it runs lives here, so that a
-``pip install`` gets it too:
+:func:`main` is the program (the ``torchrl-dual`` console script, ``python -m
+torchrl_dual.recipe`` and ``recipes/o2o.py``) and :data:`CONFIG_DIR` its Hydra config
+tree, shipped in the package; everything it runs lives here, so that a ``pip install``
+gets it too:
 
 * :data:`ENV_KITS` (``env_kits``) — one entry per ``env.kind``: offline data, train env,
   evaluator, action projection;
@@ -30,7 +32,14 @@
 
 from torchrl_dual.recipe.algorithm import Algorithm
 from torchrl_dual.recipe.algorithms import ALGORITHMS
-from torchrl_dual.recipe.cli import check_command_line, compose_checked, hydra_task, run
+from torchrl_dual.recipe.cli import (
+    CONFIG_DIR,
+    check_command_line,
+    compose_checked,
+    hydra_task,
+    main,
+    run,
+)
 from torchrl_dual.recipe.critics import CRITICS
 from torchrl_dual.recipe.dual import DualLearner, run_dual
 from torchrl_dual.recipe.env_kits import ENV_KITS, EnvKit
@@ -44,6 +53,7 @@ from torchrl_dual.recipe.schema import validate_config
 
 __all__ = [
     "ALGORITHMS",
+    "CONFIG_DIR",
     "CRITICS",
     "ENV_KITS",
     "Algorithm",
@@ -57,6 +67,7 @@ __all__ = [
     "check_command_line",
     "compose_checked",
     "hydra_task",
+    "main",
     "plot_learning_curve",
     "run",
     "run_dual",

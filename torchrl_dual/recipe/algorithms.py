@@ -1,7 +1,7 @@
 """The table of algorithms the recipe runs, selected by the ``algo`` config group.
 
 Each entry is an :class:`~torchrl_dual.recipe.Algorithm` defined next to its learner;
-``recipes/config/algo/<name>.yaml`` holds its settings. Adding an algorithm is adding a
+``torchrl_dual/recipe/config/algo/<name>.yaml`` holds its settings. Adding an algorithm is adding a
 learner module, a config file and one line here.
 """
 

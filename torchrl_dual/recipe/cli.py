@@ -1,7 +1,9 @@
 """The recipe's command line: check it before Hydra runs, then run the chosen algorithm.
 
-``recipes/o2o.py`` calls :func:`check_command_line` before handing over to
-``@hydra.main``. It composes the config once itself (:func:`compose_checked`), so
+:func:`main` is the program: the ``torchrl-dual`` console script,
+``python -m torchrl_dual.recipe`` and ``recipes/o2o.py`` all call it, with the same Hydra
+overrides, on the config tree shipped in the package (:data:`CONFIG_DIR`). It calls
+:func:`check_command_line` before handing over to Hydra's ``main``. It composes the config once itself (:func:`compose_checked`), so
 Hydra's own composition errors (an unknown group option, an unknown key, a malformed
 override) and every :func:`~torchrl_dual.recipe.validate_config` error end as one
 ``error:`` line and exit code 2, before Hydra creates the output directory.
@@ -16,8 +18,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import hydra
 from hydra import compose, initialize_config_dir
-from hydra._internal.utils import get_args_parser  # Hydra's own argv parser (hydra-core 1.3)
+from hydra._internal.utils import get_args_parser  # Hydra's own argv parser (hydra-core 1.3.x)
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import Override, OverrideType
 from hydra.errors import HydraException, OverrideParseException
@@ -26,6 +29,9 @@ from omegaconf import DictConfig, OmegaConf
 from torchrl_dual.recipe.algorithms import ALGORITHMS
 from torchrl_dual.recipe.errors import ConfigError, UserError, unknown_key, user_errors
 from torchrl_dual.recipe.schema import validate_config
+
+CONFIG_DIR = Path(__file__).resolve().parent / "config"
+"""The recipe's Hydra config tree (``config.yaml`` and its groups), shipped in the package."""
 
 # Hydra flags that do not run the task (or run many): Hydra handles them unchecked.
 _PASS_THROUGH = ("help", "hydra_help", "cfg", "info", "shell_completion", "multirun")
@@ -150,4 +156,24 @@ def hydra_task(cfg: DictConfig) -> Any:
         return run(cfg)
 
 
-__all__ = ["UserError", "check_command_line", "compose_checked", "hydra_task", "run"]
+def main() -> None:
+    """Runs the recipe for the command line's overrides (``sys.argv``): one ``error:``
+    line and exit code 2 for a bad config, then Hydra's ``main`` on :data:`CONFIG_DIR`.
+
+    Examples:
+        ``torchrl-dual budget=smoke``, ``python -m torchrl_dual.recipe algo=iql``,
+        ``python recipes/o2o.py env=frozenlake`` (the same program).
+    """
+    check_command_line(CONFIG_DIR)  # composition and config errors: one line, exit 2
+    hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="config")(hydra_task)()
+
+
+__all__ = [
+    "CONFIG_DIR",
+    "UserError",
+    "check_command_line",
+    "compose_checked",
+    "hydra_task",
+    "main",
+    "run",
+]

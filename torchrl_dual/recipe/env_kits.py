@@ -4,7 +4,7 @@ An :class:`EnvKit` holds everything the recipe needs from one kind of environmen
 schema of its ``env.*`` keys, the offline data set ``D_offline``, the online env, the
 evaluator returning D4RL-normalized scores, and the projection of the policy's action
 onto what the env executes. Adding an environment is adding one entry to
-:data:`ENV_KITS` and one ``recipes/config/env/<name>.yaml`` that sets ``kind``; nothing
+:data:`ENV_KITS` and one ``torchrl_dual/recipe/config/env/<name>.yaml`` that sets ``kind``; nothing
 else in the recipe branches on the env.
 
 ``env.shift`` (a :data:`~torchrl_dual.envs.SHIFTS` name, ``none`` by default) changes
