@@ -113,3 +113,40 @@ def test_python_dash_m_reports_a_bad_value_in_one_line_with_exit_2(venv, tmp_pat
     assert proc.stderr.strip().splitlines() == [
         "error: budget.online_frames=-1: must be an integer >= 0"
     ]
+
+
+HIDE_RECIPE_DEPS = """
+import sys
+from importlib.machinery import PathFinder
+
+HIDDEN = {"gymnasium", "gymnasium_robotics", "mujoco", "hydra", "omegaconf", "matplotlib", "minari"}
+
+
+class HidingPathFinder(PathFinder):  # as if those distributions were not installed
+    @classmethod
+    def find_spec(cls, name, path=None, target=None):
+        if name.split(".")[0] in HIDDEN:
+            return None
+        return PathFinder.find_spec(name, path, target)
+
+
+sys.meta_path[:] = [HidingPathFinder if f is PathFinder else f for f in sys.meta_path]
+from torchrl_dual import (
+    DiffusionPlannerLoss, DistillationLoss, LaplaceEnsembleActor, ShiftAwareNoise,
+    WeightedMAPActorLoss,
+)
+import torchrl_dual.diffusion, torchrl_dual.modules, torchrl_dual.objectives
+print(sorted(m for m in sys.modules if m.split(".")[0] in HIDDEN))
+"""
+
+
+def test_the_core_and_the_five_public_names_import_without_the_recipe_s_dependencies():
+    """``import torchrl_dual`` (losses, modules, diffusion) needs torch, TorchRL and
+    TensorDict only: Hydra, OmegaConf, Gymnasium(-Robotics), MuJoCo, matplotlib and Minari
+    hidden from the import system, the import works and loads none of them."""
+    proc = subprocess.run(
+        [sys.executable, "-c", HIDE_RECIPE_DEPS],
+        cwd=REPO, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    assert proc.stdout.strip() == "[]"
