@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from torchrl_dual.recipe import CONFIG_DIR, ConfigError, compose_checked
+from torchrl_dual.recipe import CONFIG_DIR, ConfigError, IQLLearner, O2ORun, compose_checked
 
 REPO = Path(__file__).resolve().parents[2]
 ENVS = (
@@ -263,6 +263,32 @@ def self_message(override: str, tmp_path: Path) -> str:
         path = override.split("=", 1)[1]
         return f"{override}: {path} is a file, not a directory"
     return dict(CASES)[override]
+
+
+def test_an_output_dir_that_cannot_be_created_ends_in_one_error_line(tmp_path):
+    """``/proc`` takes no new folders (not even for root): one ``error:`` line, exit 2, no
+    traceback, instead of Hydra's ``FileNotFoundError``; and nothing left behind."""
+    proc = recipe("output_dir=/proc/x/run", f"hydra.run.dir={tmp_path / 'hydra'}")
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    (line,) = proc.stderr.strip().splitlines()
+    assert line.startswith("error: output_dir=/proc/x/run: cannot be created or written in /proc")
+    assert line.endswith("choose a directory you can write to")
+    assert "Traceback" not in proc.stdout + proc.stderr
+    with pytest.raises(ConfigError, match="cannot be created or written"):
+        compose_checked(CONFIG_DIR, ["output_dir=/proc/x/run"])
+    assert not list(tmp_path.iterdir())
+
+
+def test_resume_true_without_a_checkpoint_says_it_starts_a_new_run(tmp_path, capsys):
+    cfg = compose_checked(
+        CONFIG_DIR,
+        ["algo=iql", "budget=smoke", "resume=true", f"output_dir={tmp_path / 'run'}",
+         f"data_cache_dir={tmp_path / 'data'}", "progress=false"],
+    )  # fmt: skip
+    O2ORun(cfg, IQLLearner)
+    assert f"[iql] resume=true: no checkpoint in {tmp_path / 'run'}; starting a new run" in (
+        capsys.readouterr().out.splitlines()
+    )
 
 
 def test_debug_true_adds_the_traceback_and_still_exits_2(tmp_path):

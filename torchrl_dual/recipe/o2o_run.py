@@ -12,7 +12,9 @@ of :data:`~torchrl_dual.recipe.ALGORITHMS` is a learner class and a config file.
 
 from __future__ import annotations
 
+import os
 import random
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -68,12 +70,24 @@ _COUNTERS = (
 
 
 def check_output_dir(cfg: DictConfig) -> None:
-    """``output_dir`` must be a directory (or not exist yet) and hold no checkpoint unless
-    ``resume=true``: a fresh run never overwrites another run's checkpoint."""
+    """``output_dir`` must be a directory (or not exist yet) that this process can create
+    and write, and hold no checkpoint unless ``resume=true``: a fresh run never overwrites
+    another run's checkpoint. Writability is probed with a temporary folder in the nearest
+    existing ancestor (removed at once), so a failed check leaves nothing behind."""
     output_dir = Path(cfg.output_dir)
     for path in (output_dir, *output_dir.parents):
         if path.exists() and not path.is_dir():
             raise ConfigError("output_dir", cfg.output_dir, f"{path} is a file, not a directory")
+    existing = next(p for p in (output_dir, *output_dir.parents) if p.exists())
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".write-probe-", dir=existing))
+    except OSError as err:
+        raise ConfigError(
+            "output_dir",
+            cfg.output_dir,
+            f"cannot be created or written in {existing} ({err.strerror}); choose a "
+            "directory you can write to",
+        ) from None
     checkpoint = output_dir / "checkpoint.pt"
     if checkpoint.exists() and not cfg.resume:
         raise ConfigError(
@@ -109,6 +123,8 @@ class O2ORun:
         )
         # Read a checkpoint first, so a corrupt or incompatible one fails before any work.
         saved = self._load_checkpoint() if cfg.resume and self.checkpoint.exists() else None
+        if cfg.resume and saved is None:
+            self.say(f"resume=true: no checkpoint in {self.output_dir}; starting a new run")
         # ---- data and envs (Alg. 1 line 1)
         self.data = env_kits.make_offline_dataset(cfg)
         self.env = env_kits.make_train_env(cfg, self.data)
