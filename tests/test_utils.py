@@ -46,6 +46,7 @@ def test_without_a_fix_the_message_ends_with_the_keys_present():
     [
         (ExplorationType.DETERMINISTIC, True),
         (ExplorationType.MODE, True),
+        (ExplorationType.MEDIAN, True),
         (ExplorationType.MEAN, True),
         (ExplorationType.RANDOM, False),
     ],

@@ -9,7 +9,14 @@ from tensordict.utils import NestedKey
 from torch import Tensor
 from torchrl.envs.utils import ExplorationType, exploration_type
 
-DETERMINISTIC_MODES = (ExplorationType.DETERMINISTIC, ExplorationType.MODE, ExplorationType.MEAN)
+DETERMINISTIC_MODES = (
+    ExplorationType.DETERMINISTIC,
+    ExplorationType.MODE,
+    ExplorationType.MEDIAN,
+    ExplorationType.MEAN,
+)
+"""Exploration types that ask for the policy's central action: for the Gaussian policies
+here (Eq. 9-10) the mode, the median and the mean are one point."""
 
 
 def read_key(tensordict: TensorDictBase, key: NestedKey, reader: str, fix: str = "") -> Tensor:
@@ -54,7 +61,8 @@ def read_loss_input(tensordict: TensorDictBase, key: NestedKey, role: str) -> Te
 
 def is_deterministic() -> bool:
     """Whether the current TorchRL exploration type asks for the mean action
-    (``DETERMINISTIC``, ``MODE`` or ``MEAN``); ``RANDOM`` and unset mean sampling.
+    (``DETERMINISTIC``, ``MODE``, ``MEDIAN`` or ``MEAN``); ``RANDOM`` and unset mean
+    sampling.
 
     Examples:
         >>> from torchrl.envs.utils import ExplorationType, set_exploration_type

@@ -274,6 +274,18 @@ class ShiftAwareNoise(TensorDictModuleBase):
             )
         return expected
 
+    def step(self, frames: int = 1) -> None:
+        """Nothing to anneal: Eq. 10's λ is a constant. Present so that loops written for
+        TorchRL's annealed exploration modules (``policy[-1].step(frames)``, as for
+        ``AdditiveGaussianModule``) run unchanged with a DUAL policy.
+
+        Examples:
+            >>> noise = ShiftAwareNoise(shift_weight=0.5)
+            >>> noise.step(1000)
+            >>> float(noise.shift_weight)
+            0.5
+        """
+
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         """Writes d_t and samples a_t by Eq. 10 (RANDOM mode); a_t = μ otherwise."""
         loc = read_key(
