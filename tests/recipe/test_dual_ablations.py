@@ -15,15 +15,14 @@ from pathlib import Path
 
 import pytest
 import torch
-from recipe_runner import REPO, run_recipe
+from recipe_runner import run_recipe
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchrl_dual.modules import LaplaceEnsembleActor, PlannerSampler
 from torchrl_dual.modules.laplace import LatentEnsembleActor
-from torchrl_dual.recipe import ConfigError, DualLearner, O2ORun, compose_checked
+from torchrl_dual.recipe import CONFIG_DIR, ConfigError, DualLearner, O2ORun, compose_checked
 
 pytestmark = pytest.mark.long_running(seconds=40)  # starts first under xdist
-RECIPES = REPO / "recipes"
 # the smoke budget cut further: these runs check the plumbing of each switch
 SHORT = (
     "budget.planner_updates=10",
@@ -42,7 +41,7 @@ def cache_dir(tmp_path_factory) -> Path:
 
 def smoke_cfg(output_dir: Path, cache_dir: Path, *overrides: str):
     return compose_checked(
-        RECIPES / "config",
+        CONFIG_DIR,
         [
             "budget=smoke",
             "env=frozenlake",
@@ -169,5 +168,5 @@ def test_latent_uq_builds_the_latent_ensemble_and_fits_no_posterior(tmp_path, ca
 )
 def test_bad_combinations_name_the_key_at_fault(overrides, message):
     with pytest.raises(ConfigError) as err:
-        compose_checked(RECIPES / "config", overrides)
+        compose_checked(CONFIG_DIR, overrides)
     assert message in str(err.value)

@@ -16,14 +16,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from recipe_runner import REPO, failed, run_recipe, succeeded
+from recipe_runner import failed, run_recipe, succeeded
 
 from torchrl_dual.data import OfflineDataset, make_transitions
 from torchrl_dual.data.cache import load_cached_dataset, save_cached_dataset
-from torchrl_dual.recipe import DualLearner, O2ORun, UserError, compose_checked, env_kits, networks
+from torchrl_dual.recipe import (
+    CONFIG_DIR,
+    DualLearner,
+    O2ORun,
+    UserError,
+    compose_checked,
+    env_kits,
+    networks,
+)
 
 pytestmark = pytest.mark.long_running(seconds=140)  # starts first under xdist
-RECIPES = REPO / "recipes"
 ONLINE_FRAMES = 400  # budget/smoke.yaml
 INTERRUPT_AT = 200
 
@@ -297,7 +304,7 @@ def test_offline_data_with_nan_fails_naming_the_field_and_the_count(umaze_run, c
 def smoke_cfg(tmp_path, cache_dir):
     """The composed, validated Frozen-Lake smoke config (no subprocess)."""
     return compose_checked(
-        RECIPES / "config",
+        CONFIG_DIR,
         [
             "budget=smoke",
             "env=frozenlake",
