@@ -36,23 +36,32 @@ from torchrl_dual.recipe.env_kits import projected_policy  # the same projection
 from torchrl_dual.recipe.mc_labels import MC_RETURN, MonteCarloLabels
 
 
-def _encoder(hidden: int, depth: int) -> VectorEncoderFactory:
-    return VectorEncoderFactory(hidden_units=[hidden] * depth)
+def _shared(cfg: DictConfig) -> dict[str, Any]:
+    """The settings both references take from the recipe: sizes, batch, γ, τ, rates."""
+
+    def encoder(section: DictConfig) -> VectorEncoderFactory:
+        return VectorEncoderFactory(hidden_units=[section.hidden] * section.depth)
+
+    return {
+        "batch_size": cfg.online.batch_size,
+        "gamma": cfg.critic.discount,
+        "tau": cfg.critic.target_update_tau,
+        "actor_learning_rate": cfg.actor.lr,
+        "critic_learning_rate": cfg.critic.lr,
+        "actor_encoder_factory": encoder(cfg.actor),
+        "critic_encoder_factory": encoder(cfg.critic),
+    }
 
 
 def iql_config(cfg: DictConfig) -> Any:
     """d3rlpy's ``IQLConfig`` with the recipe's sizes, rates and IQL constants."""
     return d3rlpy.algos.IQLConfig(
-        batch_size=cfg.online.batch_size,
-        gamma=cfg.critic.discount,
-        tau=cfg.critic.target_update_tau,
+        **_shared(cfg),
         expectile=cfg.critic.expectile,
         weight_temp=cfg.actor.temperature,
-        actor_learning_rate=cfg.actor.lr,
-        critic_learning_rate=cfg.critic.lr,
-        actor_encoder_factory=_encoder(cfg.actor.hidden, cfg.actor.depth),
-        critic_encoder_factory=_encoder(cfg.critic.hidden, cfg.critic.depth),
-        value_encoder_factory=_encoder(cfg.critic.hidden, cfg.critic.depth),
+        value_encoder_factory=VectorEncoderFactory(
+            hidden_units=[cfg.critic.hidden] * cfg.critic.depth
+        ),
     )
 
 
@@ -61,18 +70,12 @@ def calql_config(cfg: DictConfig) -> Any:
     penalty's weight is ``critic.min_q_weight`` fixed (α = 1, no Lagrange tuning), as in
     Cal-QL's own code and ``algo=calql``."""
     return d3rlpy.algos.CalQLConfig(
-        batch_size=cfg.online.batch_size,
-        gamma=cfg.critic.discount,
-        tau=cfg.critic.target_update_tau,
-        actor_learning_rate=cfg.actor.lr,
-        critic_learning_rate=cfg.critic.lr,
+        **_shared(cfg),
         temp_learning_rate=cfg.actor.lr,
         conservative_weight=cfg.critic.min_q_weight,
         alpha_learning_rate=0.0,  # the penalty's weight fixed (Cal-QL's code, algo=calql)
         initial_alpha=1.0,
         n_action_samples=cfg.critic.num_random,
-        actor_encoder_factory=_encoder(cfg.actor.hidden, cfg.actor.depth),
-        critic_encoder_factory=_encoder(cfg.critic.hidden, cfg.critic.depth),
     )
 
 
