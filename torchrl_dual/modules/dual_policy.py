@@ -28,6 +28,7 @@ def make_dual_policy(
     transition_model: TransitionModel | None = None,
     num_samples: int = 5,
     prior_precision: str | float = "evidence",
+    posterior_temperature: str | float = 1.0,
     shift_weight: float = 0.5,
     uncertainty: str = "laplace",
     action_projection: Callable[[Tensor], Tensor] | None = None,
@@ -58,12 +59,15 @@ def make_dual_policy(
             shares the actor's.
         num_samples (int): ``M`` posterior samples. Defaults to ``5``.
         prior_precision (str or float): ``"evidence"`` or a fixed value.
+        posterior_temperature (str or float): ``T`` of the posterior covariance, or
+            ``"data"`` (:class:`~torchrl_dual.modules.LastLayerLaplace`'s ``temperature``).
+            Defaults to ``1.0``.
         shift_weight (float): ``λ`` of Eq. 10. Defaults to ``0.5``.
         uncertainty (str): ``"laplace"`` (default): ``policy[0]`` is the
             :class:`~torchrl_dual.modules.LaplaceEnsembleActor`; ``"latent"``: the
             :class:`~torchrl_dual.modules.laplace.LatentEnsembleActor`, whose ``M``
             sub-policies are ``M`` planner latents (no posterior to fit;
-            ``prior_precision`` is unused).
+            ``prior_precision`` and ``posterior_temperature`` are unused).
         action_projection (callable, optional): applied to the executed action (e.g. the
             one-hot argmax of a discrete env).
         return_log_prob (bool): also write ``action_log_prob``. Defaults to ``False``.
@@ -101,7 +105,11 @@ def make_dual_policy(
         low, high = spec.space.low.to(device or "cpu"), spec.space.high.to(device or "cpu")
     if uncertainty not in UNCERTAINTIES:
         raise ValueError(f"Unknown uncertainty {uncertainty!r}; choose one of {UNCERTAINTIES}.")
-    members = {"prior_precision": prior_precision} if uncertainty == "laplace" else {}
+    members = (
+        {"prior_precision": prior_precision, "posterior_temperature": posterior_temperature}
+        if uncertainty == "laplace"
+        else {}
+    )
     ensemble_class = LaplaceEnsembleActor if uncertainty == "laplace" else LatentEnsembleActor
     ensemble = ensemble_class(
         actor,

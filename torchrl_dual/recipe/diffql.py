@@ -102,6 +102,10 @@ class DiffQLLaplaceSettings:
         ),
         "λ of the Gaussian prior",
     )
+    posterior_temperature: Any = key(
+        Either((Choice(("data",)), Real(0, low_open=True)), "must be 'data' or a number > 0"),
+        "T: the posterior covariance × T (1: the summed loss); data: Eq. 7's mean loss",
+    )
     temperature: float = key(Real(0), "β of the Laplace fit's weights exp(β (Q - V))")
     max_weight: float = key(Real(0, low_open=True), "clip of those weights")
 
@@ -213,6 +217,7 @@ class DiffQLLALearner(LaplaceRefits, DiffQLLearner):
     online_keys = (
         "laplace.num_samples",
         "laplace.prior_precision",
+        "laplace.posterior_temperature",
         "laplace.temperature",
         "laplace.max_weight",
         "exploration.shift_weight",

@@ -17,6 +17,7 @@ from torchrl_dual.modules import ShiftAwareNoise
 from torchrl_dual.objectives import progressive_distillation
 from torchrl_dual.recipe import networks
 from torchrl_dual.recipe.critics import CRITICS, POLICY_CRITICS, policy_view
+from torchrl_dual.recipe.laplace_refits import ensemble_signals
 from torchrl_dual.recipe.learner import Learner
 from torchrl_dual.recipe.mc_labels import MonteCarloLabels
 from torchrl_dual.recipe.o2o_loop import run_o2o
@@ -35,6 +36,7 @@ class DualLearner(Learner):
     online_keys = (
         "laplace.num_samples",
         "laplace.uq",
+        "laplace.posterior_temperature",
         "exploration.shift_weight",
         "exploration.shift_floor",
         "exploration.extra_variance",
@@ -159,11 +161,12 @@ class DualLearner(Learner):
             self.augmenter.after_updates()
 
     def batch_metrics(self, batch: TensorDictBase) -> dict:
-        """d_t, the ensemble's epistemic std and the executed action's std
-        sqrt(σ² + λ d_t) (Eq. 10), each averaged over the collected batch."""
+        """d_t, the ensemble's epistemic std and share of the executed variance
+        (:func:`~torchrl_dual.recipe.laplace_refits.ensemble_signals`) and the executed
+        action's std sqrt(σ² + λ d_t) (Eq. 10), each over the collected batch."""
         return {
             "shift_distance": float(batch["shift_distance"].mean()),
-            "epistemic_std": float(batch["epistemic_variance"].mean().sqrt()),
+            **ensemble_signals(batch),
             "exploration_std": float(batch["exploration_scale"].mean()),
         }
 

@@ -71,6 +71,10 @@ class LaplaceSettings:
         ),
         "λ of the Gaussian prior",
     )
+    posterior_temperature: Any = key(
+        Either((Choice(("data",)), Real(0, low_open=True)), "must be 'data' or a number > 0"),
+        "T: the posterior covariance × T (1: the summed loss); data: Eq. 7's mean loss",
+    )
 
 
 @dataclass

@@ -83,6 +83,7 @@ class IQLLALaplaceSettings:
 
     num_samples: int = _dual_laplace_key("num_samples")
     prior_precision: Any = _dual_laplace_key("prior_precision")
+    posterior_temperature: Any = _dual_laplace_key("posterior_temperature")
     noise_std: Any = key(
         Either(
             (Choice(("iql",)), Real(0, 2, low_open=True)), "must be 'iql' or a number in (0, 2]"
@@ -101,6 +102,7 @@ class IQLLALearner(LaplaceRefits, IQLLearner):
     online_keys = (  # read only by the laplace stage and the online phase
         "laplace.num_samples",
         "laplace.prior_precision",
+        "laplace.posterior_temperature",
         "laplace.noise_std",
         "exploration.shift_weight",
     )

@@ -27,6 +27,27 @@ from torchrl_dual.recipe.env_kits import env_kit
 from torchrl_dual.recipe.o2o_run import O2ORun
 
 
+def ensemble_signals(batch: TensorDictBase) -> dict[str, float]:
+    """Of one collected batch: ``epistemic_std``, the root of the ensemble's mean epistemic
+    variance (Eq. 9's ``Var_m[μ_m(s)]``), and ``epistemic_share``, that mean variance over
+    the mean executed variance ``σ̄² + Var_m + v_c + λ d_t`` (Eq. 9-10; the square of
+    ``exploration_scale``), i.e. the part of the exploration noise the posterior makes.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> batch = TensorDict(epistemic_variance=torch.full((4, 2), 0.01),
+        ...                    exploration_scale=torch.full((4, 2), 0.5), batch_size=[4])
+        >>> {k: round(v, 4) for k, v in ensemble_signals(batch).items()}
+        {'epistemic_std': 0.1, 'epistemic_share': 0.04}
+    """
+    epistemic = batch["epistemic_variance"].mean()
+    signals = {"epistemic_std": float(epistemic.sqrt())}
+    if "exploration_scale" in batch.keys():
+        signals["epistemic_share"] = float(epistemic / batch["exploration_scale"].square().mean())
+    return signals
+
+
 class LaplaceRefits:
     """Mixin: Eq. (8)'s posterior fitted after the base learner's offline stages and
     refitted on ``D_offline ∪ D_online`` every ``budget.laplace_refit_every`` updates.
@@ -58,6 +79,7 @@ class LaplaceRefits:
             self.run.env.action_spec,
             num_samples=cfg.laplace.num_samples,
             prior_precision=cfg.laplace.prior_precision,
+            posterior_temperature=cfg.laplace.posterior_temperature,
             shift_weight=cfg.exploration.shift_weight,
             action_projection=env_kit(cfg).action_projection,
             device=cfg.device,
@@ -114,8 +136,7 @@ class LaplaceRefits:
             self.refit()
 
     def batch_metrics(self, batch: TensorDictBase) -> dict[str, float]:
-        epistemic = float(batch["epistemic_variance"].mean().sqrt())
-        return {**super().batch_metrics(batch), "epistemic_std": epistemic}
+        return {**super().batch_metrics(batch), **ensemble_signals(batch)}
 
     def state_dict(self) -> dict[str, Any]:
         return {**super().state_dict(), "updates_since_refit": self.updates_since_refit}

@@ -102,6 +102,7 @@ def make_policy(
         transition_model=transition,
         num_samples=cfg.laplace.num_samples,
         prior_precision=cfg.laplace.prior_precision,
+        posterior_temperature=cfg.laplace.posterior_temperature,
         shift_weight=cfg.exploration.shift_weight,
         uncertainty=cfg.laplace.uq,
         action_projection=env_kit(cfg).action_projection,

@@ -49,6 +49,9 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
             and ``σ̄`` only, ``epistemic_variance`` is zero and no posterior is needed.
         prior_precision (str or float): ``"evidence"`` or a fixed value, passed to
             :class:`~torchrl_dual.modules.LastLayerLaplace`.
+        posterior_temperature (str or float): its ``temperature``: ``T`` scales the
+            posterior covariance (``1.0``, the default: the summed-loss posterior);
+            ``"data"`` is the Laplace of Eq. 7's mean loss, about ``N`` times wider.
         action_low, action_high (float or Tensor, optional): bounds the sampled action
             is clamped to.
         resample_each_call (bool): draw new ``θ_m`` at every call. By default the ``M``
@@ -92,6 +95,7 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         *,
         num_samples: int = 5,
         prior_precision: str | float = "evidence",
+        posterior_temperature: str | float = 1.0,
         action_low: float | torch.Tensor | None = None,
         action_high: float | torch.Tensor | None = None,
         resample_each_call: bool = False,
@@ -133,7 +137,10 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         self.actor = actor
         in_features = actor.head.in_features
         self.laplace = LastLayerLaplace(
-            in_features, actor.action_dim, prior_precision=prior_precision
+            in_features,
+            actor.action_dim,
+            prior_precision=prior_precision,
+            temperature=posterior_temperature,
         )
         self.num_samples = num_samples
         self.resample_each_call = resample_each_call

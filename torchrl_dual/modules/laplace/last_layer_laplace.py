@@ -62,6 +62,14 @@ class LastLayerLaplace(nn.Module):
     fixed-point equation ``λ = γ(λ)/‖θ*‖²``, found by bisection in ``log λ`` inside
     ``prior_precision_bounds`` (clamped to the bracket if the root lies outside).
 
+    **Temperature.** ``temperature=T`` (a positive float) scales the posterior covariance,
+    ``Σ_j = T·P_j^{-1}``, with ``λ`` chosen as at ``T = 1`` (a tempered posterior: ``T > 1``
+    widens it). ``temperature="data"`` is the paper's literal Eq. 7, whose loss is an
+    *expectation* over the data: the Laplace is taken over the mean loss, so the likelihood
+    term of ``P_j`` is divided by the number of accumulated samples ``N``,
+    ``P_j = G/(N σ_j²) + λ I`` (``λ`` by the evidence of that loss, or the fixed value), a
+    posterior about ``N`` times wider than the summed loss's.
+
     All statistics are float64. Eigenvalues of ``G`` below round-off are clamped to 0, so
     ``P_j ⪰ λ I`` is always invertible (e.g. for ``d + 1 > N``). Everything needed to
     sample, predict or refit (``G_raw``, weight sums, ``θ*``, ``λ``, ``σ²``, ``U``, ``g`` and the
@@ -75,6 +83,8 @@ class LastLayerLaplace(nn.Module):
         prior_precision: ``"evidence"`` (default) to maximise ``log Z(λ)`` at each fit, or a
             positive float used as is.
         prior_precision_bounds: bracket ``(λ_min, λ_max)`` for the evidence search.
+        temperature: ``T`` (a positive float: ``Σ_j = T·P_j^{-1}``; default ``1.0``) or
+            ``"data"`` (the Laplace of the mean loss, see above).
 
     Examples:
         >>> import torch
@@ -110,6 +120,7 @@ class LastLayerLaplace(nn.Module):
         out_features: int,
         prior_precision: str | float = "evidence",
         prior_precision_bounds: tuple[float, float] = (1e-6, 1e6),
+        temperature: str | float = 1.0,
     ) -> None:
         super().__init__()
         if int(in_features) < 1 or int(out_features) < 1:
@@ -127,6 +138,7 @@ class LastLayerLaplace(nn.Module):
                 "e.g. use (1e-6, 1e6)."
             )
         self.prior_precision_bounds = (lo, hi)
+        self.temperature = self._check_temperature(temperature)
         self._head_dtype = torch.float32
 
         p, o = self.in_features + 1, self.out_features
@@ -164,10 +176,36 @@ class LastLayerLaplace(nn.Module):
             )
         return value
 
+    @staticmethod
+    def _check_temperature(temperature: str | float) -> str | float:
+        if isinstance(temperature, str):
+            if temperature != "data":
+                raise ValueError(
+                    f"temperature must be 'data' or a positive float, got {temperature!r}."
+                )
+            return temperature
+        value = float(temperature)
+        if not (0.0 < value < math.inf):
+            raise ValueError(
+                f"temperature must be a positive finite float (1.0: the summed-loss posterior) "
+                f"or 'data' (the mean loss's), got {value}."
+            )
+        return value
+
+    def _likelihood_scale(self) -> Tensor:
+        """``κ`` of ``P_j = κ G/σ_j² + λ I``: ``1/N`` for ``temperature="data"``, else 1."""
+        if self.temperature == "data":
+            return 1.0 / self.count.clamp_min(1.0)
+        return torch.ones((), dtype=_F64, device=self.G_raw.device)
+
+    def _covariance_scale(self) -> float:
+        """``T`` of ``Σ_j = T·P_j^{-1}`` (1 for ``temperature="data"``)."""
+        return 1.0 if self.temperature == "data" else float(self.temperature)
+
     def extra_repr(self) -> str:
         return (
             f"in_features={self.in_features}, out_features={self.out_features}, "
-            f"prior_precision={self.prior_precision_config!r}"
+            f"prior_precision={self.prior_precision_config!r}, temperature={self.temperature!r}"
         )
 
     def get_extra_state(self) -> dict:
@@ -275,19 +313,20 @@ class LastLayerLaplace(nn.Module):
         else:
             lam = torch.tensor(float(config), dtype=_F64, device=dev)
         self.prior_precision.copy_(lam)
-        self.sample_scale.copy_(self._precision_eigenvalues(lam).rsqrt())
+        scale = self._precision_eigenvalues(lam).rsqrt() * math.sqrt(self._covariance_scale())
+        self.sample_scale.copy_(scale)
         self._head_dtype = weight.dtype if weight.is_floating_point() else torch.float32
         self.fitted.fill_(True)
         return self
 
     def _precision_eigenvalues(self, lam: Tensor) -> Tensor:
-        """Eigenvalues ``g_k/σ_j² + λ`` of ``P_j``; ``lam`` of shape ``[*L]`` -> ``[*L, out, d+1]``."""
-        h = self.eigenvalues[None, :] / self.noise_variance[:, None]
+        """Eigenvalues ``κ g_k/σ_j² + λ`` of ``P_j``; ``lam`` of shape ``[*L]`` -> ``[*L, out, d+1]``."""
+        h = self._likelihood_scale() * self.eigenvalues[None, :] / self.noise_variance[:, None]
         return h + lam[..., None, None]
 
     def _evidence_argmax(self) -> Tensor:
         """The evidence-maximising ``λ`` for the current fit (see :func:`evidence_maximiser`)."""
-        h = self.eigenvalues[None, :] / self.noise_variance[:, None]
+        h = self._likelihood_scale() * self.eigenvalues[None, :] / self.noise_variance[:, None]
         lam = evidence_maximiser(h, self.theta_map.square().sum(), self.prior_precision_bounds)
         return torch.tensor(lam, dtype=_F64, device=self.G_raw.device)
 
@@ -321,20 +360,22 @@ class LastLayerLaplace(nn.Module):
         return log_likelihood + 0.5 * n_params * lam.log() - 0.5 * lam * sq - 0.5 * logdet
 
     def posterior_precision(self) -> Tensor:
-        """``P_j = G/σ_j² + λ I`` as float64 ``[out, d+1, d+1]``."""
+        """``Σ_j^{-1} = (κ G/σ_j² + λ I) / T`` as float64 ``[out, d+1, d+1]`` (``κ = T = 1``
+        at the default temperature)."""
         self._check_fitted("posterior_precision")
         U = self.eigenvectors
-        return (U[None] * self._precision_eigenvalues(self.prior_precision)[:, None, :]) @ U.T
+        eigenvalues = self._precision_eigenvalues(self.prior_precision) / self._covariance_scale()
+        return (U[None] * eigenvalues[:, None, :]) @ U.T
 
     def posterior_covariance(self) -> Tensor:
-        """``Σ_j = P_j^{-1}`` as float64 ``[out, d+1, d+1]``."""
+        """``Σ_j = T·P_j^{-1}`` as float64 ``[out, d+1, d+1]``."""
         self._check_fitted("posterior_covariance")
         S = self.sample_transform
         return S @ S.transpose(-1, -2)
 
     @property
     def sample_transform(self) -> Tensor:
-        """``S_j = U diag((g/σ_j² + λ)^{-1/2})`` (``S_j S_jᵀ = P_j^{-1}``), float64 ``[out, d+1, d+1]``."""
+        """``S_j = U diag(√T (κ g/σ_j² + λ)^{-1/2})`` (``S_j S_jᵀ = Σ_j``), float64 ``[out, d+1, d+1]``."""
         self._check_fitted("sample_transform")
         return self.eigenvectors[None] * self.sample_scale[:, None, :]
 
@@ -381,7 +422,7 @@ class LastLayerLaplace(nn.Module):
 
     # ------------------------------------------------------------------ prediction
     def predictive_variance(self, features: Tensor) -> Tensor:
-        """Epistemic variance ``φ̃ᵀ P_j^{-1} φ̃`` of the head output, closed form.
+        """Epistemic variance ``φ̃ᵀ Σ_j φ̃`` of the head output, closed form.
 
         Args:
             features: head inputs of shape ``[B, d]`` (any leading batch shape).
