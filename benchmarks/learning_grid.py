@@ -208,6 +208,7 @@ ONLINE_ONLY = (
     "env.shift=",
     "laplace.num_samples=",
     "laplace.uq=",
+    "laplace.posterior_temperature=",
     "exploration.shift_weight=",
     "exploration.shift_floor=",
     "exploration.extra_variance=",

@@ -94,6 +94,14 @@ CASES = [
         "laplace.prior_precision=-1",
         "laplace.prior_precision=-1: must be 'evidence' or a number > 0",
     ),
+    (
+        "laplace.posterior_temperature=0",
+        "laplace.posterior_temperature=0: must be 'data' or a number > 0",
+    ),
+    (
+        "laplace.posterior_temperature=mean",
+        "laplace.posterior_temperature=mean: must be 'data' or a number > 0",
+    ),
     ("exploration.shift_weight=-0.1", "exploration.shift_weight=-0.1: must be a number >= 0"),
     (
         "exploration.transition_model=oracle",

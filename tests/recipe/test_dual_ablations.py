@@ -170,3 +170,20 @@ def test_bad_combinations_name_the_key_at_fault(overrides, message):
     with pytest.raises(ConfigError) as err:
         compose_checked(CONFIG_DIR, overrides)
     assert message in str(err.value)
+
+
+@pytest.mark.parametrize("algo", ["dual", "iql_la", "diffql_la"])
+def test_posterior_temperature_reaches_the_acting_posterior(algo, tmp_path):
+    """``laplace.posterior_temperature`` is the ``temperature`` of the ensemble's
+    ``LastLayerLaplace`` for every algorithm that acts with one (issue 29)."""
+    from torchrl_dual.recipe import ALGORITHMS
+
+    for value, expected in (("data", "data"), ("4.0", 4.0)):
+        cfg = compose_checked(
+            CONFIG_DIR,
+            [f"algo={algo}", "budget=smoke", "env=frozenlake", f"output_dir={tmp_path / value}",
+             f"laplace.posterior_temperature={value}", "progress=false", "num_threads=1",
+             "budget.dataset_transitions=1000"],
+        )  # fmt: skip
+        learner = O2ORun(cfg, ALGORITHMS[algo].learner).learner
+        assert learner.ensemble.laplace.temperature == expected

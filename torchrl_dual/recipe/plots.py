@@ -21,7 +21,7 @@ import matplotlib.pyplot as plt  # noqa: E402  (after choosing the file-only bac
 
 ONLINE_SIGNALS: dict[str, str] = {
     "epistemic_std": "epistemic std",
-    "epistemic_share": "epistemic share of the executed variance",
+    "epistemic_share": "epistemic share",  # of the executed variance (ensemble_signals)
     "shift_distance": "shift distance $d_t$",
     "exploration_std": "executed action std",
 }
