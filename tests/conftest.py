@@ -7,8 +7,10 @@ TensorDicts, so each test builds exactly what it needs in milliseconds.
 
 from __future__ import annotations
 
+import fcntl
 import os
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -52,6 +54,19 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     order (most tests first) started the one-test, three-minute distillation file last.
     """
     items.sort(key=lambda item: -expected_seconds(item))
+
+
+@pytest.fixture(scope="module")
+def ray_exclusive():
+    """Holds a machine-wide file lock for a whole test module that starts or joins a Ray
+    cluster: under xdist two such modules on two workers would see each other's cluster
+    (``address="auto"`` finds it) and share its CPUs. The second waits for the first."""
+    with open(Path(tempfile.gettempdir()) / "torchrl_dual_ray_tests.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
 
 
 @pytest.fixture

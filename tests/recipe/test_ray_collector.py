@@ -33,7 +33,10 @@ from torchrl_dual.recipe.collectors import COLLECTORS
 from torchrl_dual.recipe.errors import ConfigError, UserError
 from torchrl_dual.recipe.ray_collector import InterleavedTrajectories
 
-pytestmark = pytest.mark.long_running(seconds=45)  # starts first under xdist
+pytestmark = [
+    pytest.mark.usefixtures("ray_exclusive"),
+    pytest.mark.long_running(seconds=45),
+]  # starts first under xdist; one Ray module at a time
 needs_ray = pytest.mark.skipif(
     importlib.util.find_spec("ray") is None,
     reason="ray is not installed (pip install 'torchrl-dual[ray]')",
