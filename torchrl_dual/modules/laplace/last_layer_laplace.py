@@ -16,6 +16,19 @@ __all__ = ["LastLayerLaplace"]
 _F64 = torch.float64
 
 
+def _word_or_positive(value: str | float, name: str, word: str, bad_number: str) -> str | float:
+    """``value`` if it is ``word`` or a positive finite number (as a float), else a
+    ``ValueError`` naming ``name`` (``bad_number`` for a number out of range)."""
+    if isinstance(value, str):
+        if value != word:
+            raise ValueError(f"{name} must be {word!r} or a positive float, got {value!r}.")
+        return value
+    number = float(value)
+    if not (0.0 < number < math.inf):
+        raise ValueError(bad_number)
+    return number
+
+
 class LastLayerLaplace(nn.Module):
     r"""Last-layer Laplace approximation for a linear-Gaussian policy head (DUAL Eq. 8).
 
@@ -161,36 +174,23 @@ class LastLayerLaplace(nn.Module):
 
     @staticmethod
     def _check_prior_config(prior_precision: str | float) -> str | float:
-        if isinstance(prior_precision, str):
-            if prior_precision != "evidence":
-                raise ValueError(
-                    f"prior_precision must be 'evidence' or a positive float, got "
-                    f"{prior_precision!r}."
-                )
-            return prior_precision
-        value = float(prior_precision)
-        if not (0.0 < value < math.inf):
-            raise ValueError(
-                f"a fixed prior_precision must be a positive finite float, got {value}; "
-                "use prior_precision='evidence' to choose it from the data."
-            )
-        return value
+        return _word_or_positive(
+            prior_precision,
+            "prior_precision",
+            "evidence",
+            f"a fixed prior_precision must be a positive finite float, got {prior_precision}; "
+            "use prior_precision='evidence' to choose it from the data.",
+        )
 
     @staticmethod
     def _check_temperature(temperature: str | float) -> str | float:
-        if isinstance(temperature, str):
-            if temperature != "data":
-                raise ValueError(
-                    f"temperature must be 'data' or a positive float, got {temperature!r}."
-                )
-            return temperature
-        value = float(temperature)
-        if not (0.0 < value < math.inf):
-            raise ValueError(
-                f"temperature must be a positive finite float (1.0: the summed-loss posterior) "
-                f"or 'data' (the mean loss's), got {value}."
-            )
-        return value
+        return _word_or_positive(
+            temperature,
+            "temperature",
+            "data",
+            "temperature must be a positive finite float (1.0: the summed-loss posterior) "
+            f"or 'data' (the mean loss's), got {temperature}.",
+        )
 
     def _likelihood_scale(self) -> Tensor:
         """``κ`` of ``P_j = κ G/σ_j² + λ I``: ``1/N`` for ``temperature="data"``, else 1."""
