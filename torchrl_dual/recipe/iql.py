@@ -1,14 +1,18 @@
 """The ``iql`` baseline: Implicit Q-Learning (Kostrikov et al. 2022) offline, then online.
 
-TorchRL's ``IQLLoss`` trains a tanh-Gaussian MLP actor by advantage-weighted regression
+TorchRL's ``IQLLoss`` trains an MLP actor by advantage-weighted regression
 (``exp(β (Q − V))``, clipped at 100) on the same IQL critics as DUAL (the ``CRITICS``
 entry, same sizes), with CORL's settings (actor MLP 256 x 2 at the default budget, Adam
-3e-4, β = 3). It shares everything else with DUAL through
-:class:`~torchrl_dual.recipe.O2ORun`: data, ``budget.offline_updates`` offline updates,
-online frames, UTD ratio, batch size, offline fraction, replay and evaluator. Online it
-collects with the actor's samples (``ExplorationType.RANDOM``), projected by the env
-kit's ``action_projection`` (Frozen-Lake's one-hot argmax), and is evaluated with the
-deterministic action ``tanh(loc)``.
+3e-4, β = 3). The actor is CORL's and d3rlpy's Gaussian with a tanh mean and a
+state-independent σ (``actor.distribution=gaussian``, the default; checked against
+d3rlpy's IQL on the same data, docs/results.md) or TorchRL's ``TanhNormal``
+(``tanh_normal``), see :func:`make_iql_actor`. It shares everything else with DUAL
+through :class:`~torchrl_dual.recipe.O2ORun`: data, ``budget.offline_updates`` offline
+updates, online frames, UTD ratio, batch size, offline fraction, replay and evaluator.
+Online it collects with the actor's samples (``ExplorationType.RANDOM``), projected onto
+the box and by the env kit's ``action_projection`` (Frozen-Lake's one-hot argmax), and is
+evaluated with its deterministic action (the Gaussian's mean; ``tanh(loc)`` for the
+``TanhNormal``).
 """
 
 from __future__ import annotations
