@@ -209,12 +209,14 @@ def test_the_plot_has_the_score_and_the_online_signals_logged_per_batch(csv_run,
     scalars = csv_scalars(out)
     # one record per collected batch, the values DUAL logged as online/<signal>
     assert [s["frames"] for s in result.online_signals] == [50, 100]
-    for name in ("epistemic_std", "shift_distance", "exploration_std"):
+    for name in ("epistemic_std", "epistemic_share", "shift_distance", "exploration_std"):
         series = [(s["frames"], s[name]) for s in result.online_signals]
         assert_same_series(series, scalars[f"online/{name}"])
     assert all(s["exploration_std"] > 0 for s in result.online_signals)
-    # 120 dpi: 6 x 4 inches for the score, 2 inches more per signal panel
-    assert png_size(out / "learning_curve.png") == (720, 1200)
+    for s in result.online_signals:  # the share is the epistemic part of the executed variance
+        assert 0 <= s["epistemic_share"] <= 1
+    # 120 dpi: 6 x 4 inches for the score, 2 inches more per signal panel (four panels)
+    assert png_size(out / "learning_curve.png") == (720, 1440)
     score_only = plot_learning_curve(result.history, tmp_path / "score.png", signals=[])
     assert png_size(score_only) == (720, 480)
     # summary.json carries them too (the learning suite's per-run JSON and plots)
@@ -229,7 +231,7 @@ def test_the_online_signals_cover_the_whole_online_phase_across_a_resume(wandb_r
     # the first batch's record is the checkpoint's (an uninterrupted run's first batch)
     assert resumed.online_signals[0] == first.online_signals[0]
     assert resumed.online_signals[0] == pytest.approx(uninterrupted.online_signals[0])
-    assert png_size(out / "learning_curve.png") == (720, 1200)  # three signal panels
+    assert png_size(out / "learning_curve.png") == (720, 1440)  # four signal panels
 
 
 # ----------------------------------------------------------------------------- offline_cache
