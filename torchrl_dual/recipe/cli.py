@@ -3,10 +3,11 @@
 :func:`main` is the program: the ``torchrl-dual`` console script,
 ``python -m torchrl_dual.recipe`` and ``recipes/o2o.py`` all call it, with the same Hydra
 overrides, on the config tree shipped in the package (:data:`CONFIG_DIR`). It calls
-:func:`check_command_line` before handing over to Hydra's ``main``, which composes the
-config once itself (:func:`compose_checked`), so Hydra's own composition errors (an unknown group option, an unknown key, a malformed
-override) and every :func:`~torchrl_dual.recipe.validate_config` error end as one
-``error:`` line and exit code 2, before Hydra creates the output directory.
+:func:`check_command_line` before handing over to Hydra's ``main``; that check composes
+the config once itself (:func:`compose_checked`), so Hydra's own composition errors (an
+unknown group option, an unknown key, a malformed override) and every
+:func:`~torchrl_dual.recipe.validate_config` error end as one ``error:`` line and exit
+code 2, before Hydra creates the output directory.
 """
 
 from __future__ import annotations
