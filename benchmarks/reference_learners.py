@@ -36,20 +36,21 @@ from torchrl_dual.recipe.env_kits import projected_policy  # the same projection
 from torchrl_dual.recipe.mc_labels import MC_RETURN, MonteCarloLabels
 
 
+def _encoder(section: DictConfig) -> VectorEncoderFactory:
+    """d3rlpy's MLP encoder of a recipe section's ``hidden`` × ``depth``."""
+    return VectorEncoderFactory(hidden_units=[section.hidden] * section.depth)
+
+
 def _shared(cfg: DictConfig) -> dict[str, Any]:
     """The settings both references take from the recipe: sizes, batch, γ, τ, rates."""
-
-    def encoder(section: DictConfig) -> VectorEncoderFactory:
-        return VectorEncoderFactory(hidden_units=[section.hidden] * section.depth)
-
     return {
         "batch_size": cfg.online.batch_size,
         "gamma": cfg.critic.discount,
         "tau": cfg.critic.target_update_tau,
         "actor_learning_rate": cfg.actor.lr,
         "critic_learning_rate": cfg.critic.lr,
-        "actor_encoder_factory": encoder(cfg.actor),
-        "critic_encoder_factory": encoder(cfg.critic),
+        "actor_encoder_factory": _encoder(cfg.actor),
+        "critic_encoder_factory": _encoder(cfg.critic),
     }
 
 
@@ -59,9 +60,7 @@ def iql_config(cfg: DictConfig) -> Any:
         **_shared(cfg),
         expectile=cfg.critic.expectile,
         weight_temp=cfg.actor.temperature,
-        value_encoder_factory=VectorEncoderFactory(
-            hidden_units=[cfg.critic.hidden] * cfg.critic.depth
-        ),
+        value_encoder_factory=_encoder(cfg.critic),
     )
 
 
