@@ -17,6 +17,8 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     # `iql` before issue 27's fix: TorchRL's TanhNormal actor with a state-dependent scale
     "iql_tanh_normal": ("algo=iql", "actor.distribution=tanh_normal"),
     "iql_la": ("algo=iql_la",),
+    # `iql_la` before its Gauss-Newton fit of the Gaussian actor: the TanhNormal actor
+    "iql_la_tanh_normal": ("algo=iql_la", "actor.distribution=tanh_normal"),
     "diffql": ("algo=diffql",),
     "diffql_la": ("algo=diffql_la",),
     "dual_no_uq": ("algo=dual", "laplace.num_samples=0"),

@@ -143,14 +143,12 @@ def test_sigma_bar_is_the_rms_of_the_iql_actor_s_std_on_the_fit_data(frozenlake)
 
 def test_the_evaluation_is_iql_s_deterministic_action_and_the_ensemble_s_map(frozenlake):
     learner = frozenlake.learner
-    assert (
-        learner.evaluation_policy is learner.actor
-    )  # the TanhNormal actor, as algo=iql's tanh_normal
+    assert learner.evaluation_policy is learner.actor  # the Gaussian actor, as algo=iql
     td = TensorDict(observation=observations(frozenlake), batch_size=[32])
     with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
         iql_action = learner.evaluation_policy(td.clone())["action"]
         map_action = learner.ensemble(td.clone())["action"]
-    torch.testing.assert_close(map_action, iql_action, atol=1e-5, rtol=0)  # SafeTanh clamp
+    torch.testing.assert_close(map_action, iql_action)
 
 
 def test_iql_la_starts_from_iql_s_weights_for_the_same_seed(frozenlake, cache_dir, tmp_path):
@@ -158,8 +156,7 @@ def test_iql_la_starts_from_iql_s_weights_for_the_same_seed(frozenlake, cache_di
         cfg = fast_cfg(tmp_path / algo, cache_dir, f"algo={algo}", "env=frozenlake", *overrides)
         return O2ORun(cfg, learner_class).learner
 
-    # iql_la's actor is algo=iql's TanhNormal option (algo=iql's default is the Gaussian)
-    iql = learner("iql", IQLLearner, "actor.distribution=tanh_normal")
+    iql = learner("iql", IQLLearner)  # both default to the Gaussian actor
     iql_la = learner("iql_la", IQLLALearner)
     for theirs, ours in ((iql.actor, iql_la.actor), (iql.critic.loss, iql_la.critic.loss)):
         expected = theirs.state_dict()
@@ -240,3 +237,21 @@ def test_a_noise_std_out_of_range_exits_2_saying_what_is_allowed(capsys):
     assert stop.value.code == 2
     err = capsys.readouterr().err
     assert "error: laplace.noise_std=3: must be 'iql' or a number in (0, 2]" in err
+
+
+@pytest.mark.parametrize(
+    ("distribution", "per_output"), [("gaussian", True), ("tanh_normal", False)]
+)
+def test_the_posterior_follows_the_actor_s_distribution(
+    distribution, per_output, cache_dir, tmp_path
+):
+    """Gaussian ``N(c + r tanh(u), σ²)``: one Gram matrix per action dimension through the
+    tanh (Gauss-Newton); ``TanhNormal``: one shared Gram matrix in the pre-tanh space."""
+    cfg = fast_cfg(
+        tmp_path, cache_dir, "algo=iql_la", "env=frozenlake", f"actor.distribution={distribution}"
+    )
+    learner = O2ORun(cfg, IQLLALearner).learner
+    assert learner.head_actor.noise_after_squash is per_output
+    assert learner.ensemble.laplace.per_output_jacobian is per_output
+    learner.fit_laplace()
+    assert learner.ensemble.laplace.G_raw.ndim == (3 if per_output else 2)

@@ -2,32 +2,34 @@
 
 Everything IQL does stays as in :mod:`~torchrl_dual.recipe.iql` (the learner is a
 subclass of :class:`~torchrl_dual.recipe.IQLLearner`): the data, budget, critics, the
-tanh-Gaussian MLP actor and its advantage-weighted regression (AWR) update, offline and
-online, the replay and the evaluation. What changes is how it acts online:
+MLP actor (``actor.distribution``, ``gaussian`` by default as ``algo=iql``) and its
+advantage-weighted regression (AWR) update, offline and online, the replay and the
+evaluation. What changes is how it acts online:
 
 * **Actor.** :meth:`~torchrl_dual.modules.LinearHeadActor.from_actor` shares the IQL
-  actor's weights: the trunk ``φ(s)`` is its MLP without the last layer, the head is the
-  ``loc`` half of the last ``nn.Linear`` and the squash is ``TanhSquash(low, high)``,
-  the ``TanhNormal``'s map onto the action box.
-* **Posterior (Eq. 8).** Over the ``loc`` head, in the pre-tanh space. There IQL's loss
-  ``−w log TanhNormal(a; loc(s), scale(s))`` is a weighted Gaussian regression of
-  ``atanh(a)`` on ``loc(s) = W φ(s) + b`` (the tanh Jacobian does not depend on the
-  weights), so for a fixed ``σ̄`` the Gram matrix ``Σ_i w_i φ_i φ_iᵀ / σ̄²`` is its exact
-  Hessian in the head. The weights are IQL's AWR weights ``w = min(exp(β (Q − V)), 100)``
-  (``actor.temperature``; ``Q`` the minimum of the target twin Q networks, as
-  ``IQLLoss``), the data ``D_offline ∪ D_online``.
-* **σ̄.** IQL's ``scale(s)`` depends on the state; the posterior and Eq. 9 take one
-  ``σ̄`` per action dimension. By default (``laplace.noise_std=iql``) each fit sets
-  ``σ̄_a = sqrt(mean_D scale_a(s)²)``, the root-mean-square of the IQL actor's own
-  pre-tanh std on the fit data (clamped to ``[1e-3, 2]`` by
+  actor's weights: the trunk ``φ(s)`` is its MLP without the last layer, the head is
+  the last ``nn.Linear`` (its ``loc`` half for the ``TanhNormal``) and the squash is
+  the map onto the action box, ``c + r tanh(u)``.
+* **Posterior (Eq. 8).** Over the head ``u(s) = W φ(s) + b``, with IQL's AWR weights
+  ``w = min(exp(β (Q − V)), 100)`` (``actor.temperature``; ``Q`` the minimum of the
+  target twin Q networks, as ``IQLLoss``) on ``D_offline ∪ D_online``.
+  ``gaussian`` (``N(c + r tanh(u), σ²)``): the Gauss-Newton Hessian through the tanh,
+  one Gram matrix per action dimension ``G_j = Σ_i w_i J_ij² φ̃_i φ̃_iᵀ / σ_j²`` with
+  ``J_ij = r_j (1 − tanh²(u_ij))`` (exact at zero residual; tested against autograd).
+  ``tanh_normal``: IQL's loss ``−w log TanhNormal(a; loc(s), scale(s))`` is a weighted
+  Gaussian regression of ``atanh(a)`` on ``loc(s)`` (the tanh Jacobian does not depend
+  on the weights), so ``Σ_i w_i φ̃_i φ̃_iᵀ / σ̄²`` is its exact Hessian.
+* **σ̄.** By default (``laplace.noise_std=iql``) each fit sets
+  ``σ̄_a = sqrt(mean_D scale_a(s)²)``, the root-mean-square of the IQL actor's own std
+  on the fit data (clamped to ``[1e-3, 2]`` by
   :class:`~torchrl_dual.modules.LastLayerActor`): the posterior uses the noise level
-  IQL learned, and Eq. 9's aleatoric term is IQL's own exploration width (in pre-tanh
-  units, equal to the action-space width at the centre of a ``[-1, 1]`` box; the
-  homoscedastic ``σ̄`` is this baseline's one approximation). IQL's pre-tanh std is
-  large where the data's actions sit on the box's faces (``atanh`` of them is large):
-  on PointMaze it measured 4.7 after 500 updates and 2.6-2.9 after 2000, so ``σ̄``
-  sits at the clamp ``2``. A number (``laplace.noise_std=0.3``, DUAL's ``init_std``) fixes ``σ̄``
-  instead.
+  IQL learned, and Eq. 9's aleatoric term is IQL's own exploration width. For
+  ``gaussian`` that std is state-independent and in action units. For ``tanh_normal``
+  it is the pre-tanh ``scale(s)`` (the homoscedastic ``σ̄`` is then an approximation);
+  it is large where the data's actions sit on the box's faces (``atanh`` of them is
+  large): on PointMaze it measured 4.7 after 500 updates and 2.6-2.9 after 2000, so
+  ``σ̄`` sits at the clamp ``2``. A number (``laplace.noise_std=0.3``, DUAL's
+  ``init_std``) fixes ``σ̄`` instead.
 * **Acting (Eq. 9-10).** Each sub-policy acts ``a_m = TanhSquash(W_m φ(s) + b_m)``; the
   ensemble's mean and variance are over these ``M`` actions (``laplace.num_samples``),
   then :class:`~torchrl_dual.modules.ShiftAwareNoise` draws ``a ∼ N(μ, σ²)`` with
@@ -35,8 +37,8 @@ online, the replay and the evaluation. What changes is how it acts online:
   config refuses ``exploration.shift_weight > 0``). The env kit's ``action_projection``
   follows (Frozen-Lake's one-hot argmax).
 * **Refits.** Every ``budget.laplace_refit_every`` updates, as DUAL (Alg. 1 l. 17).
-* **Evaluation.** IQL's own deterministic action (the ``TanhNormal``'s ``tanh(loc)`` on
-  the box, the IQL actor itself), exactly as ``algo=iql``, so the two baselines are
+* **Evaluation.** IQL's own deterministic action (the Gaussian's mean, or the
+  ``TanhNormal``'s ``tanh(loc)`` on the box: the IQL actor itself), exactly as ``algo=iql``, so the two baselines are
   scored by the same rule and differ only in how they explore. It equals the ensemble's
   MAP mean under ``DETERMINISTIC`` up to TorchRL's ``SafeTanh`` clamp (tested).
 """
@@ -48,7 +50,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import torch
-from omegaconf import DictConfig
 
 from torchrl_dual import LinearHeadActor, WeightedMAPActorLoss
 from torchrl_dual.recipe.algorithm import (
@@ -58,7 +59,6 @@ from torchrl_dual.recipe.algorithm import (
     check_no_shift_weight,
 )
 from torchrl_dual.recipe.dual_settings import LaplaceSettings
-from torchrl_dual.recipe.errors import ConfigError
 from torchrl_dual.recipe.iql import IQLActorSettings, IQLLearner
 from torchrl_dual.recipe.laplace_refits import LaplaceRefits
 from torchrl_dual.recipe.o2o_run import O2ORun
@@ -127,7 +127,7 @@ class IQLLALearner(LaplaceRefits, IQLLearner):
     def noise_std(self) -> torch.Tensor:
         """``σ̄`` per action dimension, set before each fit: ``laplace.noise_std`` if it is
         a number, else (``iql``) ``σ̄_a = sqrt(mean_D scale_a(s)²)``, the IQL actor's
-        pre-tanh std, root mean square over ``D_offline ∪ D_online``."""
+        std (pre-tanh for ``tanh_normal``), root mean square over ``D_offline ∪ D_online``."""
         fixed = self.run.cfg.laplace.noise_std
         if fixed != "iql":
             return torch.full_like(self.head_actor.log_std, float(fixed))
@@ -139,21 +139,6 @@ class IQLLALearner(LaplaceRefits, IQLLearner):
         return (total / count).sqrt()
 
 
-def check_iql_la(cfg: DictConfig) -> None:
-    """λ = 0 (:func:`check_no_shift_weight`) and the ``TanhNormal`` actor: the posterior
-    over its ``loc`` head is exact in the pre-tanh space (a weighted Gaussian regression of
-    ``atanh(a)``); the ``gaussian`` actor's tanh mean would need the Jacobian of the tanh
-    in the Hessian (a generalized Gauss-Newton fit), which this baseline does not have."""
-    check_no_shift_weight(cfg)
-    if cfg.actor.distribution != "tanh_normal":
-        raise ConfigError(
-            "actor.distribution",
-            cfg.actor.distribution,
-            "iql_la supports tanh_normal only (its Laplace fit is over the TanhNormal's "
-            "pre-tanh loc head); write actor.distribution=tanh_normal",
-        )
-
-
 IQL_LA = Algorithm(
     sections={
         "actor": IQLActorSettings,
@@ -162,6 +147,6 @@ IQL_LA = Algorithm(
         "online": OnlineSettings,
     },
     critics=("iql",),
-    check=check_iql_la,
+    check=check_no_shift_weight,
     learner=IQLLALearner,
 )

@@ -60,6 +60,16 @@ class TanhSquash(nn.Module):
     def forward(self, pre_squash: torch.Tensor) -> torch.Tensor:
         return torch.addcmul(self.center, self.half_range, torch.tanh(pre_squash))
 
+    def derivative(self, pre_squash: torch.Tensor) -> torch.Tensor:
+        """``∂a/∂u = r ⊙ (1 − tanh²(u))``, element-wise (the Jacobian's diagonal).
+
+        Examples:
+            >>> import torch
+            >>> TanhSquash(0.0, 1.0).derivative(torch.zeros(2))
+            tensor([0.5000, 0.5000])
+        """
+        return self.half_range * (1.0 - torch.tanh(pre_squash).square())
+
 
 class LastLayerActor(nn.Module):
     """Base class: a Gaussian actor ``N(μ(s), σ²)`` with a linear last layer.
@@ -75,6 +85,10 @@ class LastLayerActor(nn.Module):
     pre-squash space; with a squash, ``σ̄`` is the noise std of the pre-squash
     Gaussian likelihood in the posterior (the linearisation of Eq. 8 is exact there:
     the read-out is affine in the head) and the aleatoric std of Eq. 9 in action space.
+    With ``noise_after_squash=True`` the Gaussian is instead centred on the squashed
+    mean, ``N(squash(u), σ̄²)`` (CORL's and d3rlpy's IQL actor): ``σ̄`` is in action
+    units and the posterior takes the squash's Jacobian into its Gauss-Newton Hessian
+    (the squash must then have a ``derivative``, as :class:`TanhSquash`).
     :class:`~torchrl_dual.objectives.WeightedMAPActorLoss` assumes no squash (its
     Gaussian is centred on :meth:`forward`); a squashed actor is trained by its own loss
     (IQL's advantage-weighted regression on the ``TanhNormal`` actor whose weights
@@ -92,8 +106,14 @@ class LastLayerActor(nn.Module):
         min_std: float = 1e-3,
         max_std: float = 2.0,
         squash: nn.Module | None = None,
+        noise_after_squash: bool = False,
     ) -> None:
         super().__init__()
+        if noise_after_squash and not callable(getattr(squash, "derivative", None)):
+            raise ValueError(
+                "noise_after_squash=True needs a squash with a derivative() (e.g. "
+                f"TanhSquash), got {type(squash).__name__}."
+            )
         if not min_std <= init_std <= max_std:
             raise ValueError(
                 f"init_std={init_std} must lie in [min_std={min_std}, max_std={max_std}]."
@@ -102,6 +122,7 @@ class LastLayerActor(nn.Module):
         self.log_std = nn.Parameter(torch.full((action_dim,), math.log(init_std)))
         self.min_log_std, self.max_log_std = math.log(min_std), math.log(max_std)
         self.squash = squash  # None: a plain attribute, no state_dict entry
+        self.noise_after_squash = bool(noise_after_squash)
 
     @property
     def std(self) -> torch.Tensor:
@@ -169,6 +190,14 @@ class LastLayerActor(nn.Module):
         action = self.readout(head_rows, context)
         squash = self.squash
         return action if squash is None else squash(action)
+
+    def mean_jacobian(self, head_rows: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
+        """``∂μ_j/∂u_j`` at the head outputs ``head_rows`` (``[..., A]``): the read-out scale
+        times the squash's derivative there (the read-out scale alone without a squash)."""
+        scale = self.readout_scale()
+        if self.squash is None:
+            return scale.expand_as(head_rows)
+        return scale * self.squash.derivative(self.readout(head_rows, context))
 
     def forward(self, observation: torch.Tensor) -> torch.Tensor:
         """The mean action ``μ(s)``."""

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import torch
 from tensordict.nn import (
+    AddStateIndependentNormalScale,
     NormalParamExtractor,
     ProbabilisticTensorDictSequential,
     TensorDictModule,
@@ -67,6 +68,12 @@ class LinearHeadActor(LastLayerActor):
         ``tanh(loc)`` on the box, while the Laplace posterior stays over the pre-tanh
         ``loc`` head. Pass ``squash=None`` to keep the pre-tanh ``loc``.
 
+        A network that ends ``nn.Linear → squash → AddStateIndependentNormalScale`` (CORL's
+        and d3rlpy's IQL actor, ``N(c + r tanh(u), σ²)``: the recipe's ``gaussian`` IQL
+        actor) keeps its squash module (shared) with ``noise_after_squash=True``: the
+        Gaussian is on the squashed mean, so the posterior is a Gauss-Newton fit through
+        the squash's Jacobian; ``σ̄`` is the actor's own until set (``log_std``).
+
         Examples:
             >>> import torch
             >>> from tensordict.nn import TensorDictModule
@@ -80,8 +87,6 @@ class LinearHeadActor(LastLayerActor):
             >>> actor.action_dim, actor.head is net[0][-1], type(actor.squash).__name__
             (2, True, 'TanhSquash')
         """
-        if "squash" not in kwargs:
-            kwargs["squash"] = _tanh_normal_squash(actor)
         network = actor
         while isinstance(network, (TensorDictSequential, TensorDictModule)):
             network = (
@@ -91,11 +96,23 @@ class LinearHeadActor(LastLayerActor):
         halves = bool(layers) and isinstance(layers[-1], NormalParamExtractor)
         if halves:
             layers = layers[:-1]
+        elif len(layers) > 2 and isinstance(layers[-1], AddStateIndependentNormalScale):
+            *layers, squash, _ = layers  # [..., Linear, squash, state-independent σ]
+            if not callable(getattr(squash, "derivative", None)):
+                raise TypeError(
+                    "LinearHeadActor.from_actor: the module before the state-independent "
+                    f"scale must be a squash with a derivative() (TanhSquash), got "
+                    f"{type(squash).__name__}."
+                )
+            kwargs.setdefault("squash", squash)
+            kwargs.setdefault("noise_after_squash", True)
         if not layers or not isinstance(layers[-1], nn.Linear):
             raise TypeError(
                 f"LinearHeadActor.from_actor found no final nn.Linear in {type(actor).__name__} "
                 f"(its network ends with {type(layers[-1]).__name__ if layers else 'nothing'})."
             )
+        if "squash" not in kwargs:
+            kwargs["squash"] = _tanh_normal_squash(actor)
         out = layers[-1].out_features
         return cls(nn.Sequential(*layers), out // 2 if halves else out, **kwargs)
 

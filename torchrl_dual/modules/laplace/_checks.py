@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import Tensor
 
@@ -98,3 +100,49 @@ def checked_head(
             "σ² = exp(2·log_std) of the actor."
         )
     return theta, sigma2
+
+
+def checked_output_jacobian(jacobian: Tensor | None, features: Tensor, out: int) -> Tensor:
+    """The per-sample, per-output Jacobian ``J [N, out]`` (float64) of the mean action in the
+    head output, for a Gram matrix per output (``per_output_jacobian=True``), or an error.
+
+    Examples:
+        >>> import torch
+        >>> checked_output_jacobian(torch.ones(4, 2), torch.randn(4, 3), 2).shape
+        torch.Size([4, 2])
+    """
+    if jacobian is None:
+        raise ValueError(
+            "this LastLayerLaplace has per_output_jacobian=True: pass jacobian=J, the "
+            f"[B, {out}] derivative of each mean action component in its head output "
+            "(e.g. r·(1 − tanh²(u)) after a tanh squash)."
+        )
+    jacobian = torch.as_tensor(jacobian)
+    expected = (*features.shape[:-1], out)
+    if tuple(jacobian.shape) != expected:
+        raise ValueError(
+            f"jacobian must have shape {list(expected)} (one row per feature row, one "
+            f"column per output), got {list(jacobian.shape)}."
+        )
+    J = jacobian.detach().reshape(-1, out).to(_F64)
+    if not torch.isfinite(J).all():
+        raise ValueError("jacobian contains NaN or inf; check the squash's derivative.")
+    return J
+
+
+def word_or_positive(value: str | float, name: str, word: str, bad_number: str) -> str | float:
+    """``value`` if it is ``word`` or a positive finite number (as a float), else a
+    ``ValueError`` naming ``name`` (``bad_number`` for a number out of range).
+
+    Examples:
+        >>> word_or_positive(2, "temperature", "data", "must be positive")
+        2.0
+    """
+    if isinstance(value, str):
+        if value != word:
+            raise ValueError(f"{name} must be {word!r} or a positive float, got {value!r}.")
+        return value
+    number = float(value)
+    if not (0.0 < number < math.inf):
+        raise ValueError(bad_number)
+    return number

@@ -13,6 +13,7 @@ _F64 = torch.float64
 
 def psd_eigh(G: Tensor) -> tuple[Tensor, Tensor]:
     """Symmetric eigendecomposition that never fails; eigenvalues below round-off set to 0.
+    ``G`` is ``[p, p]`` or a batch ``[*K, p, p]`` (one decomposition per matrix).
 
     Examples:
         >>> import torch
@@ -20,20 +21,21 @@ def psd_eigh(G: Tensor) -> tuple[Tensor, Tensor]:
         >>> g.tolist()
         [1.0, 1.0, 1.0]
     """
-    p = G.shape[0]
-    scale = G.diagonal().abs().max().clamp_min(1.0)
+    p = G.shape[-1]
+    eye = torch.eye(p, dtype=_F64, device=G.device)
+    scale = G.diagonal(dim1=-2, dim2=-1).abs().amax(-1).clamp_min(1.0)[..., None, None]
     jitter = 0.0
     for _ in range(8):
         try:
-            g, U = torch.linalg.eigh(G + jitter * scale * torch.eye(p, dtype=_F64, device=G.device))
+            g, U = torch.linalg.eigh(G + jitter * scale * eye)
             break
         except RuntimeError:  # eigh did not converge: add jitter and retry
             jitter = 1e-12 if jitter == 0.0 else jitter * 100.0
     else:  # pragma: no cover - only for pathological matrices
-        g = torch.zeros(p, dtype=_F64, device=G.device)
-        U = torch.eye(p, dtype=_F64, device=G.device)
+        g = torch.zeros(G.shape[:-1], dtype=_F64, device=G.device)
+        U = eye.expand(G.shape).clone()
     # round-off can make the eigenvalues of a PSD matrix slightly negative / tiny
-    tol = g.abs().max() * p * torch.finfo(_F64).eps
+    tol = g.abs().amax(-1, keepdim=True) * p * torch.finfo(_F64).eps
     g = torch.where(g > tol, g, torch.zeros_like(g))
     return g, U
 

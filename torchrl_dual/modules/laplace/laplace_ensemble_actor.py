@@ -141,6 +141,7 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
             actor.action_dim,
             prior_precision=prior_precision,
             temperature=posterior_temperature,
+            per_output_jacobian=actor.noise_after_squash,
         )
         self.num_samples = num_samples
         self.resample_each_call = resample_each_call
@@ -173,19 +174,28 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         ``WeightedMAPActorLoss.advantage_weights``; uniform when omitted), then fits
         ``P = G / σ_head² + λI`` around the current head, with
         ``σ_head = σ̄ / |readout_scale|`` (in the pre-squash space of a squashed actor).
+        An actor with ``noise_after_squash`` has its Gaussian on the squashed mean: each
+        sample's Gram term is weighted per action dimension by the squared Jacobian of the
+        mean in the head output (:meth:`~LastLayerActor.mean_jacobian`, a generalised
+        Gauss-Newton Hessian) and ``σ_head = σ̄``.
         Feed the whole data set: the posterior of Eq. (8) is over the summed loss.
         """
+        actor = self.actor
         self.laplace.reset()
         for batch in batches:
             observation = read_key(batch, self.in_keys[0], "LaplaceEnsembleActor.fit_laplace")
-            features = self.actor.features(observation)
+            features, context = actor.encode(observation)
             weights = None if weight_fn is None else weight_fn(batch)
-            self.laplace.accumulate(features, weights)
-        rows = self.actor.head_rows
-        noise_variance = (self.actor.std / self.actor.readout_scale().abs()) ** 2
-        self.laplace.fit(
-            self.actor.head.weight[rows], self.actor.head.bias[rows], noise_variance.detach()
-        )
+            jacobian = None
+            if actor.noise_after_squash:
+                jacobian = actor.mean_jacobian(actor.head_output(features), context)
+            self.laplace.accumulate(features, weights, jacobian)
+        rows = actor.head_rows
+        if actor.noise_after_squash:
+            noise_variance = actor.std**2
+        else:
+            noise_variance = (actor.std / actor.readout_scale().abs()) ** 2
+        self.laplace.fit(actor.head.weight[rows], actor.head.bias[rows], noise_variance.detach())
         self.resample()
         return self.laplace
 

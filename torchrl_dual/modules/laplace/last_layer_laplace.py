@@ -8,25 +8,17 @@ from collections.abc import Callable
 import torch
 from torch import Tensor, nn
 
-from torchrl_dual.modules.laplace._checks import checked_features_and_weights, checked_head
+from torchrl_dual.modules.laplace._checks import (
+    checked_features_and_weights,
+    checked_head,
+    checked_output_jacobian,
+    word_or_positive,
+)
 from torchrl_dual.modules.laplace._numerics import evidence_maximiser, psd_eigh
 
 __all__ = ["LastLayerLaplace"]
 
 _F64 = torch.float64
-
-
-def _word_or_positive(value: str | float, name: str, word: str, bad_number: str) -> str | float:
-    """``value`` if it is ``word`` or a positive finite number (as a float), else a
-    ``ValueError`` naming ``name`` (``bad_number`` for a number out of range)."""
-    if isinstance(value, str):
-        if value != word:
-            raise ValueError(f"{name} must be {word!r} or a positive float, got {value!r}.")
-        return value
-    number = float(value)
-    if not (0.0 < number < math.inf):
-        raise ValueError(bad_number)
-    return number
 
 
 class LastLayerLaplace(nn.Module):
@@ -83,6 +75,14 @@ class LastLayerLaplace(nn.Module):
     ``P_j = G/(N σ_j²) + λ I`` (``λ`` by the evidence of that loss, or the fixed value), a
     posterior about ``N`` times wider than the summed loss's.
 
+    **A squashed mean (generalised Gauss-Newton).** When the Gaussian sits *after* a
+    fixed element-wise map of the head output, ``π(a|s) = N(c_j(y_j), σ_j²)`` (CORL's and
+    d3rlpy's IQL actor: ``c_j(y) = center_j + r_j tanh(y)``), the Gauss-Newton Hessian of
+    output ``j`` weighs each sample by the squared Jacobian ``J_ij = c_j'(y_ij)`` at the
+    MAP: ``G_j = Σ_i w_i J_ij² φ̃_i φ̃_iᵀ``, one Gram matrix and one eigendecomposition per
+    output (``per_output_jacobian=True``; :meth:`accumulate` then takes ``jacobian``). Every
+    formula above holds with ``G_j = U_j diag(g_j) U_jᵀ`` in place of the shared ``G``.
+
     All statistics are float64. Eigenvalues of ``G`` below round-off are clamped to 0, so
     ``P_j ⪰ λ I`` is always invertible (e.g. for ``d + 1 > N``). Everything needed to
     sample, predict or refit (``G_raw``, weight sums, ``θ*``, ``λ``, ``σ²``, ``U``, ``g`` and the
@@ -98,6 +98,9 @@ class LastLayerLaplace(nn.Module):
         prior_precision_bounds: bracket ``(λ_min, λ_max)`` for the evidence search.
         temperature: ``T`` (a positive float: ``Σ_j = T·P_j^{-1}``; default ``1.0``) or
             ``"data"`` (the Laplace of the mean loss, see above).
+        per_output_jacobian: one Gram matrix per output, weighted by the squared
+            Jacobian of a squashed mean (see above). Defaults to ``False`` (one shared
+            ``G``: the mean is the head output itself, up to a constant scale).
 
     Examples:
         >>> import torch
@@ -134,6 +137,7 @@ class LastLayerLaplace(nn.Module):
         prior_precision: str | float = "evidence",
         prior_precision_bounds: tuple[float, float] = (1e-6, 1e6),
         temperature: str | float = 1.0,
+        per_output_jacobian: bool = False,
     ) -> None:
         super().__init__()
         if int(in_features) < 1 or int(out_features) < 1:
@@ -154,15 +158,17 @@ class LastLayerLaplace(nn.Module):
         self.temperature = self._check_temperature(temperature)
         self._head_dtype = torch.float32
 
+        self.per_output_jacobian = bool(per_output_jacobian)
         p, o = self.in_features + 1, self.out_features
-        self.register_buffer("G_raw", torch.zeros(p, p, dtype=_F64))
+        grams = (o,) if self.per_output_jacobian else ()  # G_j per output, or one shared G
+        self.register_buffer("G_raw", torch.zeros(*grams, p, p, dtype=_F64))
         self.register_buffer("sum_weights", torch.zeros((), dtype=_F64))
         self.register_buffer("count", torch.zeros((), dtype=_F64))
         self.register_buffer("theta_map", torch.zeros(o, p, dtype=_F64))
         self.register_buffer("noise_variance", torch.ones(o, dtype=_F64))
         self.register_buffer("prior_precision", torch.ones((), dtype=_F64))
-        self.register_buffer("eigenvalues", torch.zeros(p, dtype=_F64))
-        self.register_buffer("eigenvectors", torch.eye(p, dtype=_F64))
+        self.register_buffer("eigenvalues", torch.zeros(*grams, p, dtype=_F64))
+        self.register_buffer("eigenvectors", torch.eye(p, dtype=_F64).expand(*grams, p, p).clone())
         self.register_buffer("sample_scale", torch.ones(o, p, dtype=_F64))
         self.register_buffer("fitted", torch.zeros((), dtype=torch.bool))
 
@@ -174,7 +180,7 @@ class LastLayerLaplace(nn.Module):
 
     @staticmethod
     def _check_prior_config(prior_precision: str | float) -> str | float:
-        return _word_or_positive(
+        return word_or_positive(
             prior_precision,
             "prior_precision",
             "evidence",
@@ -184,7 +190,7 @@ class LastLayerLaplace(nn.Module):
 
     @staticmethod
     def _check_temperature(temperature: str | float) -> str | float:
-        return _word_or_positive(
+        return word_or_positive(
             temperature,
             "temperature",
             "data",
@@ -206,6 +212,7 @@ class LastLayerLaplace(nn.Module):
         return (
             f"in_features={self.in_features}, out_features={self.out_features}, "
             f"prior_precision={self.prior_precision_config!r}, temperature={self.temperature!r}"
+            + (", per_output_jacobian=True" if self.per_output_jacobian else "")
         )
 
     def get_extra_state(self) -> dict:
@@ -235,22 +242,40 @@ class LastLayerLaplace(nn.Module):
         self.fitted.fill_(False)
 
     @torch.no_grad()
-    def accumulate(self, features: Tensor, weights: Tensor | None = None) -> None:
-        """Add ``Σ_i w_i φ̃_i φ̃_iᵀ`` of a batch to the float64 Gram buffer (``O(B d²)``).
+    def accumulate(
+        self, features: Tensor, weights: Tensor | None = None, jacobian: Tensor | None = None
+    ) -> None:
+        """Add ``Σ_i w_i φ̃_i φ̃_iᵀ`` of a batch to the float64 Gram buffer (``O(B d²)``), or
+        ``Σ_i w_i J_ij² φ̃_i φ̃_iᵀ`` to each output's with ``per_output_jacobian=True``.
 
         Args:
             features: head inputs ``φ`` of shape ``[B, d]`` (any leading batch shape).
             weights: non-negative per-sample loss weights (e.g. IQL ``exp(β A)``) of shape
                 ``[B]`` (the leading shape of ``features``); ``None`` means all ones. They
                 are normalised to mean 1 over everything accumulated at :meth:`fit` time.
+            jacobian: ``J [B, out]``, the derivative of each mean action component in its
+                head output at the MAP (required with ``per_output_jacobian=True``, refused
+                otherwise). It scales the Gram matrices, not the weight normalisation.
         """
         phi, w = checked_features_and_weights(features, weights, self.in_features)
         phi = phi.to(self.G_raw.device)
         w = None if w is None else w.to(self.G_raw.device)
+        if self.per_output_jacobian:
+            J = checked_output_jacobian(jacobian, features, self.out_features)
+            J = J.to(self.G_raw.device)
+        elif jacobian is not None:
+            raise ValueError(
+                "jacobian given to a LastLayerLaplace with one shared Gram matrix; build it "
+                "with per_output_jacobian=True for a squashed mean."
+            )
         if phi.shape[0] == 0:
             return
         phi = torch.cat([phi, phi.new_ones(phi.shape[0], 1)], dim=1)
-        if w is None:
+        if self.per_output_jacobian:
+            wJ2 = J.square() if w is None else J.square() * w[:, None]
+            self.G_raw.add_(torch.einsum("bo,bp,bq->opq", wJ2, phi, phi))
+            self.sum_weights.add_(phi.shape[0] if w is None else w.sum())
+        elif w is None:
             self.G_raw.add_(phi.T @ phi)
             self.sum_weights.add_(phi.shape[0])
         else:
@@ -259,7 +284,8 @@ class LastLayerLaplace(nn.Module):
         self.count.add_(phi.shape[0])
 
     def gram(self) -> Tensor:
-        """Weighted Gram matrix ``G`` with weights normalised to mean 1, float64 ``[d+1, d+1]``."""
+        """Weighted Gram matrix ``G`` with weights normalised to mean 1, float64 ``[d+1, d+1]``
+        (``[out, d+1, d+1]``, one ``G_j`` per output, with ``per_output_jacobian=True``)."""
         if self.count.item() == 0:
             raise RuntimeError("no features accumulated; call accumulate() before fit().")
         if self.sum_weights.item() <= 0:
@@ -268,7 +294,7 @@ class LastLayerLaplace(nn.Module):
                 "accumulate samples with positive weights."
             )
         G = self.G_raw * (self.count / self.sum_weights)
-        return 0.5 * (G + G.T)
+        return 0.5 * (G + G.transpose(-1, -2))
 
     # ------------------------------------------------------------------ fit
     @torch.no_grad()
@@ -303,7 +329,7 @@ class LastLayerLaplace(nn.Module):
             else self._check_prior_config(prior_precision)
         )
 
-        g, U = psd_eigh(self.gram())
+        g, U = psd_eigh(self.gram())  # one decomposition per output's G_j, or the shared G
         self.theta_map.copy_(theta)
         self.noise_variance.copy_(sigma2)
         self.eigenvalues.copy_(g)
@@ -319,14 +345,24 @@ class LastLayerLaplace(nn.Module):
         self.fitted.fill_(True)
         return self
 
+    def _bases(self) -> tuple[Tensor, Tensor]:
+        """``(g [K, d+1], U [K, d+1, d+1])`` with ``K = out`` per output or ``1`` shared."""
+        if self.per_output_jacobian:
+            return self.eigenvalues, self.eigenvectors
+        return self.eigenvalues[None], self.eigenvectors[None]
+
+    def _likelihood_eigenvalues(self) -> Tensor:
+        """``κ g_jk/σ_j²``, ``[out, d+1]``."""
+        g = self._bases()[0]
+        return self._likelihood_scale() * g / self.noise_variance[:, None]
+
     def _precision_eigenvalues(self, lam: Tensor) -> Tensor:
         """Eigenvalues ``κ g_k/σ_j² + λ`` of ``P_j``; ``lam`` of shape ``[*L]`` -> ``[*L, out, d+1]``."""
-        h = self._likelihood_scale() * self.eigenvalues[None, :] / self.noise_variance[:, None]
-        return h + lam[..., None, None]
+        return self._likelihood_eigenvalues() + lam[..., None, None]
 
     def _evidence_argmax(self) -> Tensor:
         """The evidence-maximising ``λ`` for the current fit (see :func:`evidence_maximiser`)."""
-        h = self._likelihood_scale() * self.eigenvalues[None, :] / self.noise_variance[:, None]
+        h = self._likelihood_eigenvalues()
         lam = evidence_maximiser(h, self.theta_map.square().sum(), self.prior_precision_bounds)
         return torch.tensor(lam, dtype=_F64, device=self.G_raw.device)
 
@@ -363,9 +399,9 @@ class LastLayerLaplace(nn.Module):
         """``Σ_j^{-1} = (κ G/σ_j² + λ I) / T`` as float64 ``[out, d+1, d+1]`` (``κ = T = 1``
         at the default temperature)."""
         self._check_fitted("posterior_precision")
-        U = self.eigenvectors
+        U = self._bases()[1]
         eigenvalues = self._precision_eigenvalues(self.prior_precision) / self._covariance_scale()
-        return (U[None] * eigenvalues[:, None, :]) @ U.T
+        return (U * eigenvalues[:, None, :]) @ U.transpose(-1, -2)
 
     def posterior_covariance(self) -> Tensor:
         """``Σ_j = T·P_j^{-1}`` as float64 ``[out, d+1, d+1]``."""
@@ -377,7 +413,7 @@ class LastLayerLaplace(nn.Module):
     def sample_transform(self) -> Tensor:
         """``S_j = U diag(√T (κ g/σ_j² + λ)^{-1/2})`` (``S_j S_jᵀ = Σ_j``), float64 ``[out, d+1, d+1]``."""
         self._check_fitted("sample_transform")
-        return self.eigenvectors[None] * self.sample_scale[:, None, :]
+        return self._bases()[1] * self.sample_scale[:, None, :]
 
     # ------------------------------------------------------------------ sampling
     def sample(
@@ -406,8 +442,11 @@ class LastLayerLaplace(nn.Module):
             dtype=_F64,
             device=self.G_raw.device,
         )
-        # S_j ε = U (s_j ⊙ ε): one [M·out, d+1] x [d+1, d+1] matmul
-        theta = self.theta_map + (eps * self.sample_scale) @ self.eigenvectors.T
+        if self.per_output_jacobian:  # S_j ε = U_j (s_j ⊙ ε), one basis per output
+            deviation = torch.einsum("mop,oqp->moq", eps * self.sample_scale, self.eigenvectors)
+        else:  # S_j ε = U (s_j ⊙ ε): one [M·out, d+1] x [d+1, d+1] matmul
+            deviation = (eps * self.sample_scale) @ self.eigenvectors.T
+        theta = self.theta_map + deviation
         return theta.to(dtype or self._head_dtype)
 
     def weight_samples_split(
@@ -437,8 +476,11 @@ class LastLayerLaplace(nn.Module):
             )
         phi = features.to(self.G_raw.device, _F64)
         phi = torch.cat([phi, phi.new_ones(*phi.shape[:-1], 1)], dim=-1)
-        z = phi @ self.eigenvectors
-        var = z.square() @ self.sample_scale.square().T
+        if self.per_output_jacobian:  # z_j = U_jᵀ φ̃ per output
+            z = torch.einsum("...p,opq->...oq", phi, self.eigenvectors)
+            var = (z.square() * self.sample_scale.square()).sum(-1)
+        else:
+            var = (phi @ self.eigenvectors).square() @ self.sample_scale.square().T
         out_dtype = features.dtype if features.is_floating_point() else self._head_dtype
         return var.to(out_dtype)
 
