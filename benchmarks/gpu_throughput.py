@@ -291,16 +291,19 @@ def measure_all(
     steps: int,
     warmup: int,
     on_result: Callable[[dict], None] = lambda results: None,
+    only: tuple[str, ...] = (*UPDATES, *ACTING, "laplace"),
 ) -> dict:
-    """Every figure, mode by mode (all of ``eager`` first), calling ``on_result`` with the
-    results so far after each one (a run cut short keeps what it measured)."""
-    results: dict[str, dict] = {name: {} for name in (*UPDATES, *ACTING)}
+    """Every figure of ``only``, mode by mode (all of ``eager`` first), calling
+    ``on_result`` with the results so far after each one (a run cut short keeps what it
+    measured)."""
+    results: dict[str, dict] = {name: {} for name in (*UPDATES, *ACTING, "laplace")}
     builders = {"planner": build_planner, "distillation": build_distillation,
                 "actor_critic": build_actor_critic}  # fmt: skip
-    results["laplace"] = {"eager": {"per_second_1k": _laplace_rate(s, device)}}
-    print(f"laplace       eager       {results['laplace']['eager']}", flush=True)
+    if "laplace" in only:
+        results["laplace"] = {"eager": {"per_second_1k": _laplace_rate(s, device)}}
+        print(f"laplace       eager       {results['laplace']['eager']}", flush=True)
     for mode in modes:
-        for name in (*UPDATES, *ACTING):
+        for name in (n for n in (*UPDATES, *ACTING) if n in only):
             torch.manual_seed(0)
             torch._dynamo.reset()
             before = _graph_breaks()
@@ -373,6 +376,22 @@ def project_paper(results: dict, env_step_ms: float, eval_hours: float) -> dict[
     return hours
 
 
+def merge(paths: list[str], env_step_ms: float, eval_hours: float) -> dict:
+    """One report of several runs' JSONs (e.g. each ``cudagraphs`` figure in its own
+    process: a failed capture leaves the CUDA generator unusable for the next one)."""
+    reports = [json.loads(open(p).read()) for p in paths]
+    merged = dict(reports[0])
+    results = merged["results"] = {k: dict(v) for k, v in reports[0]["results"].items()}
+    for report in reports[1:]:
+        for name, modes in report["results"].items():
+            results.setdefault(name, {}).update(modes)
+    names = (*UPDATES, *ACTING)
+    merged["best_modes"] = {n: best(results, n)[0] for n in names}
+    complete = all(merged["best_modes"].values()) and results.get("laplace")
+    merged["paper_hours"] = project_paper(results, env_step_ms, eval_hours) if complete else None
+    return merged
+
+
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
@@ -382,8 +401,25 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--steps", type=int, default=None, help="timed calls per figure")
     parser.add_argument("--env-step-ms", type=float, default=3.9)
     parser.add_argument("--eval-hours", type=float, default=0.4)
+    parser.add_argument(
+        "--only",
+        nargs="+",
+        choices=(*UPDATES, *ACTING, "laplace"),
+        default=None,
+        help="these figures only",
+    )
     parser.add_argument("--json", default=None)
+    parser.add_argument(
+        "--merge", nargs="+", default=None, help="merge these JSONs into --json (no measurement)"
+    )
     args = parser.parse_args(argv)
+    if args.merge:
+        report = merge(args.merge, args.env_step_ms, args.eval_hours)
+        if args.json:
+            with open(args.json, "w") as f:
+                json.dump(report, f, indent=1)
+        print(json.dumps({k: report[k] for k in ("best_modes", "paper_hours")}, indent=1))
+        return report
     modes = tuple(m for m in args.modes if m != "cudagraphs" or args.device.startswith("cuda"))
     sizes = TINY if args.tiny else Sizes()
     steps = args.steps or (5 if args.tiny else 30 if args.quick else 200)
@@ -400,7 +436,8 @@ def main(argv: list[str] | None = None) -> dict:
         "results": results,
         "best_modes": {n: best(results, n)[0] for n in (*UPDATES, *ACTING)},
         "paper_hours": project_paper(results, args.env_step_ms, args.eval_hours)
-        if all(best(results, n)[0] for n in (*UPDATES, *ACTING)) else None,
+        if all(best(results, n)[0] for n in (*UPDATES, *ACTING)) and results["laplace"]
+        else None,
         "env_step_ms": args.env_step_ms,
         "eval_hours": args.eval_hours,
         "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
@@ -411,7 +448,8 @@ def main(argv: list[str] | None = None) -> dict:
             with open(args.json, "w") as f:
                 json.dump(report_of(results), f, indent=1)
 
-    report = report_of(measure_all(sizes, args.device, modes, steps, warmup, write))
+    only = tuple(args.only or (*UPDATES, *ACTING, "laplace"))
+    report = report_of(measure_all(sizes, args.device, modes, steps, warmup, write, only))
     write(report["results"])
     print(json.dumps({k: report[k] for k in ("best_modes", "paper_hours")}, indent=1))
     return report

@@ -4,6 +4,7 @@ exploration mode is deterministic."""
 
 from __future__ import annotations
 
+import torch
 from tensordict import TensorDictBase
 from tensordict.utils import NestedKey
 from torch import Tensor
@@ -17,6 +18,36 @@ DETERMINISTIC_MODES = (
 )
 """Exploration types that ask for the policy's central action: for the Gaussian policies
 here (Eq. 9-10) the mode, the median and the mean are one point."""
+
+
+def host_reads_allowed() -> bool:
+    """Whether a check may read a tensor's value back to the host now: not while
+    ``torch.compile`` traces (a graph break) nor while a CUDA graph is captured (a sync
+    there invalidates the capture). Eager calls keep every input check.
+
+    Examples:
+        >>> host_reads_allowed()
+        True
+    """
+    if torch.compiler.is_compiling():
+        return False
+    return not (torch.cuda.is_available() and torch.cuda.is_current_stream_capturing())
+
+
+def check_finite(value: Tensor, role: str, fix: str) -> None:
+    """``ValueError`` naming ``role``, the count of NaN/inf entries and ``fix`` if ``value``
+    has any; skipped where :func:`host_reads_allowed` is ``False``.
+
+    Examples:
+        >>> import torch
+        >>> check_finite(torch.tensor([1.0, float("nan")]), "action", "clean the data first.")
+        Traceback (most recent call last):
+        ...
+        ValueError: action holds 1 NaN/inf entries; clean the data first.
+    """
+    if host_reads_allowed() and not bool(torch.isfinite(value).all()):
+        bad = int((~torch.isfinite(value)).sum())
+        raise ValueError(f"{role} holds {bad} NaN/inf entries; {fix}")
 
 
 def read_key(tensordict: TensorDictBase, key: NestedKey, reader: str, fix: str = "") -> Tensor:

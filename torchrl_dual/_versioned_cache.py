@@ -22,7 +22,9 @@ class VersionedCache(Generic[T]):
     ``sources()`` by default; pass a
     few representative tensors (e.g. the first and last weights of a network) when
     ``sources()`` is long, since the check runs at every call. ``compute`` runs without
-    autograd: use the cache on inference paths only.
+    autograd: use the cache on inference paths only. Under ``torch.compile`` the check
+    (a host-side comparison) is not traced: ``compute`` runs inside the compiled graph,
+    from the current tensors (so a captured CUDA graph replays it too).
 
     Examples:
         >>> import torch
@@ -63,6 +65,9 @@ class VersionedCache(Generic[T]):
         return [t._version for t in self._tensors] == self._versions
 
     def get(self) -> T:
+        if torch.compiler.is_compiling():
+            with torch.no_grad():
+                return self.compute()
         if not self._valid():
             self._tensors = list(self.sources())
             self._probed = [(t, t.data_ptr()) for t in self.probe()]

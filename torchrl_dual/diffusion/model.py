@@ -78,15 +78,19 @@ class TrajectoryDiffusion(nn.Module):
         self.schedule = NoiseSchedule(schedule)
         self.normalizer = normalizer or Normalizer(layout.obs_dim, layout.action_dim)
         self.register_buffer("_num_steps", torch.tensor(num_steps))
+        self._num_steps_value = int(num_steps)  # host copy: no device read per call
+        self.register_load_state_dict_post_hook(_refresh_num_steps)
 
     @property
     def num_steps(self) -> int:
-        """``N``, the number of sampling steps the model is trained for."""
-        return int(self._num_steps)
+        """``N``, the number of sampling steps the model is trained for (saved in the
+        state dict; read from a host copy, so reading it never syncs a device)."""
+        return self._num_steps_value
 
     @num_steps.setter
     def num_steps(self, value: int) -> None:
         self._num_steps.fill_(value)
+        self._num_steps_value = int(value)
 
     def reset_parameters_recursive(self) -> None:
         """Re-initialises every layer of the denoiser (TorchRL's loss-module protocol)."""
@@ -241,3 +245,8 @@ class TrajectoryDiffusion(nn.Module):
             else:
                 z = self.predict(z, t_b, cond, mask)[0]
         return z
+
+
+def _refresh_num_steps(module: TrajectoryDiffusion, incompatible_keys) -> None:
+    """After ``load_state_dict``: the host copy of ``N`` from the loaded buffer."""
+    module._num_steps_value = int(module._num_steps)

@@ -9,7 +9,7 @@ from tensordict import TensorDictBase
 from tensordict.utils import NestedKey
 from torchrl.objectives.common import LossModule
 
-from torchrl_dual._utils import read_loss_input
+from torchrl_dual._utils import check_finite, read_loss_input
 from torchrl_dual.diffusion.model import TrajectoryDiffusion
 
 
@@ -43,9 +43,7 @@ def normalized_windows(
                 f"(windows of H + 1 = {layout.length} steps, dim {dim}), got "
                 f"{tuple(value.shape)}. Sample windows with WindowReplayBuffer."
             )
-        if not torch.isfinite(value).all():
-            bad = int((~torch.isfinite(value)).sum())
-            raise ValueError(f"{role} holds {bad} NaN/inf entries; clean the data first.")
+        check_finite(value, role, "clean the data first.")
     x0 = model.normalized_window(observation, action)
     mask = tensordict.get(mask_key, default=None)
     if mask is None:

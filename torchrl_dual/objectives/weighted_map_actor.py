@@ -13,7 +13,7 @@ from torchrl.data import TensorSpec
 from torchrl.objectives.common import LossModule
 from torchrl.objectives.utils import _vmap_func  # TorchRL's own ensemble evaluation
 
-from torchrl_dual._utils import read_loss_input
+from torchrl_dual._utils import check_finite, read_loss_input
 from torchrl_dual.modules.actors.action_box import ActionBox
 from torchrl_dual.modules.actors.last_layer_actor import LastLayerActor
 
@@ -195,7 +195,7 @@ class WeightedMAPActorLoss(LossModule):
             params = TensorDict.from_module(network)
         params = params.detach()
         if params.batch_dims == 0:
-            with params.to_module(network):
+            with params.to_module(network, preserve_module_state=False):
                 return network(td).get(key)
         # an ensemble (IQL's twin Q, SO2's 10): every member in one vmapped call, as
         # TorchRL's losses evaluate theirs (1.6-1.8x faster than a loop over 10 members)
@@ -226,9 +226,7 @@ class WeightedMAPActorLoss(LossModule):
             value = read_loss_input(tensordict, getattr(self.tensor_keys, role), role)
             if dim is not None and value.shape[-1] != dim:
                 raise ValueError(f"{role} must end with dim {dim}, got shape {tuple(value.shape)}.")
-            if not torch.isfinite(value).all():
-                bad = int((~torch.isfinite(value)).sum())
-                raise ValueError(f"{role} holds {bad} NaN/inf entries; clean the batch first.")
+            check_finite(value, role, "clean the batch first.")
             values.append(value)
         return values[0], values[1]
 

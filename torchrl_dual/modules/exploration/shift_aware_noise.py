@@ -195,6 +195,8 @@ class ShiftAwareNoise(TensorDictModuleBase):
         self.register_buffer(
             "shift_weight", torch.tensor(float(shift_weight), dtype=torch.float32, device=device)
         )
+        self._uses_shift = float(shift_weight) > 0  # host copy of λ > 0: no device read per step
+        self.register_load_state_dict_post_hook(_refresh_uses_shift)
         self.register_buffer(
             "shift_floor", torch.tensor(float(shift_floor), dtype=torch.float32, device=device)
         )
@@ -253,7 +255,7 @@ class ShiftAwareNoise(TensorDictModuleBase):
         self, tensordict: TensorDictBase, observation: Tensor
     ) -> Tensor | None:
         """``ŝ_t``, written by a :class:`~torchrl_dual.modules.TransitionModel` upstream."""
-        if float(self.shift_weight) > 0:
+        if self._uses_shift:
             expected = read_key(
                 tensordict,
                 self.expected_observation_key,
@@ -352,3 +354,8 @@ class ShiftAwareNoise(TensorDictModuleBase):
             f"in_keys={self.in_keys}, out_keys={self.out_keys}, "
             f"projected={self._spec is not None})"
         )
+
+
+def _refresh_uses_shift(module: ShiftAwareNoise, incompatible_keys) -> None:
+    """After ``load_state_dict``: whether the loaded λ is positive, on the host."""
+    module._uses_shift = float(module.shift_weight) > 0

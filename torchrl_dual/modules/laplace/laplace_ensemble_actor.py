@@ -268,7 +268,7 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
                 features, context = self._encode(tensordict, observation)
                 loc = self.actor.act(self.actor.head_output(features), context)
                 epistemic = torch.zeros_like(loc)
-            elif not bool(self.laplace.fitted):
+            elif not self.laplace.is_fitted:
                 raise RuntimeError(
                     "LaplaceEnsembleActor samples from the last-layer posterior: call "
                     "fit_laplace(...) on the offline data first."

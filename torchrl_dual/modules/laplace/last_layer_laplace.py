@@ -171,6 +171,8 @@ class LastLayerLaplace(nn.Module):
         self.register_buffer("eigenvectors", torch.eye(p, dtype=_F64).expand(*grams, p, p).clone())
         self.register_buffer("sample_scale", torch.ones(o, p, dtype=_F64))
         self.register_buffer("fitted", torch.zeros((), dtype=torch.bool))
+        self._fitted_value = False  # host copy of ``fitted``: acting never reads the device
+        self.register_load_state_dict_post_hook(_refresh_fitted)
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -240,6 +242,7 @@ class LastLayerLaplace(nn.Module):
         self.sum_weights.zero_()
         self.count.zero_()
         self.fitted.fill_(False)
+        self._fitted_value = False
 
     @torch.no_grad()
     def accumulate(
@@ -343,6 +346,7 @@ class LastLayerLaplace(nn.Module):
         self.sample_scale.copy_(scale)
         self._head_dtype = weight.dtype if weight.is_floating_point() else torch.float32
         self.fitted.fill_(True)
+        self._fitted_value = True
         return self
 
     def _bases(self) -> tuple[Tensor, Tensor]:
@@ -366,8 +370,13 @@ class LastLayerLaplace(nn.Module):
         lam = evidence_maximiser(h, self.theta_map.square().sum(), self.prior_precision_bounds)
         return torch.tensor(lam, dtype=_F64, device=self.G_raw.device)
 
+    @property
+    def is_fitted(self) -> bool:
+        """Whether :meth:`fit` has run (the ``fitted`` buffer, read from a host copy)."""
+        return self._fitted_value
+
     def _check_fitted(self, what: str) -> None:
-        if not bool(self.fitted):
+        if not self.is_fitted:
             raise RuntimeError(
                 f"LastLayerLaplace.{what}() called before fit(); call accumulate(features, "
                 "weights) on the data and then fit(weight, bias, noise_variance)."
@@ -485,3 +494,8 @@ class LastLayerLaplace(nn.Module):
         return var.to(out_dtype)
 
     forward = predictive_variance
+
+
+def _refresh_fitted(module: LastLayerLaplace, incompatible_keys) -> None:
+    """After ``load_state_dict``: the host copy of ``fitted`` from the loaded buffer."""
+    module._fitted_value = bool(module.fitted)
