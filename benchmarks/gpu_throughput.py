@@ -321,6 +321,7 @@ def measure_all(
                         with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
                             return policy(td)
 
+                    act(step.clone())  # a collector's first step: caches built eagerly
                     fn = wrap(act, mode, step, device)
                     call = lambda fn=fn, step=step: fn(step.clone())  # noqa: E731
                 per_second = rate(call, device, warmup=warmup, steps=steps)

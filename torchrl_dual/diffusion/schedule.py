@@ -47,14 +47,16 @@ class NoiseSchedule(nn.Module):
 
     def alpha_sigma(self, t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Returns ``(α_t, σ_t)`` with the shape of ``t``."""
-        if self.kind == "cosine":
-            angle = t * (math.pi / 2)
-            return torch.cos(angle), torch.sin(angle)
-        beta_min, beta_max = 0.1, 20.0
-        log_alpha_bar = -(beta_min * t + 0.5 * (beta_max - beta_min) * t**2)
-        alpha = torch.exp(0.5 * log_alpha_bar)
-        sigma = torch.sqrt(-torch.expm1(log_alpha_bar))
-        return alpha, sigma
+        return _alpha_sigma(self.kind, t, torch)
+
+    def scales_at(self, t: float) -> tuple[float, float]:
+        """``(α_t, σ_t)`` at one time ``t``, as Python floats (no tensor, no device read).
+
+        Examples:
+            >>> [round(v, 4) for v in NoiseSchedule("cosine").scales_at(0.5)]
+            [0.7071, 0.7071]
+        """
+        return _alpha_sigma(self.kind, float(t), math)
 
     def forward(self, t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return self.alpha_sigma(t)
@@ -66,3 +68,14 @@ class NoiseSchedule(nn.Module):
 
     def extra_repr(self) -> str:
         return f"kind={self.kind!r}"
+
+
+def _alpha_sigma(kind: str, t, ops):
+    """``(α_t, σ_t)`` of schedule ``kind`` with ``ops`` = ``torch`` (tensors) or ``math``
+    (floats): one formula for both."""
+    if kind == "cosine":
+        angle = t * (math.pi / 2)
+        return ops.cos(angle), ops.sin(angle)
+    beta_min, beta_max = 0.1, 20.0
+    log_alpha_bar = -(beta_min * t + 0.5 * (beta_max - beta_min) * t**2)
+    return ops.exp(0.5 * log_alpha_bar), ops.sqrt(-ops.expm1(log_alpha_bar))

@@ -67,8 +67,7 @@ class OneStepFastPath:
         mine, theirs = self.model.denoiser, transition.denoiser
         if (mine.feature_dim, len(mine.blocks)) != (theirs.feature_dim, len(theirs.blocks)):
             return False
-        _, sigma = transition.schedule(torch.ones(()))
-        return abs(float(sigma) - self.sigma_1) <= 1e-6
+        return abs(transition.schedule.scales_at(1.0)[1] - self.sigma_1) <= 1e-6
 
     def features(self, observation: Tensor) -> Tensor:
         """``φ(s)`` of the policy query, ``[*B, hidden]``."""
