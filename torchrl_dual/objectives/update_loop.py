@@ -81,7 +81,7 @@ def run_updates(
         if cosine_lr
         else None
     )
-    sums: dict[str, float] = {}
+    sums: dict[str, torch.Tensor] = {}  # on the device: read back once per window
     count = 0
     averages: dict[str, float] = {}
     bar = tqdm(range(num_updates), desc=desc, disable=not progress, leave=False)
@@ -99,10 +99,10 @@ def run_updates(
             ema.update()
         for key, value in out.items():
             if value.numel() == 1:
-                sums[key] = sums.get(key, 0.0) + float(value.detach())
+                sums[key] = sums.get(key, 0.0) + value.detach()
         count += 1
         if count == log_every or update == num_updates - 1:
-            averages = {key: total / count for key, total in sums.items()}
+            averages = {key: float(total) / count for key, total in sums.items()}
             bar.set_postfix({k: f"{v:.4f}" for k, v in averages.items() if k.startswith("loss_")})
             if logger is not None:
                 for key, value in averages.items():

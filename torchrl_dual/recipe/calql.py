@@ -83,12 +83,8 @@ class CalQLLearner(Learner):
         self.actor_optimizer.step()
         self.critic.target_updater.step()
         return {
-            "loss_qvalue": out["loss_qvalue"].item(),
-            "loss_cql": out["loss_cql"].item(),
-            "loss_actor": out["loss_actor"].item(),
-            "alpha": float(out["alpha"]),
-            "entropy": float(out["entropy"]),
-            "bound_rate": float(out["bound_rate"]),
+            key: out[key].detach()
+            for key in ("loss_qvalue", "loss_cql", "loss_actor", "alpha", "entropy", "bound_rate")
         }
 
     def state_dict(self) -> dict:

@@ -143,7 +143,7 @@ class DACERLearner(DiffQLLearner):
         self.entropy = float(entropy.mean())
         return self.entropy
 
-    def update(self, batch: TensorDictBase) -> dict[str, float]:
+    def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor | float]:
         """Diff-QL's update; online (once frames were collected) the regulator's step
         every ``dacer.entropy_every`` updates, starting with the first."""
         metrics = super().update(batch)
@@ -153,7 +153,7 @@ class DACERLearner(DiffQLLearner):
         if self.online_updates % d.entropy_every == 0:
             self.regulate(batch["observation"][: d.num_states])
         self.online_updates += 1
-        return {**metrics, "alpha": float(self.noise.alpha), "entropy": self.entropy}
+        return {**metrics, "alpha": self.noise.alpha.detach(), "entropy": self.entropy}
 
     def state_dict(self) -> dict[str, Any]:
         return {

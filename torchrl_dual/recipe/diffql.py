@@ -204,7 +204,7 @@ class DiffQLLearner(Learner):
         losses["loss_actor"].backward()
         nn.utils.clip_grad_norm_(self.actor.parameters(), self.cfg.actor.max_grad_norm)
         self.actor_optimizer.step()
-        return {k: v.item() for k, v in {**critic, **losses}.items()}
+        return {k: v.detach() for k, v in {**critic, **losses}.items()}
 
 
 class DiffQLLALearner(LaplaceRefits, DiffQLLearner):

@@ -128,7 +128,7 @@ class DiffuserLearner(Learner):
         out["loss_diffusion"].backward()
         torch.nn.utils.clip_grad_norm_(self.loss.parameters(), 1.0)
         self.optimizer.step()
-        return {k: float(v) for k, v in out.items()}
+        return {k: v.detach() for k, v in out.items()}
 
 
 DIFFUSER = Algorithm(

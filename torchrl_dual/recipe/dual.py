@@ -149,7 +149,7 @@ class DualLearner(Learner):
         out["loss_actor"].backward()
         self.actor_optimizer.step()
         self.updates_since_refit += 1
-        return {k: v.item() for k, v in {**critic, **out}.items()}
+        return {k: v.detach() for k, v in {**critic, **out}.items()}
 
     def after_updates(self) -> None:
         """Alg. 1 line 17: refit the posterior once ``budget.laplace_refit_every`` updates

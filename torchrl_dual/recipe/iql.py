@@ -164,10 +164,10 @@ class IQLLearner(Learner):
         self.actor_optimizer.step()
         self.critic.target_updater.step()
         return {
-            "loss_qvalue": q_loss.item(),
-            "loss_value": v_loss.item(),
-            "loss_actor": actor_loss.item(),
-            "log_prob": float(batch[loss.tensor_keys.log_prob].mean()),
+            "loss_qvalue": q_loss.detach(),
+            "loss_value": v_loss.detach(),
+            "loss_actor": actor_loss.detach(),
+            "log_prob": batch[loss.tensor_keys.log_prob].mean().detach(),
         }
 
 

@@ -125,7 +125,7 @@ class LaplaceRefits:
     def offline_stages(self) -> list:
         return [*super().offline_stages(), ("laplace", self.refit)]
 
-    def update(self, batch: TensorDictBase) -> dict[str, float]:
+    def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor | float]:
         metrics = super().update(batch)
         self.updates_since_refit += 1
         return metrics

@@ -12,6 +12,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable
 from typing import Any
 
+import torch
 from tensordict import TensorDictBase
 from torch import nn
 
@@ -65,8 +66,10 @@ class Learner(ABC):
         ``budget.offline_updates`` stage. The run appends ``offline_eval``."""
 
     @abstractmethod
-    def update(self, batch: TensorDictBase) -> dict[str, float]:
-        """One gradient update (critic and actor) on ``batch``; returns its metrics."""
+    def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor | float]:
+        """One gradient update (critic and actor) on ``batch``; returns its metrics as
+        detached 0-dim tensors (left on the device: :meth:`O2ORun.log` reads them back
+        only when it logs, every 100 updates, so an update never syncs the host)."""
 
     def after_updates(self) -> None:  # noqa: B027 - optional hook
         """Called after each block of online updates (DUAL refits its Laplace posterior)."""

@@ -95,9 +95,9 @@ class SO2Learner(Learner):
         actor_loss.backward()
         self.actor_optimizer.step()
         return {
-            **{k: v.item() for k, v in critic.items()},
-            "loss_actor": actor_loss.item(),
-            "entropy": entropy.item(),
+            **{k: v.detach() for k, v in critic.items()},
+            "loss_actor": actor_loss.detach(),
+            "entropy": entropy.detach(),
         }
 
 
