@@ -184,6 +184,10 @@ class WeightedMAPActorLoss(LossModule):
     def _forward_value_estimator_keys(self, **kwargs) -> None:
         pass
 
+    def _make_vmap(self) -> None:
+        """TorchRL's hook of ``set_vmap_randomness``: nothing to rebuild, the twin-Q
+        evaluation reads :attr:`vmap_randomness` at each call."""
+
     @property
     def in_keys(self) -> list[NestedKey]:
         return [self.tensor_keys.observation, self.tensor_keys.action]
@@ -199,7 +203,9 @@ class WeightedMAPActorLoss(LossModule):
                 return network(td).get(key)
         # an ensemble (IQL's twin Q, SO2's 10): every member in one vmapped call, as
         # TorchRL's losses evaluate theirs (1.6-1.8x faster than a loop over 10 members)
-        return _vmap_func(network, (None, 0))(td, params).get(key).min(0).values
+        # randomness: TorchRL's vmap_randomness ("different" once a critic holds dropout)
+        ensemble = _vmap_func(network, (None, 0), randomness=self.vmap_randomness)
+        return ensemble(td, params).get(key).min(0).values
 
     def q_value(self, tensordict: TensorDictBase) -> torch.Tensor:
         """``min_k Q_k(s, a)`` with detached critic weights, shape ``[*B]``."""

@@ -78,7 +78,7 @@ def test_zero_weight_reduces_to_plain_ensemble_gaussian_but_still_reports_d():
     torch.testing.assert_close(out["action_log_prob"], dist.log_prob(out["action"]).sum(-1))
     # λ = 0 needs no ŝ_t at all (the "w/o shift-aware" ablation)
     out = ShiftAwareNoise(shift_weight=0.0)(make_td(3))
-    assert "shift_distance" not in out.keys()
+    torch.testing.assert_close(out["shift_distance"], torch.zeros(3, 1))  # its out_keys
     torch.testing.assert_close(out["exploration_scale"], out["scale"])
 
 
@@ -96,8 +96,9 @@ def test_deterministic_modes_return_loc_without_noise_or_shift(mode):
     with set_exploration_type(mode):
         out = noise(make_td(4))  # no ŝ_t needed either
     assert torch.equal(out["action"], out["loc"].clamp(-0.2, 0.2))
-    for key in ("exploration_scale", "action_log_prob", "shift_distance"):
-        assert key not in out.keys()
+    # its out_keys, as in every mode: no noise (scale 0) and no shift (d_t = 0)
+    assert (out["exploration_scale"] == 0).all() and (out["shift_distance"] == 0).all()
+    assert "action_log_prob" not in out.keys()  # not asked for (return_log_prob=False)
 
 
 # ----------------------------------------------------------------------------- ŝ_t upstream

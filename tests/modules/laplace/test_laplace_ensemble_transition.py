@@ -147,7 +147,7 @@ def test_deterministic_modes_skip_the_transition_query(make_model):
     policy.transition_model = TransitionModel(policy.actor.model, frozen=False)
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         out = policy(_obs_td(4))  # no previous_* entries needed
-    assert "expected_observation" not in out.keys()
+    torch.testing.assert_close(out["expected_observation"], out["observation"])  # ŝ_t = s_t
     torch.testing.assert_close(out["action"], policy.actor(_obs_td(4)["observation"]))
 
 

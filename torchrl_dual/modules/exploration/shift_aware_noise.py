@@ -50,7 +50,9 @@ class ShiftAwareNoise(TensorDictModuleBase):
        ``exploration_scale`` and, with ``return_log_prob=True``, ``action_log_prob``
        (Normal log-density of the executed, projected action summed over the action
        dim). ``scale`` is left as the Eq. 9 ensemble std.
-    2. Under DETERMINISTIC / MODE / MEAN: ``action = loc`` (projected); nothing else.
+    2. Under DETERMINISTIC / MODE / MEAN: ``action = loc`` (projected), with
+       ``shift_distance = 0`` and ``exploration_scale = 0`` (no noise; ŝ_t is not read),
+       so the module writes its ``out_keys`` in every mode.
 
     **Beyond the paper: a floor for** ``d_t``. A learned transition model is never exact,
     so ``d_t`` is positive on the very dynamics it was fitted on (measured on PointMaze
@@ -301,8 +303,14 @@ class ShiftAwareNoise(TensorDictModuleBase):
                 f"ShiftAwareNoise: {self.loc_key!r} must have a trailing action dim [*B, A], "
                 "got a scalar. Fix: unsqueeze(-1) the actor output."
             )
-        if is_deterministic():
+        if is_deterministic():  # a_t = μ: no noise, d_t not used
             tensordict.set(self.action_key, self._project(loc))
+            tensordict.set(self.shift_key, loc.new_zeros(*loc.shape[:-1], 1))
+            tensordict.set(self.exploration_scale_key, torch.zeros_like(loc))
+            if self.return_log_prob:  # the policy's N(μ, σ²) density at its mode
+                scale = read_key(tensordict, self.scale_key, "ShiftAwareNoise (σ(s))")
+                action = tensordict.get(self.action_key)
+                tensordict.set(self.log_prob_key, gaussian_log_prob(action, loc, scale))
             return tensordict
         scale = read_key(
             tensordict,
@@ -337,6 +345,8 @@ class ShiftAwareNoise(TensorDictModuleBase):
             tensordict.set(self.shift_key, shift)  # d_t
             excess = (shift - self.shift_floor).clamp_min(0.0)  # d_t itself when d_0 = 0
             variance = torch.addcmul(variance, excess, self.shift_weight)  # Eq. (10)
+        else:  # λ = 0: no ŝ_t, d_t written as 0
+            tensordict.set(self.shift_key, loc.new_zeros(*loc.shape[:-1], 1))
         if self.extra_variance:
             variance = variance + self.extra_variance
         std = variance.clamp_min(self._MIN_VARIANCE).sqrt()

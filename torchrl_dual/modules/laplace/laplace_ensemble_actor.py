@@ -37,7 +37,10 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
     Under ``ExplorationType.RANDOM`` (or unset) it samples ``action ∼ N(μ, σ²)``; under
     ``DETERMINISTIC``/``MODE``/``MEAN`` it returns the MAP mean action with no sampling.
     It writes ``loc`` (μ), ``scale`` (σ), ``epistemic_variance`` (the first term of
-    σ², zero in deterministic mode), ``action`` and ``action_log_prob``.
+    σ², zero in deterministic mode), ``action``, ``action_log_prob`` (unless
+    ``sample_action=False``) and, with a transition model, ``expected_observation``
+    (``s_t`` itself in deterministic mode: no shift is measured there): its ``out_keys``,
+    in every mode.
 
     Args:
         actor (LastLayerActor): e.g. :class:`~torchrl_dual.modules.PlannerActor` or
@@ -154,7 +157,9 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         self.transition_model = transition_model
         self._member_head_cache = VersionedCache(self._member_head_sources, self._member_heads)
         self.in_keys = [observation_key]
-        self.out_keys = [loc_key, scale_key, epistemic_key, action_key, log_prob_key]
+        self.out_keys = [loc_key, scale_key, epistemic_key, action_key]
+        if sample_action:  # else the noise module that follows samples (and scores) it
+            self.out_keys.append(log_prob_key)
         if transition_model is not None:
             self.in_keys = self.in_keys + transition_model.in_keys[1:]
             self.out_keys = self.out_keys + transition_model.out_keys
@@ -259,6 +264,8 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         observation = read_key(tensordict, self.in_keys[0], "LaplaceEnsembleActor")
         aleatoric = self.actor.std**2
         if is_deterministic():
+            if self.transition_model is not None:  # no exploration: ŝ_t = s_t, d_t = 0
+                tensordict.set(self.transition_model.out_keys[0], observation)
             loc = self.actor(observation)
             epistemic = torch.zeros_like(loc)
             variance = aleatoric.expand_as(loc)
@@ -286,11 +293,11 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
                 return tensordict
             action = self._clamp(loc + variance.sqrt() * torch.randn_like(loc))
         scale = variance.sqrt()
-        log_prob = gaussian_log_prob(action, loc, scale)
-        loc_key, scale_key, epistemic_key, action_key, log_prob_key = self.out_keys[:5]
+        loc_key, scale_key, epistemic_key, action_key = self.out_keys[:4]
         tensordict.set(loc_key, loc)
         tensordict.set(scale_key, scale)
         tensordict.set(epistemic_key, epistemic)
         tensordict.set(action_key, action)
-        tensordict.set(log_prob_key, log_prob)
+        if self.sample_action:  # out_keys[4]: the action's log-density
+            tensordict.set(self.out_keys[4], gaussian_log_prob(action, loc, scale))
         return tensordict
