@@ -188,17 +188,23 @@ def _spec(cfg: Config) -> Bounded:
 
 def build_iql_actor(cfg: Config) -> TensorDictModuleBase:
     """``algo=iql``'s actor and exploration policy: :func:`make_iql_actor` (MLP ``hidden``
-    × 2, ReLU → ``NormalParamExtractor`` → ``TanhNormal``)."""
-    return make_iql_actor(_algo_cfg(cfg, "iql"), cfg.obs_dim, _spec(cfg))
+    × 2, ReLU, with ``algo/iql.yaml``'s ``actor.distribution``: the Gaussian)."""
+    return _iql_actor(cfg, "iql")
+
+
+def _iql_actor(cfg: Config, algo: str) -> TensorDictModuleBase:
+    """``make_iql_actor`` with ``algo``'s config, its ``actor.distribution`` included."""
+    algo_cfg = _algo_cfg(cfg, algo)
+    return make_iql_actor(
+        algo_cfg, cfg.obs_dim, _spec(cfg), distribution=algo_cfg.actor.distribution
+    )
 
 
 def build_iql_la_m5(cfg: Config) -> TensorDictModuleBase:
     """``algo=iql_la``'s exploration policy: ``LinearHeadActor.from_actor`` over the IQL
     actor (``algo/iql_la.yaml``), Laplace ensemble M = 5 (Eq. 9) and shift-aware noise
     with λ = 0, from :func:`make_dual_policy`; posterior fitted on random states."""
-    head_actor = LinearHeadActor.from_actor(
-        make_iql_actor(_algo_cfg(cfg, "iql_la"), cfg.obs_dim, _spec(cfg))
-    )
+    head_actor = LinearHeadActor.from_actor(_iql_actor(cfg, "iql_la"))
     policy = make_dual_policy(head_actor, _spec(cfg), num_samples=5, shift_weight=0.0)
     policy[0].fit_laplace(_fit_data(cfg))
     return policy
