@@ -32,3 +32,20 @@ def test_the_deterministic_step_has_no_shift_and_no_noise():
     torch.testing.assert_close(out["expected_observation"], out["observation"])
     assert (out["shift_distance"] == 0).all() and (out["exploration_scale"] == 0).all()
     torch.testing.assert_close(out["action"], out["loc"].clamp(-1, 1))
+
+
+@pytest.mark.parametrize("mode", [ExplorationType.RANDOM, ExplorationType.DETERMINISTIC])
+def test_get_dist_is_the_gaussian_of_eq_9(mode):
+    ensemble = _policies()["dual"][0]
+    step = _step()
+    with torch.no_grad(), set_exploration_type(mode):
+        out = ensemble(step.clone())
+        dist = ensemble.get_dist(step)
+    assert set(step.keys()) == {"observation", "previous_observation", "previous_action",
+                                "previous_valid"}  # fmt: skip
+    torch.testing.assert_close(dist.mean, out["loc"])
+    torch.testing.assert_close(dist.stddev, out["scale"])
+    reference = torch.distributions.Normal(out["loc"], out["scale"])
+    torch.testing.assert_close(
+        dist.log_prob(out["action"]), reference.log_prob(out["action"]).sum(-1)
+    )

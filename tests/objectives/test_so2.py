@@ -286,3 +286,21 @@ def test_bad_settings_and_missing_entries_name_the_fix():
     )
     with pytest.raises(KeyError, match="log_prob"):
         _mock_loss(no_log_prob, entropy_coef=0.2)(_mock_batch())
+
+
+def test_make_value_estimator_sets_gamma_as_torchrl_losses_do():
+    """Generic TorchRL loops call ``loss.make_value_estimator(gamma=...)``: SO2's TD(0)
+    target takes it (and refuses other estimators or hyperparameters by name)."""
+    from torchrl.objectives.utils import ValueEstimators
+
+    loss, batch = _mock_loss(), _mock_batch()
+    torch.manual_seed(0)
+    before = loss(batch.clone())["loss_qvalue"]
+    assert loss.make_value_estimator(ValueEstimators.TD0, gamma=0.0) is loss
+    assert loss.gamma == 0.0
+    torch.manual_seed(0)
+    assert not torch.allclose(loss(batch.clone())["loss_qvalue"], before)  # γ reached y
+    with pytest.raises(NotImplementedError, match="TD0"):
+        loss.make_value_estimator(ValueEstimators.TDLambda)
+    with pytest.raises(TypeError, match="gamma only"):
+        loss.make_value_estimator(lmbda=0.9)

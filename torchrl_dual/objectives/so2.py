@@ -40,7 +40,7 @@ from tensordict.utils import NestedKey
 from torchrl.data import Bounded, Composite, TensorSpec
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.objectives.common import LossModule
-from torchrl.objectives.utils import _vmap_func, distance_loss
+from torchrl.objectives.utils import ValueEstimators, _vmap_func, distance_loss
 
 from torchrl_dual._utils import read_key, read_loss_input
 
@@ -205,6 +205,39 @@ class SO2QLoss(LossModule):
 
     def _forward_value_estimator_keys(self, **kwargs) -> None:
         pass
+
+    def make_value_estimator(
+        self, value_type: ValueEstimators | None = None, **hyperparams
+    ) -> SO2QLoss:
+        """TorchRL's ``make_value_estimator``, so that generic loops
+        (``loss.make_value_estimator(gamma=0.99)``) work: SO2's target is the one-step
+        (TD(0)) bootstrap ``r + γ (1 − terminated) V(s')`` over its smoothed,
+        per-member ``V(s')``, so ``ValueEstimators.TD0`` (the default) is the only type
+        and ``gamma`` its one hyperparameter.
+
+        Examples:
+            >>> import torch
+            >>> from torchrl.data import Bounded
+            >>> from torchrl.modules import MLP, ValueOperator
+            >>> from torchrl_dual.modules import LinearHeadActor
+            >>> q = ValueOperator(MLP(in_features=5, out_features=1, num_cells=[8]),
+            ...                   in_keys=["observation", "action"])
+            >>> actor = LinearHeadActor(MLP(in_features=3, out_features=2, num_cells=[8]), 2)
+            >>> loss = SO2QLoss(actor, q, action_spec=Bounded(-1.0, 1.0, shape=(2,)))
+            >>> loss.make_value_estimator(gamma=0.9).gamma
+            0.9
+        """
+        if value_type not in (None, ValueEstimators.TD0):
+            raise NotImplementedError(
+                f"SO2QLoss bootstraps one step (TD0) over its ensemble; got {value_type}. "
+                "Call make_value_estimator() or make_value_estimator(ValueEstimators.TD0)."
+            )
+        unknown = set(hyperparams) - {"gamma"}
+        if unknown:
+            raise TypeError(f"SO2QLoss's TD0 target takes gamma only, got {sorted(unknown)}.")
+        if "gamma" in hyperparams:
+            self.gamma = float(hyperparams["gamma"])
+        return self
 
     @property
     def in_keys(self) -> list[NestedKey]:

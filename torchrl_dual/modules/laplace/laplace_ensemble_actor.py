@@ -8,6 +8,7 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import NestedKey
+from torchrl.modules import IndependentNormal
 
 from torchrl_dual._utils import is_deterministic, read_key
 from torchrl_dual._versioned_cache import VersionedCache
@@ -259,6 +260,25 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         if self.action_low is None and self.action_high is None:
             return action
         return action.clamp(self.action_low, self.action_high)
+
+    def get_dist(self, tensordict: TensorDictBase) -> IndependentNormal:
+        """Eq. 9's policy as a TorchRL distribution: ``IndependentNormal(μ(s), σ(s))`` with
+        the ensemble's mean and std (under ``DETERMINISTIC``: the MAP mean and ``σ̄``), as
+        ``ProbabilisticActor.get_dist``; ``tensordict`` is not written to.
+
+        Examples:
+            >>> import torch
+            >>> from tensordict import TensorDict
+            >>> from torchrl.modules import MLP
+            >>> from torchrl_dual.modules import LinearHeadActor
+            >>> actor = LinearHeadActor(MLP(in_features=3, out_features=2, num_cells=[16]), 2)
+            >>> policy = LaplaceEnsembleActor(actor, num_samples=5)
+            >>> _ = policy.fit_laplace([TensorDict(observation=torch.randn(64, 3), batch_size=[64])])
+            >>> policy.get_dist(TensorDict(observation=torch.randn(4, 3), batch_size=[4])).mean.shape
+            torch.Size([4, 2])
+        """
+        out = self(tensordict.copy())
+        return IndependentNormal(out.get(self.out_keys[0]), out.get(self.out_keys[1]))
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         observation = read_key(tensordict, self.in_keys[0], "LaplaceEnsembleActor")
