@@ -219,3 +219,19 @@ def test_valid_shift_settings_compose(tmp_path):
     assert compose(tmp_path, "env=frozenlake", "env.shift=biased_slip_cw").env.shift == (
         "biased_slip_cw"
     )
+
+
+def test_env_data_avoid_cells_reaches_the_data_only(tmp_path):
+    """``env.data_avoid_cells`` shapes the offline data (issue 29); the online env and the
+    evaluation keep the whole maze. A wall or an outside cell is a config error."""
+    cfg = compose(
+        tmp_path, "env.goal_cell=[3,1]", "env.data_avoid_cells=[[3,1]]",
+        "budget.dataset_transitions=300",
+    )  # fmt: skip
+    data = env_kits.make_offline_dataset(cfg)
+    assert data.metadata["avoid_cells"] == [[3, 1]]
+    assert data.metadata["reward_fraction"] == 0.0
+    with pytest.raises(ConfigError, match="env.data_avoid_cells"):
+        compose(tmp_path, "env.data_avoid_cells=[[0,0]]")
+    with pytest.raises(ConfigError, match=r"\[row, col\] cells"):
+        compose(tmp_path, "env.data_avoid_cells=[3,1]")

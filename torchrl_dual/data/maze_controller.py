@@ -32,6 +32,10 @@ class MazeWaypointController:
         action_noise (float): std of the Gaussian action noise. Defaults to ``0.5``
             (D4RL ``--noisy``).
         rng (np.random.Generator, optional): random source for noise and goals.
+        avoid_cells (sequence of (row, col), optional): free cells the controller plans
+            around as if they were walls: it never picks a goal there, routes around them
+            and, if noise pushes it into one, heads back to the nearest allowed cell (data
+            that leave a region unvisited, issue 29). Defaults to none.
 
     Examples:
         >>> from gymnasium_robotics.envs.maze.maps import U_MAZE
@@ -53,8 +57,18 @@ class MazeWaypointController:
         d_gain: float = -1.0,
         action_noise: float = 0.5,
         rng: np.random.Generator | None = None,
+        avoid_cells: Sequence[Sequence[int]] = (),
     ) -> None:
         walls = np.array([[cell == 1 for cell in row] for row in maze_map], dtype=bool)
+        self.avoided = {(int(r), int(c)) for r, c in avoid_cells}
+        for cell in self.avoided:
+            if not (0 <= cell[0] < walls.shape[0] and 0 <= cell[1] < walls.shape[1]):
+                raise ValueError(f"avoid_cells: {list(cell)} is outside the {walls.shape} maze.")
+            if walls[cell]:
+                raise ValueError(f"avoid_cells: {list(cell)} is a wall, not a free cell.")
+            walls[cell] = True  # planned around as a wall
+        if not (~walls).any():
+            raise ValueError("avoid_cells covers every free cell; leave some to move in.")
         self.walls = walls
         self.rows, self.cols = walls.shape
         self.scaling = float(maze_size_scaling)
@@ -105,6 +119,7 @@ class MazeWaypointController:
         c = math.floor((float(xy[0]) + self.x_center) / self.scaling)
         if 0 <= r < self.rows and 0 <= c < self.cols and not self.walls[r, c]:
             return (r, c)
+        # in a wall's margin or an avoided cell: the nearest allowed cell (heads back out)
         return min(self.free_cells, key=lambda rc: float(np.sum((self._centres[rc] - xy) ** 2)))
 
     def path_length(self, cell: tuple[int, int], goal: tuple[int, int]) -> int:

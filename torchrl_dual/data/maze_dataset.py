@@ -35,14 +35,24 @@ MAZE_GENERATOR_VERSION = 1
 """Bump when the generated data changes for identical arguments (invalidates caches)."""
 
 
-def _controller(env, action_noise: float, rng: np.random.Generator) -> MazeWaypointController:
+def _controller(
+    env, action_noise: float, rng: np.random.Generator, avoid_cells: Sequence = ()
+) -> MazeWaypointController:
     maze = env.unwrapped.maze
     return MazeWaypointController(
         maze.maze_map,
         maze_size_scaling=maze.maze_size_scaling,
         action_noise=action_noise,
         rng=rng,
+        avoid_cells=avoid_cells,
     )
+
+
+def _in_cells(ctrl: MazeWaypointController, positions: np.ndarray, cells: set) -> np.ndarray:
+    """Whether each ``(x, y)`` of ``positions [N, 2]`` lies in one of ``cells``."""
+    rows = np.floor((ctrl.y_center - positions[:, 1]) / ctrl.scaling).astype(int)
+    cols = np.floor((positions[:, 0] + ctrl.x_center) / ctrl.scaling).astype(int)
+    return np.array([(r, c) in cells for r, c in zip(rows, cols, strict=True)], dtype=bool)
 
 
 def compute_maze_references(
@@ -127,6 +137,7 @@ def generate_maze_dataset(
     continuing_task: bool = True,
     reward_type: str = "sparse",
     goal_cell: Sequence[int] | None = None,
+    avoid_cells: Sequence[Sequence[int]] | None = None,
 ) -> OfflineDataset:
     """Generates D4RL-maze2d-like PointMaze transitions (see the module docstring).
 
@@ -147,6 +158,13 @@ def generate_maze_dataset(
         goal_cell (sequence of int, optional): a fixed task goal cell ``(row, col)`` for
             every episode (the reward and the observation's goal); the controller still
             chases its own random goals. ``None`` (default): a random goal per episode.
+        avoid_cells (sequence of (row, col), optional): cells the data never enter: the
+            controller plans around them (:class:`MazeWaypointController`), an episode
+            that starts in one is reset, and only noise can push the point mass across
+            their border (``metadata["avoided_fraction"]`` counts those transitions).
+            With ``goal_cell`` among them the data hold no reward: a task the online
+            phase must explore (issue 29). The references stay the unconstrained
+            controller's. ``None`` (default): every cell.
 
     Returns:
         An :class:`OfflineDataset` with ``reference_min = random_return`` and
@@ -170,8 +188,17 @@ def generate_maze_dataset(
         goal_cell=goal_cell,
     )
     rng = np.random.default_rng([seed, 0])
-    ctrl = _controller(env, action_noise, rng)
+    avoided = {(int(r), int(c)) for r, c in (avoid_cells or ())}
+    ctrl = _controller(env, action_noise, rng, sorted(avoided))
     noise = rng.standard_normal((num_transitions, 2))
+
+    def reset(**kwargs):  # a start outside the avoided cells
+        for _ in range(100):
+            obs, _ = env.reset(**kwargs)
+            kwargs = {}
+            if not _in_cells(ctrl, obs["observation"][None, :2], avoided)[0]:
+                break
+        return obs
 
     n = num_transitions
     obs_buf = np.empty((n, 6), np.float32)
@@ -183,7 +210,7 @@ def generate_maze_dataset(
     ep_buf = np.empty(n, np.int64)
 
     episode, goals_reached = 0, 0
-    obs, _ = env.reset(seed=int(seed))
+    obs = reset(seed=int(seed))
     flat = flatten_pointmaze_obs(obs)
     state = obs["observation"]
     _, own_goal = ctrl.random_goal(exclude=ctrl.xy_to_cell(state[:2]))
@@ -197,7 +224,7 @@ def generate_maze_dataset(
         state = obs["observation"]
         if terminated or truncated:
             episode += 1
-            obs, _ = env.reset()
+            obs = reset()
             next_flat = flatten_pointmaze_obs(obs)
             state = obs["observation"]
             _, own_goal = ctrl.random_goal(exclude=ctrl.xy_to_cell(state[:2]))
@@ -219,6 +246,8 @@ def generate_maze_dataset(
         "continuing_task": bool(continuing_task),
         "reward_type": reward_type,
         "goal_cell": None if goal_cell is None else [int(v) for v in goal_cell],
+        "avoid_cells": [list(cell) for cell in sorted(avoided)],
+        "avoided_fraction": float(_in_cells(ctrl, obs_buf[:, :2], avoided).mean()),
         "generator_version": MAZE_GENERATOR_VERSION,
         "own_goals_reached": int(goals_reached),
         "reward_fraction": float((rew_buf > 0).mean()),
@@ -292,6 +321,9 @@ def load_or_generate_maze_dataset(
     else:
         goal_maze_map(maze, goal_cell)  # fail fast on a wall or a cell outside the maze
         kwargs["goal_cell"] = [int(v) for v in goal_cell]
+    avoid_cells = kwargs.pop("avoid_cells", None)
+    if avoid_cells:  # data without those cells: entries of their own (older ones unchanged)
+        kwargs["avoid_cells"] = sorted([int(r), int(c)] for r, c in avoid_cells)
     spec = {
         "generator": "pointmaze_local",
         "generator_version": MAZE_GENERATOR_VERSION,
@@ -301,6 +333,8 @@ def load_or_generate_maze_dataset(
         **kwargs,
     }
     goal = "" if goal_cell is None else "-goal{}_{}".format(*kwargs["goal_cell"])
+    if avoid_cells:
+        goal += "-avoid" + "-".join("{}_{}".format(*cell) for cell in kwargs["avoid_cells"])
     path = root / f"pointmaze-{maze}{goal}-n{num_transitions}-seed{seed}"
 
     def generate() -> OfflineDataset:

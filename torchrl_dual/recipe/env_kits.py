@@ -49,7 +49,7 @@ from torchrl_dual.evaluation import evaluate_episodes, frozenlake_policy_actions
 from torchrl_dual.recipe.env_kit import EnvKit, EnvSettings, Evaluator
 from torchrl_dual.recipe.errors import ConfigError, UserError
 from torchrl_dual.recipe.minari_kits import MINARI_KITS
-from torchrl_dual.recipe.rules import Choice, Either, IntegerList, Maybe, Real, key
+from torchrl_dual.recipe.rules import CellList, Choice, Either, IntegerList, Maybe, Real, key
 from torchrl_dual.transforms import PreviousTransition
 
 
@@ -68,16 +68,25 @@ class PointMazeSettings(EnvSettings):
     goal_cell: Any = key(
         Maybe(IntegerList(0)), "fixed goal cell [row, col] (null: a random open cell per episode)"
     )
+    data_avoid_cells: Any = key(
+        Maybe(CellList()), "open cells the offline data never enter (null: none)"
+    )
 
 
 def _check_pointmaze(cfg: DictConfig) -> None:
-    """``env.goal_cell`` is an open cell of ``env.maze`` (a ``[row, col]`` pair)."""
+    """``env.goal_cell`` and every ``env.data_avoid_cells`` entry are open cells of
+    ``env.maze`` (``[row, col]`` pairs)."""
     goal_cell = cfg.env.goal_cell
     if goal_cell is not None:
         try:
             goal_maze_map(cfg.env.maze, list(goal_cell))
         except ValueError as err:
             raise ConfigError("env.goal_cell", list(goal_cell), str(err)) from err
+    for cell in _pointmaze_avoided(cfg.env) or ():
+        try:
+            goal_maze_map(cfg.env.maze, cell)
+        except ValueError as err:
+            raise ConfigError("env.data_avoid_cells", cell, str(err)) from err
 
 
 def _pointmaze_shift(env: DictConfig) -> dict[str, Any]:
@@ -86,6 +95,11 @@ def _pointmaze_shift(env: DictConfig) -> dict[str, Any]:
 
 def _pointmaze_goal(env: DictConfig) -> list[int] | None:
     return None if env.goal_cell is None else list(env.goal_cell)
+
+
+def _pointmaze_avoided(env: DictConfig) -> list[list[int]] | None:
+    cells = env.get("data_avoid_cells")
+    return None if not cells else [list(cell) for cell in cells]
 
 
 def _pointmaze_data(cfg: DictConfig) -> OfflineDataset:
@@ -97,6 +111,7 @@ def _pointmaze_data(cfg: DictConfig) -> OfflineDataset:
         cfg.data_cache_dir,
         max_episode_steps=env.max_episode_steps,
         goal_cell=_pointmaze_goal(env),
+        avoid_cells=_pointmaze_avoided(env),
     )
 
 

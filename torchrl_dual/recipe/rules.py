@@ -190,6 +190,21 @@ class IntegerList(Rule):
 
 
 @dataclasses.dataclass(frozen=True)
+class CellList(Rule):
+    """A list of grid cells ``[row, col]`` (integers ``>= 0``); whether each is open is a
+    cross-key check against the layout."""
+
+    def allows(self, value: Any) -> bool:
+        return isinstance(value, list) and all(
+            isinstance(cell, list) and len(cell) == 2 and IntegerList(0).allows(cell)
+            for cell in value
+        )
+
+    def describe(self) -> str:
+        return "must be a list of [row, col] cells, e.g. [[3, 1]]"
+
+
+@dataclasses.dataclass(frozen=True)
 class RealList(Rule):
     """A list of ``length`` finite numbers (e.g. a pair of reference returns)."""
 
