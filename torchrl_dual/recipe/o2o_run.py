@@ -51,6 +51,7 @@ RESUMABLE_KEYS = (
     "debug",
     "offline_cache",
     "collector",  # how frames are gathered: a resumed run may use other workers or cores
+    "compile",  # how an update runs (compiled or not), not what it computes
 )
 # Part of the fingerprint: a checkpoint of another layout (e.g. written before the
 # O2ORun / Learner split) is refused with the checkpoint's "incompatible run" error.
@@ -98,6 +99,17 @@ def check_output_dir(cfg: DictConfig) -> None:
         )
 
 
+def compiled_update(learner: Learner, settings: DictConfig | None) -> Callable:
+    """``learner.update``, or with ``compile.compile=true`` that method through
+    ``torch.compile`` (``compile.compile_mode``): the losses trace whole (no graph break,
+    ``tests/test_compile.py``), the backward passes and optimizer steps are their own
+    graphs. Dynamo replays the update's Python side effects (counters)."""
+    if settings is None or not settings.compile:
+        return learner.update
+    mode = settings.compile_mode
+    return torch.compile(learner.update, mode=None if mode in (None, "default") else mode)
+
+
 class O2ORun:
     """Everything one offline-to-online run needs apart from its :class:`Learner`.
 
@@ -133,6 +145,7 @@ class O2ORun:
         self.offline_buffer = self._offline_buffer()
         # ---- the algorithm's networks, losses and policies
         self.learner = make_learner(self)
+        self._update = compiled_update(self.learner, cfg.get("compile"))
         self.replay = REPLAYS[cfg.replay.name][1](self)  # D_offline ∪ D_online (replays.py)
         # ---- counters
         self.stages_done: list[str] = []
@@ -260,7 +273,7 @@ class O2ORun:
     # ------------------------------------------------------------------ updates
     def update(self, batch: TensorDictBase) -> dict:
         """One learner update, counted."""
-        metrics = self.learner.update(batch)
+        metrics = self._update(batch)
         self.updates += 1
         return metrics
 

@@ -57,6 +57,18 @@ class RunSettings:
     debug: bool = key(Flag(), "print tracebacks of user errors")
 
 
+COMPILE_MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
+"""``torch.compile``'s modes (``compile.compile_mode``; ``null`` is ``default``)."""
+
+
+@dataclass
+class CompileSettings:
+    """``config.yaml``'s ``compile``: TorchRL sota-implementations' keys."""
+
+    compile: bool = key(Flag(), "torch.compile each gradient update of the learner")
+    compile_mode: Any = key(Maybe(Choice(COMPILE_MODES)), "torch.compile mode (null: default)")
+
+
 @dataclass
 class BudgetSettings:
     """``budget/*.yaml``: how much data, computation and evaluation a run gets."""
@@ -111,6 +123,7 @@ def validate_config(cfg: DictConfig) -> DictConfig:
         "replay": replay_schema,
         "collector": collector_schema,
         "logger": logger.settings,
+        "compile": CompileSettings,
     }
     known = dotted_keys(RunSettings, "")
     for name, schema in sections.items():

@@ -1,0 +1,51 @@
+"""``compile.compile=true``: the recipe's updates through ``torch.compile`` give the eager
+updates' losses and weights to float tolerance (issue 30 item 3)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from torchrl_dual.recipe import ALGORITHMS, CONFIG_DIR, ConfigError, O2ORun, compose_checked
+
+TINY = (
+    "budget=smoke", "env=frozenlake", "budget.dataset_transitions=500",
+    "budget.network_width=16", "budget.batch_size=32", "progress=false", "num_threads=1",
+)  # fmt: skip
+
+pytestmark = pytest.mark.long_running(seconds=40)
+
+
+def _run(tmp_path, cache, *extra: str) -> O2ORun:
+    cfg = compose_checked(
+        CONFIG_DIR,
+        [*TINY, "algo=iql", f"output_dir={tmp_path}", f"data_cache_dir={cache}", *extra],
+    )
+    return O2ORun(cfg, ALGORITHMS["iql"].learner)
+
+
+def test_compiled_updates_follow_the_eager_ones(tmp_path):
+    cache = tmp_path / "data"
+    eager = _run(tmp_path / "eager", cache)
+    compiled = _run(tmp_path / "compiled", cache, "compile.compile=true")
+    assert compiled._update is not compiled.learner.update  # the compiled wrapper
+    batches = [eager.offline_buffer.sample().clone() for _ in range(20)]
+    for batch in batches:
+        expected, got = eager.update(batch.clone()), compiled.update(batch.clone())
+        for name, value in expected.items():
+            torch.testing.assert_close(got[name], value, rtol=1e-4, atol=1e-5, msg=name)
+    assert compiled.updates == eager.updates == 20
+    for (name, a), (_, b) in zip(
+        eager.learner.actor.named_parameters(), compiled.learner.actor.named_parameters(),
+        strict=True,
+    ):  # fmt: skip
+        torch.testing.assert_close(b, a, rtol=1e-4, atol=1e-5, msg=name)
+
+
+def test_compile_keys_are_checked(tmp_path):
+    with pytest.raises(ConfigError, match="compile.compile_mode"):
+        compose_checked(
+            CONFIG_DIR, [*TINY, f"output_dir={tmp_path}", "compile.compile_mode=fastest"]
+        )
+    cfg = compose_checked(CONFIG_DIR, [*TINY, f"output_dir={tmp_path}"])
+    assert cfg.compile.compile is False and cfg.compile.compile_mode is None
