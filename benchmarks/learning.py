@@ -298,11 +298,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", nargs="+", type=int)
     add_arguments(parser)  # --backend, --jobs, --ray-address, --ray-retries
     parser.add_argument(
-        "--out", type=Path, default=Path("outputs/suite"), help="run dirs (ray: shared storage)"
+        "--out",
+        type=Path,
+        default=REPO / "outputs" / "suite",
+        help="run dirs (ray: shared storage)",
     )
-    parser.add_argument("--results", type=Path, default=Path("benchmarks/results"))
-    parser.add_argument("--docs", type=Path, default=Path("docs/results.md"))
-    parser.add_argument("--figures", type=Path, default=Path("docs/figures"))
+    parser.add_argument("--results", type=Path, default=REPO / "benchmarks" / "results")
+    parser.add_argument("--docs", type=Path, default=REPO / "docs" / "results.md")
+    parser.add_argument("--figures", type=Path, default=REPO / "docs" / "figures")
     parser.add_argument("--latency-json", type=Path, help="from benchmarks/latency.py --json")
     parser.add_argument("--report-only", action="store_true")
     parser.add_argument("--dry-run", action="store_true", help="print the queue and stop")
