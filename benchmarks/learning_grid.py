@@ -22,6 +22,10 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     "diffql": ("algo=diffql",),
     "diffql_la": ("algo=diffql_la",),
     "dual_no_uq": ("algo=dual", "laplace.num_samples=0"),
+    # the posterior tempered (issue 29): Σ × 100, and the paper's literal Eq. 7 (the mean
+    # loss's Laplace, about N times wider); both on dual's offline phase
+    "dual_t100": ("algo=dual", "laplace.posterior_temperature=100"),
+    "dual_tdata": ("algo=dual", "laplace.posterior_temperature=data"),
     "dual_lambda0": ("algo=dual", "exploration.shift_weight=0"),
     # IQL given DUAL's CPU time on U-maze (measured 2026-12-03 with today's code: DUAL
     # 590 CPU-s per run, IQL 301 CPU-s of which 187 for its 10000 offline updates, i.e.
@@ -102,6 +106,12 @@ NOISE_VARIANTS = ("dual_shift_floor",)
 NOISE_CONTROLS = ("dual_constant_noise",)
 """Eq. 10's state-independent control, run where λ made a difference (Medium)."""
 
+TEMPERATURE_VARIANTS = ("dual_t100", "dual_tdata")
+"""The tempered posteriors of issue 29, next to ``dual`` and ``dual_no_uq``."""
+
+MEDIUM_EXPLORE_ROOM = "[[4,6],[5,6],[6,5],[6,6]]"
+"""Medium's bottom-right dead end, which ``medium_explore``'s offline data never enter."""
+
 SHIFT_VARIANTS = ("dual", "iql", "dual_lambda0")
 
 
@@ -127,7 +137,8 @@ CELLS: dict[str, Cell] = {
         tuple(
             v for v in VARIANTS
             if v not in (*ABLATION_VARIANTS, *PAPER_BASELINES, *ONLINE_TUNING_VARIANTS,
-                         *NOISE_VARIANTS, *NOISE_CONTROLS, "iql_equal_time_online",
+                         *NOISE_VARIANTS, *NOISE_CONTROLS, *TEMPERATURE_VARIANTS,
+                         "iql_equal_time_online",
                          *REFERENCE_CHECKS)
         ), 5,
         "PointMaze U-maze",
@@ -144,6 +155,23 @@ CELLS: dict[str, Cell] = {
         ("dual", "dual_lambda0", *NOISE_VARIANTS), 3,
         "U-maze with 20000 offline updates, online actions rotated by 60°: λ = 0.5, λ = 0 "
         "and the floor d_0",
+    ),
+    # issue 29: the tempered posteriors on U-maze's DUAL offline phases
+    "umaze_temperature": Cell(
+        ("env=pointmaze_umaze",), TEMPERATURE_VARIANTS, 5,
+        "PointMaze U-maze: DUAL's posterior × 100 and the mean loss's (`data`)",
+        reference="umaze",
+    ),
+    # issue 29's exploration task: the goal in a dead end the data never enter (not run yet)
+    "medium_explore": Cell(
+        (
+            "env=pointmaze_medium", "env.goal_cell=[6,6]",
+            f"env.data_avoid_cells={MEDIUM_EXPLORE_ROOM}", "budget.offline_updates=40000",
+            "budget.online_frames=32000",
+        ),
+        ("dual", "dual_no_uq", *TEMPERATURE_VARIANTS, "iql", "dual_lambda0"), 5,
+        "PointMaze Medium, goal (6, 6) in the dead end the data never enter, 40000 offline "
+        "updates, 32000 online frames",
     ),
     "umaze_online": Cell(
         ("env=pointmaze_umaze",), ONLINE_TUNING_VARIANTS, 5,
