@@ -109,3 +109,25 @@ def test_a_batch_without_both_parts_names_the_fix():
         _constant_loss(1.0)(batch)
     with pytest.raises(KeyError, match="set_keys"):
         _constant_loss(1.0)(batch.exclude("online"))
+
+
+def test_the_loss_compiles_without_a_graph_break_and_keeps_its_value():
+    """Masked sums instead of boolean indexing: no data-dependent shape (issue 30)."""
+    from tensordict import TensorDict as _TD
+
+    from torchrl_dual.objectives.density_ratio import DensityRatioLoss as _Loss
+    from torchrl_dual.objectives.density_ratio import make_density_ratio_network as _net
+
+    torch.manual_seed(0)
+    loss = _Loss(_net(3, 2, num_cells=(8,)))
+    td = _TD(observation=torch.randn(9, 3), action=torch.randn(9, 2),
+             online=torch.arange(9) % 3 == 0, batch_size=[9])  # fmt: skip
+    eager = loss(td)
+    torch._dynamo.reset()
+    compiled = torch.compile(loss, fullgraph=True, backend="eager")(td)
+    for key in ("loss_density_ratio", "ratio_offline", "ratio_online"):
+        torch.testing.assert_close(compiled[key], eager[key])
+    with torch.no_grad():
+        w = loss.ratio_network(td)["density_ratio"].squeeze(-1)
+    torch.testing.assert_close(eager["ratio_online"], w[td["online"]].mean())
+    torch.testing.assert_close(eager["ratio_offline"], w[~td["online"]].mean())

@@ -304,3 +304,10 @@ def test_make_value_estimator_sets_gamma_as_torchrl_losses_do():
         loss.make_value_estimator(ValueEstimators.TDLambda)
     with pytest.raises(TypeError, match="gamma only"):
         loss.make_value_estimator(lmbda=0.9)
+
+
+def test_the_loss_compiles_without_a_graph_break():
+    loss, batch = _mock_loss(), _mock_batch()
+    torch._dynamo.reset()
+    out = torch.compile(loss, fullgraph=True, backend="eager")(batch)
+    assert torch.isfinite(out["loss_qvalue"])

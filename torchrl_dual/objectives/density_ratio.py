@@ -29,7 +29,7 @@ from torch import nn
 from torchrl.modules import MLP
 from torchrl.objectives.common import LossModule
 
-from torchrl_dual._utils import read_loss_input
+from torchrl_dual._utils import host_reads_allowed, read_loss_input
 
 _LOG_EPS = 1e-10  # the authors' guard inside both logarithms
 
@@ -139,21 +139,24 @@ class DensityRatioLoss(LossModule):
             w = self.ratio_network(td).get(self.tensor_keys.density_ratio)
         w = w.reshape(tensordict.shape)
         online = online.reshape(w.shape).bool()
-        if bool(online.all()) or not bool(online.any()):
+        if host_reads_allowed() and (bool(online.all()) or not bool(online.any())):
             raise ValueError(
                 "DensityRatioLoss needs offline and online transitions in the batch; got "
                 f"{int(online.sum())} online of {online.numel()}. Use "
                 "BalancedReplayBuffer.ratio_batch() once the online buffer holds data."
             )
-        w_off, w_on = w[~online], w[online]
-        offline_term = -torch.log(2.0 / (w_off + 1.0) + _LOG_EPS)  # f*(T) on D_offline
-        online_term = torch.log(2.0 * w_on / (w_on + 1.0) + _LOG_EPS)  # T on D_online
-        loss = offline_term.mean() - online_term.mean()
+        # means over each part as masked sums: no data-dependent shapes (compiles whole)
+        on = online.to(w.dtype)
+        off = 1.0 - on
+        offline_term = -torch.log(2.0 / (w + 1.0) + _LOG_EPS)  # f*(T) on D_offline
+        online_term = torch.log(2.0 * w / (w + 1.0) + _LOG_EPS)  # T on D_online
+        n_off, n_on = off.sum(), on.sum()
+        loss = (offline_term * off).sum() / n_off - (online_term * on).sum() / n_on
         return TensorDict(
             {
                 "loss_density_ratio": loss,
-                "ratio_offline": w_off.mean().detach(),
-                "ratio_online": w_on.mean().detach(),
+                "ratio_offline": ((w * off).sum() / n_off).detach(),
+                "ratio_online": ((w * on).sum() / n_on).detach(),
             },
             batch_size=[],
         )
