@@ -269,7 +269,7 @@ def _graph_breaks() -> int:
     return sum(counters["graph_break"].values())
 
 
-def wrap(fn: Callable, mode: str, batch: TensorDict, device: str) -> Callable:
+def wrap(fn: Callable, mode: str, device: str) -> Callable:
     """``fn`` as ``mode`` runs it (``compile``: ``torch.compile``; ``cudagraphs``: then
     ``CudaGraphModule``)."""
     if mode == "eager":
@@ -310,7 +310,7 @@ def measure_all(
             try:
                 if name in builders:
                     update, batch = builders[name](s, device, capturable=mode == "cudagraphs")
-                    fn = wrap(update, mode, batch, device)
+                    fn = wrap(update, mode, device)
                     call = lambda fn=fn, batch=batch: fn(batch)  # noqa: E731
                 else:
                     policy = build_policy(s, device)
@@ -322,7 +322,7 @@ def measure_all(
                             return policy(td)
 
                     act(step.clone())  # a collector's first step: caches built eagerly
-                    fn = wrap(act, mode, step, device)
+                    fn = wrap(act, mode, device)
                     call = lambda fn=fn, step=step: fn(step.clone())  # noqa: E731
                 per_second = rate(call, device, warmup=warmup, steps=steps)
                 results[name][mode] = {
