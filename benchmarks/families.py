@@ -112,7 +112,7 @@ def measure(family: str, updates: int, steps: int, workdir: Path) -> dict:
 
     result["online_step_ms"] = time_steps(online_step, steps)
     # a raw Gymnasium step with random actions (the data set's env behind its observation map)
-    from torchrl_dual.recipe.minari_kits import _gym_env
+    from torchrl_dual.recipe.kits.minari_families import _gym_env
 
     raw = _gym_env(o2o.cfg, o2o.data, eval_env=True, shifted=False)
     raw.reset(seed=0)

@@ -52,8 +52,8 @@ from torchrl_dual.modules import (
 )
 from torchrl_dual.modules.exploration import EntropyRegulatedNoise, dacer_target_entropy
 from torchrl_dual.recipe import CONFIG_DIR as RECIPE_CONFIG_DIR
-from torchrl_dual.recipe.diffql import ActionBox, make_diffusion_actor
-from torchrl_dual.recipe.iql import make_iql_actor
+from torchrl_dual.recipe.algos.diffql import ActionBox, make_diffusion_actor
+from torchrl_dual.recipe.algos.iql import make_iql_actor
 
 ALGO_CONFIGS = RECIPE_CONFIG_DIR / "algo"
 

@@ -14,7 +14,7 @@ JSON, so both backends write the same files in the same way.
   Every node needs this repository at the same path and the same Python environment.
 
 Runs of one offline-sharing group wait for the first of them on the offline cache's
-``fcntl`` lock (``torchrl_dual/recipe/offline_cache.py``), across nodes as long as the
+``fcntl`` lock (``torchrl_dual/recipe/o2o/offline_cache.py``), across nodes as long as the
 shared file system supports ``flock`` (NFSv4 and Lustre do). See ``docs/scale-out.md``.
 """
 

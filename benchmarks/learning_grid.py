@@ -232,7 +232,7 @@ CELLS: dict[str, Cell] = {
 """Cell name -> :class:`Cell` (the issue's grid)."""
 
 # Overrides that only the online phase reads: runs differing only in these share the
-# offline phase (torchrl_dual.recipe.offline_cache.ONLINE_KEYS).
+# offline phase (torchrl_dual.recipe.o2o.offline_cache.ONLINE_KEYS).
 ONLINE_ONLY = (
     "budget.online_frames=",
     "env.shift=",

@@ -64,9 +64,9 @@ def _signal_runs(results: Sequence[dict], name: str) -> list[dict]:
 def plot_cell_curves(variants: dict[str, list[dict]], path: Path, *, title: str) -> Path:
     """Mean normalized score ± 95 % t band per variant against online frames; below it, one
     panel per online signal that some variant's runs logged (DUAL's epistemic std and shift
-    distance ``d_t`` per collected batch, :data:`torchrl_dual.recipe.plots.ONLINE_SIGNALS`),
+    distance ``d_t`` per collected batch, :data:`torchrl_dual.recipe.o2o.plots.ONLINE_SIGNALS`),
     averaged over those runs."""
-    from torchrl_dual.recipe.plots import ONLINE_SIGNALS
+    from torchrl_dual.recipe.o2o.plots import ONLINE_SIGNALS
 
     plt = _pyplot()
     signals = [

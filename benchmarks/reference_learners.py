@@ -32,8 +32,8 @@ from torchrl_dual.recipe import (
     run_o2o,
     user_errors,
 )
-from torchrl_dual.recipe.env_kits import projected_policy  # the same projection as algo=iql
-from torchrl_dual.recipe.mc_labels import MC_RETURN, MonteCarloLabels
+from torchrl_dual.recipe.kits.build import projected_policy  # the same projection as algo=iql
+from torchrl_dual.recipe.parts.mc_labels import MC_RETURN, MonteCarloLabels
 
 
 def _encoder(section: DictConfig) -> VectorEncoderFactory:

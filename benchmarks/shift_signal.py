@@ -37,7 +37,7 @@ from tensordict import TensorDictBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchrl_dual.recipe import O2ORun
-from torchrl_dual.recipe.env_kits import make_train_env
+from torchrl_dual.recipe.kits.build import make_train_env
 
 
 def offline_distance(run: O2ORun, samples: int, seed: int = 0) -> torch.Tensor:

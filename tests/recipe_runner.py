@@ -59,7 +59,7 @@ def _run_in_process(args: list[str]) -> subprocess.CompletedProcess:
     torch, numpy and python RNG states are restored afterwards, so that the run leaves
     the test process as it found it."""
     from torchrl_dual.recipe import compose_checked, hydra_task
-    from torchrl_dual.recipe.errors import user_errors
+    from torchrl_dual.recipe.settings.errors import user_errors
 
     threads, code = torch.get_num_threads(), 0
     np_state, py_state = np.random.get_state(), random.getstate()

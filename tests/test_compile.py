@@ -32,7 +32,7 @@ from torchrl_dual import (
     make_dual_policy,
 )
 from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
-from torchrl_dual.recipe.iql import make_iql_actor
+from torchrl_dual.recipe.algos.iql import make_iql_actor
 
 OBS, ACT, H = 5, 2, 4
 HOST_READS = {

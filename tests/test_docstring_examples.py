@@ -75,7 +75,7 @@ def _examples(module_name: str) -> int:
 def test_module_discovery_finds_the_whole_package():
     assert set(MUST_HAVE_EXAMPLES) <= set(MODULES)
     assert "torchrl_dual.modules.actors.last_layer_actor" in MODULES
-    assert "torchrl_dual.recipe.env_kits" in MODULES
+    assert "torchrl_dual.recipe.kits.build" in MODULES
 
 
 @pytest.mark.parametrize("module_name", MUST_HAVE_EXAMPLES)

@@ -40,7 +40,7 @@ def test_runs_the_suite_groups_for_sharing_have_one_recipe_offline_key(tmp_path)
     """The queue's ``sharing_key`` (from ``learning_grid.ONLINE_ONLY``) puts two runs in one
     group exactly when the recipe's offline cache gives them one key (U-maze, seed 0)."""
     from torchrl_dual.recipe import ALGORITHMS, compose_checked
-    from torchrl_dual.recipe.offline_cache import offline_key_config
+    from torchrl_dual.recipe.o2o.offline_cache import offline_key_config
 
     runs = [
         learning.Run(name, variant, 0, (*cell.overrides, *learning.VARIANTS[variant]))

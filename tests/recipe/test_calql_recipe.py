@@ -10,7 +10,7 @@ from test_diffql import CONFIG_DIR, POINTMAZE, checkpoint_state, common_override
 
 from torchrl_dual.data import make_transitions, monte_carlo_returns
 from torchrl_dual.recipe import ConfigError, compose_checked, run
-from torchrl_dual.recipe.mc_labels import MC_RETURN
+from torchrl_dual.recipe.parts.mc_labels import MC_RETURN
 
 
 @pytest.fixture(scope="module")

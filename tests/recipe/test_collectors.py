@@ -1,4 +1,4 @@
-"""``collector=single|multi_sync|multi_async`` (``torchrl_dual/recipe/collectors.py``).
+"""``collector=single|multi_sync|multi_async`` (``torchrl_dual/recipe/o2o/collectors.py``).
 
 A DUAL run with two ``multi_sync`` workers, interrupted and resumed with two
 ``multi_async`` ones in this process,
@@ -24,7 +24,7 @@ from tensordict.nn import TensorDictModule
 from torch import nn
 
 from torchrl_dual.recipe import CONFIG_DIR, O2ORun, compose_checked, run
-from torchrl_dual.recipe.collectors import COLLECTORS, assign_episodes
+from torchrl_dual.recipe.o2o.collectors import COLLECTORS, assign_episodes
 
 pytestmark = pytest.mark.long_running(seconds=55)  # starts first under xdist
 # DUAL at the smoke budget cut down: 120 online frames in batches of 20 (episodes of 15

@@ -12,7 +12,7 @@ import torch
 from omegaconf import OmegaConf
 from recipe_runner import run_recipe, succeeded
 
-from torchrl_dual.recipe import critics
+from torchrl_dual.recipe.parts import critics
 
 TINY = ("algo=iql", "env=frozenlake", "budget.offline_updates=10", "budget.online_frames=100")
 TINY += ("budget.frames_per_batch=50", "budget.eval_every=100", "budget.eval_episodes=1")

@@ -1,4 +1,4 @@
-"""The ``algo=dacer`` baseline (``torchrl_dual/recipe/dacer.py``): Diff-QL with DACER's
+"""The ``algo=dacer`` baseline (``torchrl_dual/recipe/algos/dacer.py``): Diff-QL with DACER's
 entropy regulator online.
 
 End to end in process at a cut-down smoke budget, interrupted after the first block of
@@ -22,8 +22,8 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchrl_dual.modules.exploration import sampled_entropy
 from torchrl_dual.recipe import O2ORun, check_command_line, compose_checked, run
-from torchrl_dual.recipe.dacer import DACERLearner
-from torchrl_dual.recipe.diffql import DiffQLLearner
+from torchrl_dual.recipe.algos.dacer import DACERLearner
+from torchrl_dual.recipe.algos.diffql import DiffQLLearner
 
 # test_diffql.py's cut-down smoke budget (10 offline updates, 100 online frames in 2
 # blocks of 50, 10 updates each), the regulator every 5 online updates on 8 states x 50

@@ -1,4 +1,4 @@
-"""The Diff-QL baselines ``algo=diffql`` and ``algo=diffql_la`` (``torchrl_dual/recipe/diffql.py``).
+"""The Diff-QL baselines ``algo=diffql`` and ``algo=diffql_la`` (``torchrl_dual/recipe/algos/diffql.py``).
 
 End to end at a cut-down smoke budget (one run through ``recipes/o2o.py`` as a user
 starts it, two in-process runs of :func:`torchrl_dual.recipe.run`, what it calls), then the math of the
@@ -23,8 +23,8 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl_dual import DDPMLastStepActor, WeightedMAPActorLoss, make_dual_policy
 from torchrl_dual.objectives.diffql_actor_loss import DiffQLActorLoss, min_q
 from torchrl_dual.recipe import CONFIG_DIR, O2ORun, check_command_line, compose_checked, run
-from torchrl_dual.recipe.critics import make_iql_critic
-from torchrl_dual.recipe.diffql import ActionBox, DiffQLLALearner, make_diffusion_actor
+from torchrl_dual.recipe.algos.diffql import ActionBox, DiffQLLALearner, make_diffusion_actor
+from torchrl_dual.recipe.parts.critics import make_iql_critic
 
 # the smoke budget cut further: 10 offline updates, 100 online frames in 2 blocks of 50,
 # each followed by 10 updates (UTD 0.2) and a Laplace refit (diffql_la)

@@ -1,4 +1,4 @@
-"""The ``diffuser`` baseline (``torchrl_dual/recipe/diffuser.py``): the undistilled
+"""The ``diffuser`` baseline (``torchrl_dual/recipe/algos/diffuser.py``): the undistilled
 N-step planner acting with ``τ_{a_0}``, ``L_VLB`` offline and on ``D_offline ∪ D_online``."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl_dual.modules import PlannerSampler
 from torchrl_dual.recipe import CONFIG_DIR as RECIPE_CONFIG_DIR
 from torchrl_dual.recipe import O2ORun, compose_checked
-from torchrl_dual.recipe.diffuser import DiffuserLearner
+from torchrl_dual.recipe.algos.diffuser import DiffuserLearner
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Planner augmentation (``torchrl_dual/recipe/planner_augment.py``): ``algo=edis`` and
+"""Planner augmentation (``torchrl_dual/recipe/parts/planner_augment.py``): ``algo=edis`` and
 ``algo=dual augment.kind=planner``, end to end at a cut-down smoke budget, in process.
 
 The online phase is 100 frames in 2 blocks of 50, each followed by 10 updates; with
@@ -17,9 +17,9 @@ from test_diffql import CONFIG_DIR, POINTMAZE, checkpoint_state
 from test_diffql import FAST as CUT_SMOKE_BUDGET
 
 from torchrl_dual.recipe import O2ORun, compose_checked, run
-from torchrl_dual.recipe.dual import DualLearner
-from torchrl_dual.recipe.edis import EDISLearner
-from torchrl_dual.recipe.planner_augment import is_generated
+from torchrl_dual.recipe.algos.dual import DualLearner
+from torchrl_dual.recipe.algos.edis import EDISLearner
+from torchrl_dual.recipe.parts.planner_augment import is_generated
 
 FAST = [
     "budget=smoke",

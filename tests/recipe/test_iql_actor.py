@@ -21,7 +21,7 @@ from torchrl.data import Bounded
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchrl_dual.recipe import ConfigError, compose_checked
-from torchrl_dual.recipe.iql import make_iql_actor
+from torchrl_dual.recipe.algos.iql import make_iql_actor
 
 
 def _actor(distribution: str, low: float = -1.0, high: float = 1.0):

@@ -1,4 +1,4 @@
-"""The "IQL + LA" baseline ``algo=iql_la`` (``torchrl_dual/recipe/iql_la.py``).
+"""The "IQL + LA" baseline ``algo=iql_la`` (``torchrl_dual/recipe/algos/iql_la.py``).
 
 End to end at a cut-down smoke budget: one PointMaze run through ``recipes/o2o.py`` as a
 user starts it, one Frozen-Lake run in-process whose learner the tests inspect. Then:
@@ -27,7 +27,7 @@ from torchrl_dual.recipe import (
     compose_checked,
     run,
 )
-from torchrl_dual.recipe.iql_la import IQLLALearner
+from torchrl_dual.recipe.algos.iql_la import IQLLALearner
 
 REPO = Path(__file__).resolve().parents[2]
 # the smoke budget cut further: 20 offline updates, 100 online frames in 2 blocks of 25

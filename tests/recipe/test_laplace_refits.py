@@ -1,4 +1,4 @@
-"""Tests of ``LaplaceRefits`` (``torchrl_dual/recipe/laplace_refits.py``): the refit
+"""Tests of ``LaplaceRefits`` (``torchrl_dual/recipe/parts/laplace_refits.py``): the refit
 schedule of a learner acting with a Laplace ensemble, on a stand-in base learner, and
 its fit (``σ̄``, then Eq. 8 with the learner's weights) on a tiny MLP ensemble."""
 
@@ -12,8 +12,8 @@ from tensordict import TensorDict
 from torchrl.modules import MLP
 
 from torchrl_dual.modules import LaplaceEnsembleActor, LinearHeadActor
-from torchrl_dual.recipe.laplace_refits import LaplaceRefits
-from torchrl_dual.recipe.o2o_run import Learner
+from torchrl_dual.recipe.o2o.run import Learner
+from torchrl_dual.recipe.parts.laplace_refits import LaplaceRefits
 
 
 class _Base(Learner):

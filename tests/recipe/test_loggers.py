@@ -1,5 +1,5 @@
-"""``logger=csv | tensorboard | wandb`` (``torchrl_dual/recipe/loggers.py``) and the end-of-run
-plot with DUAL's online signals (``torchrl_dual/recipe/plots.py``).
+"""``logger=csv | tensorboard | wandb`` (``torchrl_dual/recipe/o2o/loggers.py``) and the end-of-run
+plot with DUAL's online signals (``torchrl_dual/recipe/o2o/plots.py``).
 
 Three in-process DUAL runs at a cut-down smoke budget on PointMaze: a CSV run, and a
 TensorBoard and a W&B run that are each interrupted after the first collected batch and
@@ -20,8 +20,8 @@ from test_diffql import CONFIG_DIR, POINTMAZE
 from test_diffql import FAST as DIFFQL_FAST
 
 from torchrl_dual.recipe import ConfigError, compose_checked, run
-from torchrl_dual.recipe.loggers import LOGGERS
-from torchrl_dual.recipe.plots import plot_learning_curve
+from torchrl_dual.recipe.o2o.loggers import LOGGERS
+from torchrl_dual.recipe.o2o.plots import plot_learning_curve
 
 # the smoke budget cut further (test_diffql's FAST) on short PointMaze episodes
 FAST = [*DIFFQL_FAST, *POINTMAZE]
@@ -240,8 +240,8 @@ def test_a_shared_offline_phase_keeps_the_runs_own_wandb_run(tmp_path):
     counters but logs on to its own W&B run; the snapshot stores no W&B files."""
     from omegaconf import OmegaConf
 
-    from torchrl_dual.recipe.loggers import make_logger
-    from torchrl_dual.recipe.offline_cache import OfflinePhaseCache
+    from torchrl_dual.recipe.o2o.loggers import make_logger
+    from torchrl_dual.recipe.o2o.offline_cache import OfflinePhaseCache
 
     cfg = OmegaConf.create(
         {"logger": {"backend": "wandb", "project": "p", "entity": None, "mode": "offline"}}

@@ -24,7 +24,7 @@ from torchrl_dual.data.minari_standins import (  # noqa: E402
     write_standin_dataset,
 )
 from torchrl_dual.recipe import CONFIG_DIR, ConfigError, UserError, compose_checked, env_kits, run  # noqa: E402
-from torchrl_dual.recipe.minari_kits import (  # noqa: E402
+from torchrl_dual.recipe.kits.minari_families import (  # noqa: E402
     OBSERVATION_STD_EPS,
     _gym_env,
     check_observation_layout,
@@ -156,7 +156,7 @@ def test_a_worker_s_env_is_built_from_the_data_set_s_description_not_its_data(
     again."""
     import pickle
 
-    from torchrl_dual.recipe import minari_kits
+    from torchrl_dual.recipe.kits import minari_families as minari_kits
 
     cfg = compose(tmp_path, "env=hopper", "env.max_episode_steps=10")
     data = env_kits.make_offline_dataset(cfg)
@@ -261,7 +261,7 @@ def test_the_command_line_stops_with_one_error_line(tmp_path, monkeypatch):
 def test_ids_of_the_published_families():
     from omegaconf import OmegaConf
 
-    from torchrl_dual.recipe.minari_kits import FAMILIES
+    from torchrl_dual.recipe.kits.minari_families import FAMILIES
 
     def dataset_id(kind: str, **env) -> str:
         return FAMILIES[kind].dataset_id(OmegaConf.create(env))

@@ -9,7 +9,7 @@ import torch
 from tensordict import TensorDict
 from torchrl.data import LazyTensorStorage, RandomSampler, ReplayBuffer
 
-from torchrl_dual.recipe.replays import make_mixed_replay
+from torchrl_dual.recipe.o2o.replays import make_mixed_replay
 
 
 def _run(offline_fraction: float, batch_size: int = 8, n_offline: int = 50) -> SimpleNamespace:

@@ -16,9 +16,10 @@ import pytest
 from recipe_runner import failed, run_recipe, succeeded
 
 from torchrl_dual.recipe import CONFIG_DIR as RECIPE_CONFIG_DIR
-from torchrl_dual.recipe import compose_checked, offline_cache
-from torchrl_dual.recipe.dual import DualLearner
-from torchrl_dual.recipe.offline_cache import OfflinePhaseCache, offline_key_config
+from torchrl_dual.recipe import compose_checked
+from torchrl_dual.recipe.algos.dual import DualLearner
+from torchrl_dual.recipe.o2o import offline_cache
+from torchrl_dual.recipe.o2o.offline_cache import OfflinePhaseCache, offline_key_config
 
 pytestmark = pytest.mark.long_running(seconds=40)  # starts first under xdist
 # DUAL's online ablations on a shifted env: everything the online phase reads differs

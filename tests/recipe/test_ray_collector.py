@@ -1,4 +1,4 @@
-"""``collector=ray`` (``torchrl_dual/recipe/ray_collector.py``): TorchRL's RayCollector.
+"""``collector=ray`` (``torchrl_dual/recipe/o2o/ray_collector.py``): TorchRL's RayCollector.
 
 One DUAL run with two remote collectors (Ray actors) on a local Ray runtime of 2 CPUs that
 the run starts itself: it stores one transition per collected frame, in episodes that are
@@ -29,9 +29,9 @@ from test_collectors import (
 )
 
 from torchrl_dual.recipe import O2ORun, compose_checked, ray_collector, run
-from torchrl_dual.recipe.collectors import COLLECTORS
-from torchrl_dual.recipe.errors import ConfigError, UserError
-from torchrl_dual.recipe.ray_collector import InterleavedTrajectories
+from torchrl_dual.recipe.o2o.collectors import COLLECTORS
+from torchrl_dual.recipe.o2o.ray_collector import InterleavedTrajectories
+from torchrl_dual.recipe.settings.errors import ConfigError, UserError
 
 pytestmark = [
     pytest.mark.usefixtures("ray_exclusive"),

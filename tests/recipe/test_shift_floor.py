@@ -82,7 +82,7 @@ def test_a_bad_floor_is_a_config_error(value, tmp_path):
 def test_extra_variance_reaches_the_acting_noise_and_is_an_online_key(tmp_path):
     """``exploration.extra_variance`` sets the acting noise's ``v_c`` (0 by default: Eq. 10)
     and, like λ, is read online only: runs that differ in it share one offline phase."""
-    from torchrl_dual.recipe.offline_cache import offline_key_config
+    from torchrl_dual.recipe.o2o.offline_cache import offline_key_config
 
     cfg = cfg_for(tmp_path / "run", tmp_path / "data", "exploration.shift_weight=0",
                   "exploration.extra_variance=0.15")  # fmt: skip

@@ -10,7 +10,7 @@ from omegaconf import OmegaConf
 from test_diffql import CONFIG_DIR, POINTMAZE, checkpoint_state, common_overrides
 
 from torchrl_dual.recipe import ConfigError, O2ORun, compose_checked, run
-from torchrl_dual.recipe.so2 import SO2Learner
+from torchrl_dual.recipe.algos.so2 import SO2Learner
 
 # 3 members, 3 critic steps per actor step online; 10 offline updates, then 100 frames at
 # UTD 0.2: 20 online updates, i.e. 60 online critic steps

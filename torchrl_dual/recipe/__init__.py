@@ -12,7 +12,7 @@ gets it too:
   next to its learner: ``dual`` (``dual_settings``), ``iql``, ``iql_la``, ``diffql``,
   ``diffql_la`` (``diffql``), ``diffuser``, ``dacer``, ``edis``;
 * :data:`CRITICS` (``critics``) — one entry per ``critic.name``;
-* :data:`~torchrl_dual.recipe.loggers.LOGGERS` (``loggers``) — one entry per
+* :data:`~torchrl_dual.recipe.o2o.loggers.LOGGERS` (``loggers``) — one entry per
   ``logger.backend`` (CSV, TensorBoard, W&B, ...); ``plots`` draws the end-of-run plot;
 * :func:`validate_config` (``schema``) — the schema of every config group, checked
   before any data or network; errors are :class:`UserError` (``errors``), reported as
@@ -30,8 +30,9 @@ gets it too:
   ``augment.kind=planner``).
 """
 
-from torchrl_dual.recipe.algorithm import Algorithm
-from torchrl_dual.recipe.algorithms import ALGORITHMS
+from torchrl_dual.recipe.algos.dual import DualLearner, run_dual
+from torchrl_dual.recipe.algos.iql import IQLLearner, run_iql
+from torchrl_dual.recipe.algos.table import ALGORITHMS
 from torchrl_dual.recipe.cli import (
     CONFIG_DIR,
     check_command_line,
@@ -40,16 +41,15 @@ from torchrl_dual.recipe.cli import (
     main,
     run,
 )
-from torchrl_dual.recipe.critics import CRITICS
-from torchrl_dual.recipe.dual import DualLearner, run_dual
-from torchrl_dual.recipe.env_kits import ENV_KITS, EnvKit
-from torchrl_dual.recipe.errors import ConfigError, UserError, user_errors
-from torchrl_dual.recipe.iql import IQLLearner, run_iql
-from torchrl_dual.recipe.learner import Learner
-from torchrl_dual.recipe.o2o_loop import run_o2o
-from torchrl_dual.recipe.o2o_run import O2ORun
-from torchrl_dual.recipe.plots import plot_learning_curve
-from torchrl_dual.recipe.schema import validate_config
+from torchrl_dual.recipe.kits.build import ENV_KITS, EnvKit
+from torchrl_dual.recipe.o2o.learner import Learner
+from torchrl_dual.recipe.o2o.loop import run_o2o
+from torchrl_dual.recipe.o2o.plots import plot_learning_curve
+from torchrl_dual.recipe.o2o.run import O2ORun
+from torchrl_dual.recipe.parts.critics import CRITICS
+from torchrl_dual.recipe.settings.algos import Algorithm
+from torchrl_dual.recipe.settings.errors import ConfigError, UserError, user_errors
+from torchrl_dual.recipe.settings.schema import validate_config
 
 __all__ = [
     "ALGORITHMS",

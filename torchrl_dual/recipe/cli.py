@@ -27,9 +27,9 @@ from hydra.core.override_parser.types import Override, OverrideType
 from hydra.errors import HydraException, OverrideParseException
 from omegaconf import DictConfig, OmegaConf
 
-from torchrl_dual.recipe.algorithms import ALGORITHMS
-from torchrl_dual.recipe.errors import ConfigError, UserError, unknown_key, user_errors
-from torchrl_dual.recipe.schema import validate_config
+from torchrl_dual.recipe.algos.table import ALGORITHMS
+from torchrl_dual.recipe.settings.errors import ConfigError, UserError, unknown_key, user_errors
+from torchrl_dual.recipe.settings.schema import validate_config
 
 CONFIG_DIR = Path(__file__).resolve().parent / "config"
 """The recipe's Hydra config tree (``config.yaml`` and its groups), shipped in the package."""
@@ -40,7 +40,7 @@ _OTHER_CONFIG = ("config_path", "config_name", "config_dir", "experimental_rerun
 
 
 def run(cfg: DictConfig) -> Any:
-    """Validates ``cfg`` (raising :class:`~torchrl_dual.recipe.errors.ConfigError`) and
+    """Validates ``cfg`` (raising :class:`~torchrl_dual.recipe.settings.errors.ConfigError`) and
     runs its algorithm (its ``ALGORITHMS`` entry's learner through ``run_o2o``)."""
     validate_config(cfg)
     return ALGORITHMS[cfg.algo].run(cfg)

@@ -11,7 +11,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules.distributions.utils import rsample_and_log_prob
 
 from torchrl_dual.modules.actors.action_box import ActionBox, ClippedNormal, box_bounds
-from torchrl_dual.recipe.critics import policy_view
+from torchrl_dual.recipe.parts.critics import policy_view
 
 LOW, HIGH = torch.tensor([-1.0, 0.0]), torch.tensor([1.0, 2.0])
 

@@ -12,7 +12,7 @@ from torchrl.data import Bounded
 from torchrl_dual.modules import LaplaceEnsembleActor, LinearHeadActor
 from torchrl_dual.modules.actors.last_layer_actor import TanhSquash
 from torchrl_dual.modules.laplace.last_layer_laplace import LastLayerLaplace
-from torchrl_dual.recipe.iql import make_iql_actor
+from torchrl_dual.recipe.algos.iql import make_iql_actor
 
 F64 = torch.float64
 

@@ -1,0 +1,107 @@
+"""The ``calql`` baseline: Cal-QL (Nakamoto et al. 2023) offline, then online.
+
+A tanh-Gaussian MLP actor (the ``iql`` baseline's, same sizes) trained by SAC's actor
+loss with automatic entropy tuning, on Cal-QL's twin Q networks
+(:class:`~torchrl_dual.objectives.CalQLLoss`, the ``calql`` entry of ``CRITICS``:
+TorchRL's ``CQLLoss`` whose conservative penalty bounds the policy Q-values from below
+by the data's Monte-Carlo return). Everything else (data, budget, replay, UTD, evaluation)
+is :class:`~torchrl_dual.recipe.O2ORun`'s.
+
+**The bound** (``mc_return``) on ``D_offline`` and on each finished online episode:
+:class:`~torchrl_dual.recipe.parts.mc_labels.MonteCarloLabels`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from omegaconf import DictConfig
+from tensordict import TensorDictBase
+
+from torchrl_dual.recipe.algos.iql import make_iql_actor
+from torchrl_dual.recipe.kits.build import projected_policy
+from torchrl_dual.recipe.o2o.learner import Learner
+from torchrl_dual.recipe.o2o.loop import run_o2o
+from torchrl_dual.recipe.o2o.run import O2ORun
+from torchrl_dual.recipe.parts.critics import CRITICS
+from torchrl_dual.recipe.parts.mc_labels import MonteCarloLabels
+from torchrl_dual.recipe.settings.algos import Algorithm, OnlineSettings, check_nothing
+from torchrl_dual.recipe.settings.rules import Integer, Real, key
+
+
+@dataclass
+class CalQLActorSettings:
+    """``algo/calql.yaml``'s ``actor``: the tanh-Gaussian MLP actor (SAC actor loss)."""
+
+    hidden: int = key(Integer(1), "MLP width of the actor")
+    depth: int = key(Integer(1), "hidden layers of the actor")
+    lr: float = key(Real(0, low_open=True), "Adam learning rate of the actor and of log α")
+
+
+class CalQLLearner(Learner):
+    """Cal-QL: one ``budget.offline_updates`` stage offline, then the same update online."""
+
+    title = "Cal-QL"
+    shared_stages = ("actor_critic",)  # offline_cache: shared by every online shift
+
+    def __init__(self, run: O2ORun) -> None:
+        self.run = run
+        cfg = run.cfg
+        self.actor = make_iql_actor(cfg, run.data.obs_dim, run.env.action_spec)
+        self.critic = CRITICS[cfg.critic.name][1](
+            cfg, run.data.obs_dim, run.data.action_dim, actor=self.actor
+        )
+        self.labels = MonteCarloLabels(run)  # D_offline's bound; D_online's per episode
+        loss = self.critic.loss
+        self.actor_optimizer = torch.optim.Adam(
+            [*loss.actor_network_params.values(True, True), loss.log_alpha], lr=cfg.actor.lr
+        )
+        self.evaluation_policy = self.actor
+        self.exploration_policy = projected_policy(cfg, self.actor)
+
+    def modules(self) -> dict:
+        """The Cal-QL loss holds the actor, both Q, the target Q networks and ``log α``."""
+        return {**self.critic.modules(), "actor_optimizer": self.actor_optimizer}
+
+    def offline_stages(self) -> list:
+        return [("actor_critic", self.run.pretrain_updates)]
+
+    def online_transitions(self, transitions: TensorDictBase) -> TensorDictBase:
+        return self.labels.online_transitions(transitions)
+
+    def update(self, batch: TensorDictBase) -> dict:
+        """Cal-QL's losses on one batch: the critics on TD + bounded penalty, the actor
+        and ``log α`` on SAC's losses (which read the Q networks detached); one step of
+        each optimizer, then the soft target update."""
+        out = self.critic.loss(batch)
+        critic_loss = out["loss_qvalue"] + out["loss_cql"]
+        self.critic.optimizer.zero_grad(set_to_none=True)
+        self.actor_optimizer.zero_grad(set_to_none=True)
+        (critic_loss + out["loss_actor"] + out["loss_alpha"]).backward()
+        self.critic.optimizer.step()
+        self.actor_optimizer.step()
+        self.critic.target_updater.step()
+        return {
+            key: out[key].detach()
+            for key in ("loss_qvalue", "loss_cql", "loss_actor", "alpha", "entropy", "bound_rate")
+        }
+
+    def state_dict(self) -> dict:
+        return self.labels.state_dict()
+
+    def load_state_dict(self, state: dict) -> None:
+        self.labels.load_state_dict(state)
+
+
+def run_calql(cfg: DictConfig) -> O2ORun:
+    """Runs (or resumes) the Cal-QL baseline for a validated ``cfg``."""
+    return run_o2o(cfg, CalQLLearner)
+
+
+CALQL = Algorithm(
+    sections={"actor": CalQLActorSettings, "online": OnlineSettings},
+    critics=("calql",),
+    check=check_nothing,
+    learner=CalQLLearner,
+)

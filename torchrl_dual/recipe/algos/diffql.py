@@ -1,0 +1,275 @@
+"""The ``diffql`` and ``diffql_la`` baselines: Diff-QL (Wang et al. 2023) and "Diff-QL w LA".
+
+**Diff-QL** ("Diffusion policies as an expressive policy class for offline RL"): the
+policy is TorchRL's :class:`~torchrl.modules.DiffusionActor`, an ``N``-step DDPM over the
+action (``actor.num_steps = 5`` as in the paper) with Wang et al.'s variance-preserving
+schedule ``β_t = 1 − exp(−β_min/N − (β_max − β_min)(2t − 1)/(2N²))`` (``β_min = 0.1``,
+``β_max = 10``; TorchRL's default linear ``1e-4 … 0.02`` schedule would leave
+``ᾱ_N ≈ 0.95`` at ``N = 5``, far from noise). It is trained with
+:class:`~torchrl_dual.objectives.diffql_actor_loss.DiffQLActorLoss`,
+
+``L(θ) = L_bc(θ) − η · mean Q(s, a_π) / mean |Q(s, a_π)|``,
+
+``L_bc`` TorchRL's :class:`~torchrl.objectives.DiffusionBCLoss` (ε-prediction on the
+batch actions) and ``a_π`` a sample of the actor's stochastic chain with gradients
+through all ``N`` denoising steps, clamped to the action box (Wang et al. clip it too);
+the normaliser ``mean |Q|`` is detached (Wang et al.'s). ``Q`` is ``min_k Q_k`` of the
+twin critics with their weights detached, so the Q-term trains the actor only.
+
+**Critic.** Diff-QL's own critic is a TD3-style double Q trained on the actor's actions;
+the recipe keeps its critic table instead: the SAME IQL critics as ``dual`` and ``iql``
+(``CRITICS["iql"]``, built without an actor, as :class:`~torchrl_dual.recipe.DualLearner`
+does), so every algorithm is compared on one critic. Not reproduced either: Wang et al.'s
+EMA copy of the actor, their sinusoidal time embedding (the TorchRL score network reads
+the raw step index) and their Q-softmax action selection at evaluation.
+
+**Acting.** Online, ``diffql`` collects with the actor's stochastic DDPM samples
+(``ExplorationType.RANDOM``), clamped to the action box and projected by the env kit's
+``action_projection`` (Frozen-Lake's one-hot argmax). It is evaluated deterministically:
+under ``ExplorationType.DETERMINISTIC`` TorchRL's ``DiffusionActor`` runs the chain from
+the zero latent ``x_N = 0`` without injected noise (a repeatable action, not a sample).
+
+**Diff-QL w LA** (``diffql_la``, the paper's Fig. 4(c), ``M = 5``): the same training;
+acting goes through :class:`~torchrl_dual.modules.DDPMLastStepActor` (the zero-latent
+chain with the score network's final ``nn.Linear`` as the Laplace layer), the
+:class:`~torchrl_dual.modules.LaplaceEnsembleActor` of Eq. (9) and
+:class:`~torchrl_dual.modules.ShiftAwareNoise`, assembled by
+:func:`~torchrl_dual.modules.make_dual_policy` with ``λ = 0``: Diff-QL has no transition
+model ``ŝ_t``, so ``exploration.shift_weight > 0`` is a config error. The last-layer
+posterior (Eq. 8) is fitted after the offline phase and refitted every
+``budget.laplace_refit_every`` updates on ``D_offline ∪ D_online`` with the advantage
+weights ``min(exp(β (Q − V)), w_max)`` of the IQL critics. Diff-QL trains no ``σ̄``, so
+each fit first sets the Gaussian width ``σ̄`` of Eq. (7-9) to its maximiser given the
+mean, the weighted RMS of ``a − μ(s)`` on the same data and weights. Its evaluation
+action (the MAP mean, deterministic) is ``diffql``'s: the same zero-latent chain.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+from omegaconf import DictConfig
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModule, TensorDictSequential
+from torch import nn
+from torchrl.modules import DiffusionActor
+
+from torchrl_dual import DDPMLastStepActor, WeightedMAPActorLoss
+from torchrl_dual.objectives.diffql_actor_loss import DiffQLActorLoss
+from torchrl_dual.recipe.kits.build import projected_policy
+from torchrl_dual.recipe.o2o.learner import Learner
+from torchrl_dual.recipe.o2o.run import O2ORun
+from torchrl_dual.recipe.parts.critics import CRITICS
+from torchrl_dual.recipe.parts.laplace_refits import LaplaceRefits
+from torchrl_dual.recipe.settings.algos import (
+    Algorithm,
+    NoShiftExplorationSettings,
+    OnlineSettings,
+    check_no_shift_weight,
+    check_nothing,
+)
+from torchrl_dual.recipe.settings.rules import Choice, Either, Integer, Real, key
+
+# ----------------------------------------------------------------------------- settings
+ACTIVATIONS: dict[str, type[nn.Module]] = {"silu": nn.SiLU, "mish": nn.Mish}
+"""``actor.activation``: ``silu`` (TorchRL's ``DiffusionActor`` default) or ``mish``
+(Wang et al.'s; on one CPU thread its forward and backward cost 4x SiLU's)."""
+
+
+@dataclass
+class DiffQLActorSettings:
+    """``algo/diffql*.yaml``'s ``actor``: the DDPM actor and its loss."""
+
+    num_steps: int = key(Integer(1), "N: DDPM denoising steps")
+    hidden: int = key(Integer(1), "width of the score network")
+    depth: int = key(Integer(1), "hidden layers of the score network")
+    activation: str = key(Choice(tuple(ACTIVATIONS)), "activation of the score network")
+    lr: float = key(Real(0, low_open=True), "Adam learning rate")
+    eta: float = key(Real(0), "η: weight of the normalised Q-term")
+    max_grad_norm: float = key(Real(0, low_open=True), "clip of the actor's gradient norm")
+
+
+@dataclass
+class DiffQLLaplaceSettings:
+    """``algo/diffql_la.yaml``'s ``laplace``: Eq. (8-9) on the last DDPM step."""
+
+    num_samples: int = key(Integer(0), "M sub-policies; 0 = no epistemic UQ (MAP mean, σ̄)")
+    prior_precision: Any = key(
+        Either(
+            (Choice(("evidence",)), Real(0, low_open=True)), "must be 'evidence' or a number > 0"
+        ),
+        "λ of the Gaussian prior",
+    )
+    posterior_temperature: Any = key(
+        Either((Choice(("data",)), Real(0, low_open=True)), "must be 'data' or a number > 0"),
+        "T: the posterior covariance × T (1: the summed loss); data: Eq. 7's mean loss",
+    )
+    temperature: float = key(Real(0), "β of the Laplace fit's weights exp(β (Q - V))")
+    max_weight: float = key(Real(0, low_open=True), "clip of those weights")
+
+
+# ----------------------------------------------------------------------------- networks
+def vp_betas(num_steps: int, beta_min: float = 0.1, beta_max: float = 10.0) -> torch.Tensor:
+    """Wang et al.'s variance-preserving schedule ``β_1 … β_N`` (their ``vp_beta_schedule``).
+
+    Examples:
+        >>> betas = vp_betas(5)
+        >>> [round(b, 3) for b in betas.tolist()]
+        [0.196, 0.459, 0.636, 0.755, 0.835]
+        >>> round(float(torch.prod(1 - betas)), 4)  # ᾱ_N = exp(-(β_min + β_max) / 2)
+        0.0064
+    """
+    t = torch.arange(1, num_steps + 1, dtype=torch.float64)
+    log_alpha = -beta_min / num_steps - 0.5 * (beta_max - beta_min) * (2 * t - 1) / num_steps**2
+    return (1.0 - log_alpha.exp()).float()
+
+
+def make_diffusion_actor(cfg: DictConfig, obs_dim: int, action_dim: int) -> DiffusionActor:
+    """TorchRL's ``DiffusionActor`` with an MLP score network ``ε̂(x_t, s, t)`` (``depth``
+    hidden layers of ``actor.activation``) ending in ``nn.Linear``, and the VP schedule of
+    :func:`vp_betas`."""
+    a = cfg.actor
+    layers: list[nn.Module] = []
+    width = action_dim + obs_dim + 1
+    for _ in range(a.depth):
+        layers += [nn.Linear(width, a.hidden), ACTIVATIONS[a.activation]()]
+        width = a.hidden
+    layers.append(nn.Linear(width, action_dim))
+    actor = DiffusionActor(action_dim, score_network=nn.Sequential(*layers), num_steps=a.num_steps)
+    ddpm = actor.module
+    betas = vp_betas(a.num_steps)
+    with torch.no_grad():
+        ddpm.betas.copy_(betas)
+        ddpm.alphas.copy_(1.0 - betas)
+        ddpm.alphas_cumprod.copy_(torch.cumprod(1.0 - betas, 0))
+    return actor.to(cfg.device)
+
+
+class ActionBox(nn.Module):
+    """Clamps an action to the env's box ``[low, high]``."""
+
+    def __init__(self, low: torch.Tensor, high: torch.Tensor) -> None:
+        super().__init__()
+        self.register_buffer("low", low.clone())
+        self.register_buffer("high", high.clone())
+
+    def forward(self, action: torch.Tensor) -> torch.Tensor:
+        return torch.maximum(torch.minimum(action, self.high), self.low)
+
+
+# ----------------------------------------------------------------------------- learners
+class DiffQLLearner(Learner):
+    """Diff-QL: one ``budget.offline_updates`` stage offline, then the same update online."""
+
+    title = "Diff-QL"
+    shared_stages = ("actor_critic",)
+
+    def __init__(self, run: O2ORun) -> None:
+        self.run = run
+        cfg = self.cfg = run.cfg
+        spec = run.env.action_spec
+        obs_dim, action_dim = run.data.obs_dim, run.data.action_dim
+        self.actor = make_diffusion_actor(cfg, obs_dim, action_dim)
+        self.critic = CRITICS[cfg.critic.name][1](cfg, obs_dim, action_dim)
+        self.box = ActionBox(spec.space.low, spec.space.high).to(cfg.device)
+        self.actor_loss = DiffQLActorLoss.from_iql(
+            self.actor, self.critic.loss, self.box, eta=cfg.actor.eta
+        )
+        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor.lr)
+        self.clamp = TensorDictModule(self.box, in_keys=["action"], out_keys=["action"])
+        self.evaluation_policy = TensorDictSequential(self.actor, self.clamp)
+        self.exploration_policy = self.projected(self.evaluation_policy)
+
+    def projected(self, policy: nn.Module) -> nn.Module:
+        """``policy`` followed by the env kit's ``action_projection``, if it has one."""
+        return projected_policy(self.cfg, policy)
+
+    def modules(self) -> dict:
+        return {
+            "actor": self.actor,
+            **self.critic.modules(),
+            "actor_optimizer": self.actor_optimizer,
+        }
+
+    def offline_stages(self) -> list:
+        return [("actor_critic", self.run.pretrain_updates)]
+
+    def update(self, batch: TensorDictBase) -> dict:
+        """One IQL critic step, then one actor step on ``L_bc + η · loss_q``."""
+        critic = self.critic.step(batch)
+        losses = self.actor_loss(batch)
+        self.actor_optimizer.zero_grad(set_to_none=True)
+        losses["loss_actor"].backward()
+        nn.utils.clip_grad_norm_(self.actor.parameters(), self.cfg.actor.max_grad_norm)
+        self.actor_optimizer.step()
+        return {k: v.detach() for k, v in {**critic, **losses}.items()}
+
+
+class DiffQLLALearner(LaplaceRefits, DiffQLLearner):
+    """Diff-QL w LA: Diff-QL's training, acting with the Laplace ensemble of its last
+    DDPM step (Eq. 8-9) and ``λ = 0`` noise, refitted every ``budget.laplace_refit_every``
+    updates (:class:`LaplaceRefits`) with ``σ̄`` = :meth:`noise_std`."""
+
+    title = "Diff-QL w LA"
+    shared_stages = ("actor_critic",)  # offline_cache: Diff-QL's offline updates only
+    online_keys = (
+        "laplace.num_samples",
+        "laplace.prior_precision",
+        "laplace.posterior_temperature",
+        "laplace.temperature",
+        "laplace.max_weight",
+        "exploration.shift_weight",
+    )
+
+    def __init__(self, run: O2ORun) -> None:
+        super().__init__(run)
+        la = run.cfg.laplace
+        self.last_step = DDPMLastStepActor(self.actor, latent="zero")
+        # only its advantage weights are used (σ̄ and Eq. 8's Hessian); Diff-QL trains the actor
+        self.laplace_weight_fn = WeightedMAPActorLoss.from_iql(
+            self.last_step,
+            self.critic.loss,
+            weighting="advantage",
+            temperature=la.temperature,
+            max_weight=la.max_weight,
+        ).advantage_weights
+        self.act_with_ensemble(self.last_step)  # Eq. 9 + Eq. 10 with λ = 0
+        self.evaluation_policy = self.ensemble  # the MAP mean under DETERMINISTIC
+        # modules(): Diff-QL's and the ensemble's own state (the actor's weights once)
+
+    @torch.no_grad()
+    def noise_std(self) -> torch.Tensor:
+        """``σ̄_a² = Σ_i w_i (a_i − μ(s_i))_a² / Σ_i w_i`` on ``D_offline ∪ D_online``: the
+        maximiser of Eq. (7) in ``σ̄`` at the current mean ``μ`` (the zero-latent chain)
+        with the same weights ``w_i`` as Eq. (8); Diff-QL's loss trains no ``σ̄``. ``[A]``.
+        :meth:`~LaplaceRefits.fit_laplace` sets it, then fits Eq. (8) (Alg. 1 lines 9
+        and 17 on the last DDPM step)."""
+        total, weight_sum = 0.0, 0.0
+        for batch in self.run.all_transitions():
+            weight = self.laplace_weight_fn(batch)
+            residual = batch["action"] - self.last_step(batch["observation"])
+            total = total + (weight[:, None] * residual.square()).sum(0)
+            weight_sum = weight_sum + weight.sum()
+        return (total / weight_sum).sqrt()
+
+
+DIFFQL = Algorithm(
+    sections={"actor": DiffQLActorSettings, "online": OnlineSettings},
+    critics=("iql",),
+    check=check_nothing,
+    learner=DiffQLLearner,
+)
+
+DIFFQL_LA = Algorithm(
+    sections={
+        "actor": DiffQLActorSettings,
+        "laplace": DiffQLLaplaceSettings,
+        "exploration": NoShiftExplorationSettings,
+        "online": OnlineSettings,
+    },
+    critics=("iql",),
+    check=check_no_shift_weight,
+    learner=DiffQLLALearner,
+)

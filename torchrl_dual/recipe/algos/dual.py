@@ -1,0 +1,239 @@
+"""DUAL's learner (Algorithm 1 of the paper) for :class:`~torchrl_dual.recipe.O2ORun`.
+
+The offline phase pre-trains the diffusion planner, distils it to one step, pre-trains
+the weighted MAP actor and the critic and fits the last-layer Laplace posterior; the
+online phase acts with the Laplace ensemble plus shift-aware noise and fine-tunes on
+offline and online data, refitting the posterior every ``budget.laplace_refit_every``
+updates. :func:`run_dual` runs it; see docs/recipe.md.
+"""
+
+from __future__ import annotations
+
+import torch
+from omegaconf import DictConfig
+from tensordict import TensorDictBase
+
+from torchrl_dual.modules import ShiftAwareNoise
+from torchrl_dual.objectives import progressive_distillation
+from torchrl_dual.recipe.o2o.learner import Learner
+from torchrl_dual.recipe.o2o.loop import run_o2o
+from torchrl_dual.recipe.o2o.run import O2ORun
+from torchrl_dual.recipe.parts import networks
+from torchrl_dual.recipe.parts.critics import CRITICS, POLICY_CRITICS, policy_view
+from torchrl_dual.recipe.parts.laplace_refits import ensemble_signals
+from torchrl_dual.recipe.parts.mc_labels import MonteCarloLabels
+from torchrl_dual.recipe.parts.planner_augment import augment_capacity, make_augmenter
+from torchrl_dual.recipe.parts.planner_stage import offline_windows, pretrain_planner
+
+
+class DualLearner(Learner):
+    """DUAL's networks (teacher ``g_θ'``, actor ``π_θ``, transition model, IQL critics),
+    its offline stages, its update (IQL critic step, then Eq. 7) and its Laplace refits."""
+
+    title = "DUAL"
+    # offline_cache: DUAL's online ablations (no UQ, λ = 0) and every shift share these
+    shared_stages = ("planner", "distillation", "actor_critic")
+    online_keys = (
+        "laplace.num_samples",
+        "laplace.uq",
+        "laplace.posterior_temperature",
+        "exploration.shift_weight",
+        "exploration.shift_floor",
+        "exploration.extra_variance",
+        "augment",
+    )
+
+    def __init__(self, run: O2ORun) -> None:
+        self.run = run
+        cfg = self.cfg = run.cfg
+        data = run.data
+        self.windows = offline_windows(cfg, data, cfg.planner.batch_size)
+        # ---- networks: teacher g_θ', actor π_θ and its transition model, critics
+        self.teacher = networks.make_planner(cfg, data)
+        self.actor = networks.make_actor(cfg, self.teacher)
+        self.transition = networks.make_transition_model(cfg, self.teacher, self.actor)
+        make_critic = CRITICS[cfg.critic.name][1]
+        samples_policy = cfg.critic.name in POLICY_CRITICS  # Cal-QL: N(μ(s), σ̄²) of π_θ
+        view = policy_view(self.actor, run.env.action_spec) if samples_policy else None
+        self.critic = make_critic(cfg, data.obs_dim, data.action_dim, actor=view)
+        self.online_batches_per_update = self.critic.online_steps_per_update  # SO2: 10
+        # critic=calql: the Monte-Carlo bound on D_offline now, on D_online per episode
+        self.labels = MonteCarloLabels(run) if cfg.critic.name == "calql" else None
+        self.actor_loss = networks.make_actor_loss(
+            cfg, self.actor, self.critic, run.env.action_spec
+        )
+        self.actor_optimizer = torch.optim.Adam(self.actor_loss.parameters(), lr=cfg.actor.lr)
+        self.policy = networks.make_policy(cfg, self.actor, run.env.action_spec, self.transition)
+        self.ensemble = self.policy[0]  # Eq. 9's ensemble: acts and holds ŝ_t's model
+        # the one decision point of the no-UQ and latent-UQ ablations: no posterior to fit
+        self.uses_posterior = cfg.laplace.uq == "laplace" and cfg.laplace.num_samples > 0
+        self.exploration_policy = self.policy  # Eq. 9 + Eq. 10
+        self.noise = next(m for m in self.policy.modules() if isinstance(m, ShiftAwareNoise))
+        self.noise.extra_variance = float(cfg.exploration.extra_variance)  # v_c, beyond Eq. 10
+        self.evaluation_policy = self.ensemble  # the MAP mean under DETERMINISTIC
+        self.updates_since_refit = 0
+        # augment.kind=planner: guided teacher windows added to D_online (Alg. 1 l. 14);
+        # built last, so the networks above get the same weights either way
+        self.augmenter = make_augmenter(run, self.teacher)
+        self.extra_online_capacity = augment_capacity(cfg)
+
+    # ------------------------------------------------------------------ the protocol
+    def modules(self) -> dict:
+        """Each weight once: the frozen transition model is inside the ensemble, a shared
+        one is the actor's own planner; with ``augment.kind=planner``, the augmenter's."""
+        return {
+            "teacher": self.teacher,
+            "ensemble": self.ensemble,  # actor, σ̄, Laplace posterior, frozen ŝ_t model
+            **self.critic.modules(),
+            "actor_optimizer": self.actor_optimizer,
+            **(self.augmenter.modules() if self.augmenter else {}),
+        }
+
+    def shared_modules(self) -> dict:
+        """The shared offline phase without the ensemble's M posterior draws (their number
+        is ``laplace.num_samples``); the Laplace stage runs after it in every run."""
+        shared = {
+            "teacher": self.teacher,
+            "actor": self.actor,
+            **self.critic.modules(),
+            "actor_optimizer": self.actor_optimizer,
+        }
+        if self.transition.frozen:
+            shared["transition"] = self.transition
+        return shared
+
+    def state_dict(self) -> dict:
+        state = {
+            "updates_since_refit": self.updates_since_refit,
+            "shift_floor": float(self.noise.shift_floor),
+        }
+        if self.augmenter:
+            state["augment"] = self.augmenter.state_dict()
+        if self.labels:
+            state["mc_labels"] = self.labels.state_dict()
+        return state
+
+    def load_state_dict(self, state: dict) -> None:
+        self.updates_since_refit = state["updates_since_refit"]
+        self.noise.shift_floor.fill_(state.get("shift_floor", 0.0))  # 0: before the floor
+        if self.augmenter and "augment" in state:  # absent: a shared offline phase
+            self.augmenter.load_state_dict(state["augment"])  # written without one
+        if self.labels:
+            self.labels.load_state_dict(state["mc_labels"])
+
+    def online_transitions(self, transitions: TensorDictBase) -> TensorDictBase:
+        """All of them; with ``critic=calql``, whole episodes with their bound."""
+        return transitions if self.labels is None else self.labels.online_transitions(transitions)
+
+    def offline_stages(self) -> list:
+        return [
+            ("planner", self.pretrain_planner),  # l.3-4: L_VLB (Eq. 3)
+            ("distillation", self.distill),  # l.5: N=32 -> 1, π_θ and p(s'|s,a)
+            ("actor_critic", self.run.pretrain_updates),  # l.6-8: IQL + Eq. 7
+            ("laplace", self.fit_laplace),  # l.9: Eq. 8
+            # d_0 of the noise (beyond the paper; none with the default d_0 = 0, Eq. 10)
+            *([("shift_floor", self.set_shift_floor)] if self.uses_shift_floor else []),
+        ]
+
+    @property
+    def uses_shift_floor(self) -> bool:
+        return self.cfg.exploration.shift_floor != 0
+
+    def update(self, batch: TensorDictBase) -> dict:
+        """One critic (IQL, Cal-QL's TD + bounded penalty, or SO2's ensemble TD: one step
+        per batch of a stacked ``[k, B]``) and one actor (Eq. 7) gradient step, Alg. 1
+        lines 7-8 / 15-16."""
+        critic = self.critic.step(batch, online=self.run.frames > 0)
+        out = self.actor_loss(batch[-1] if batch.ndim > 1 else batch)  # SO2: [k, B]
+        self.actor_optimizer.zero_grad(set_to_none=True)
+        out["loss_actor"].backward()
+        self.actor_optimizer.step()
+        self.updates_since_refit += 1
+        return {k: v.detach() for k, v in {**critic, **out}.items()}
+
+    def after_updates(self) -> None:
+        """Alg. 1 line 17: refit the posterior once ``budget.laplace_refit_every`` updates
+        have accumulated since the last fit; then line 14 (``augment.kind=planner``): add
+        guided planner transitions to D_online for the next block when due."""
+        if self.updates_since_refit >= self.cfg.budget.laplace_refit_every:
+            self.fit_laplace()
+        if self.augmenter:
+            self.augmenter.after_updates()
+
+    def batch_metrics(self, batch: TensorDictBase) -> dict:
+        """d_t, the ensemble's epistemic std and share of the executed variance
+        (:func:`~torchrl_dual.recipe.parts.laplace_refits.ensemble_signals`) and the executed
+        action's std sqrt(σ² + λ d_t) (Eq. 10), each over the collected batch."""
+        return {
+            "shift_distance": float(batch["shift_distance"].mean()),
+            **ensemble_signals(batch),
+            "exploration_std": float(batch["exploration_scale"].mean()),
+        }
+
+    # ------------------------------------------------------------------ offline stages
+    def pretrain_planner(self) -> None:
+        """Alg. 1 lines 3-4: θ' ← θ' − λ_g ∇ L_VLB on D_offline (Eq. 3)."""
+        pretrain_planner(self.run, self.teacher, self.windows)
+
+    def distill(self) -> None:
+        """Alg. 1 line 5: distil g_θ' into the one-step π_θ and p(s'|s, a; θ).
+
+        Ablations: ``distillation.final_steps = N > 1`` stops the halving at N steps
+        ("w/o distillation"); ``actor.init=scratch`` keeps the actor's fresh weights
+        ("w/o planner"), the student then only serves as the transition model."""
+        student = progressive_distillation(
+            self.teacher,
+            self.windows.sample,
+            list(self.cfg.budget.distill_updates),
+            final_steps=self.cfg.distillation.final_steps,
+            lr=self.cfg.distillation.lr,
+            action_condition_prob=self.cfg.planner.action_condition_prob,
+            logger=self.run.logger,
+            progress=self.cfg.progress,
+        )
+        if self.cfg.actor.init == "distilled":
+            self.actor.model.load_state_dict(student.state_dict())
+        if self.transition.frozen:  # a shared transition model is actor.model itself
+            self.transition.model.load_state_dict(student.state_dict())
+
+    def fit_laplace(self) -> None:
+        """Alg. 1 lines 9 and 17: last-layer Laplace of L_π on D (Eq. 8); skipped in the
+        no-UQ ablation (``laplace.num_samples=0``), which never draws from the posterior,
+        and in the latent-UQ one (``laplace.uq=latent``), which has none."""
+        self.updates_since_refit = 0
+        if not self.uses_posterior:
+            return
+        with torch.no_grad():
+            # The Hessian of Eq. (7) carries the actor loss's own weights (uniform for
+            # "uniform"; "sac" has no per-sample weights, so its GGN uses uniform ones).
+            advantage = self.cfg.actor.weighting == "advantage"
+            laplace = self.ensemble.fit_laplace(
+                self.run.all_transitions(),
+                weight_fn=self.actor_loss.advantage_weights if advantage else None,
+            )
+        self.run.log({"prior_precision": laplace.prior_precision}, self.run.updates, "laplace/")
+
+    def set_shift_floor(self) -> None:
+        """``exploration.shift_floor``: ``d_0`` of the noise's ``λ max(d_t − d_0, 0)``; a
+        number, or ``offline``: the mean of :meth:`offline_shift_distances` (up to 20000
+        transitions), the transition model's error where it was fitted."""
+        floor = self.cfg.exploration.shift_floor
+        if floor == "offline":
+            floor = self.offline_shift_distances(20000, int(self.cfg.seed)).mean()
+        self.noise.shift_floor.fill_(float(floor))
+        self.run.log({"shift_floor": float(floor)}, self.run.updates, "exploration/")
+
+    @torch.no_grad()
+    def offline_shift_distances(self, samples: int, seed: int) -> torch.Tensor:
+        """``‖ŝ' − s'‖`` of the transition model on ``samples`` of D_offline's transitions
+        (drawn without replacement with ``seed``): Eq. 10's ``d`` on the fitted data."""
+        data = self.run.data.transitions
+        gen = torch.Generator().manual_seed(seed)
+        batch = data[torch.randperm(len(data), generator=gen)[:samples]].to(self.cfg.device)
+        predicted = self.transition.predict(batch["observation"], batch["action"])
+        return (predicted - batch["next", "observation"]).norm(dim=-1).cpu()
+
+
+def run_dual(cfg: DictConfig) -> O2ORun:
+    """Runs (or resumes) Algorithm 1 for a validated ``cfg``; returns the run's state."""
+    return run_o2o(cfg, DualLearner)

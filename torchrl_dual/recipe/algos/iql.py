@@ -1,0 +1,184 @@
+"""The ``iql`` baseline: Implicit Q-Learning (Kostrikov et al. 2022) offline, then online.
+
+TorchRL's ``IQLLoss`` trains an MLP actor by advantage-weighted regression
+(``exp(β (Q − V))``, clipped at 100) on the same IQL critics as DUAL (the ``CRITICS``
+entry, same sizes), with CORL's settings (actor MLP 256 x 2 at the default budget, Adam
+3e-4, β = 3). The actor is CORL's and d3rlpy's Gaussian with a tanh mean and a
+state-independent σ (``actor.distribution=gaussian``, the default; checked against
+d3rlpy's IQL on the same data, docs/results.md) or TorchRL's ``TanhNormal``
+(``tanh_normal``), see :func:`make_iql_actor`. It shares everything else with DUAL
+through :class:`~torchrl_dual.recipe.O2ORun`: data, ``budget.offline_updates`` offline
+updates, online frames, UTD ratio, batch size, offline fraction, replay and evaluator.
+Online it collects with the actor's samples (``ExplorationType.RANDOM``), projected onto
+the box and by the env kit's ``action_projection`` (Frozen-Lake's one-hot argmax), and is
+evaluated with its deterministic action (the Gaussian's mean; ``tanh(loc)`` for the
+``TanhNormal``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from omegaconf import DictConfig
+from tensordict import TensorDictBase
+from tensordict.nn import (
+    AddStateIndependentNormalScale,
+    NormalParamExtractor,
+    TensorDictModule,
+)
+from torch import nn
+from torchrl.envs.utils import ExplorationType
+from torchrl.modules import MLP, IndependentNormal, ProbabilisticActor, TanhNormal
+
+from torchrl_dual.modules.actors.last_layer_actor import TanhSquash
+from torchrl_dual.recipe.kits.build import projected_policy
+from torchrl_dual.recipe.o2o.learner import Learner
+from torchrl_dual.recipe.o2o.loop import run_o2o
+from torchrl_dual.recipe.o2o.run import O2ORun
+from torchrl_dual.recipe.parts.critics import CRITICS
+from torchrl_dual.recipe.settings.algos import Algorithm, OnlineSettings, check_nothing
+from torchrl_dual.recipe.settings.rules import Choice, Integer, Real, key
+
+ACTOR_DISTRIBUTIONS = ("gaussian", "tanh_normal")
+"""``actor.distribution`` of the AWR baselines: ``gaussian`` (CORL's and d3rlpy's IQL actor,
+the default) or ``tanh_normal`` (TorchRL's ``TanhNormal`` with a state-dependent scale)."""
+
+
+@dataclass
+class IQLActorSettings:
+    """``algo/iql.yaml``'s ``actor``: the Gaussian MLP actor and its AWR loss."""
+
+    hidden: int = key(Integer(1), "MLP width of the actor")
+    depth: int = key(Integer(1), "hidden layers of the actor")
+    lr: float = key(Real(0, low_open=True), "Adam learning rate")
+    temperature: float = key(Real(0), "β of exp(β (Q - V)), clipped at 100 by IQLLoss")
+    distribution: str = key(
+        Choice(ACTOR_DISTRIBUTIONS),
+        "gaussian: N(tanh mean on the box, state-independent σ) as CORL and d3rlpy; "
+        "tanh_normal: TorchRL's TanhNormal(loc(s), scale(s))",
+    )
+
+
+def make_iql_actor(
+    cfg: DictConfig,
+    obs_dim: int,
+    action_spec,
+    *,
+    distribution: str = "tanh_normal",
+    return_log_prob: bool = False,
+) -> ProbabilisticActor:
+    """The AWR baselines' MLP actor on the action box of ``action_spec`` (writing
+    ``"action_log_prob"`` too with ``return_log_prob``).
+
+    ``distribution="gaussian"`` is CORL's and d3rlpy's IQL actor:
+    ``π(a|s) = N(c + r ⊙ tanh(f(s)), diag σ²)`` with one learned ``σ = exp(log σ)`` per
+    action dimension (TensorDict's ``AddStateIndependentNormalScale``, initial ``σ = 1``),
+    a density over all of ``ℝ^d``, so a data action on a face of the box (61 % of
+    PointMaze's action components) has a finite log-likelihood; draws are projected onto
+    the box (``safe=True``) and the deterministic action is the mean, inside the box.
+    ``distribution="tanh_normal"`` is TorchRL's ``TanhNormal(loc(s), scale(s))`` with a
+    state-dependent scale, the SAC-style actor of ``calql`` and ``so2`` (their losses
+    need its reparameterised, box-bounded draws and its log-density): on a face,
+    ``atanh(±1)`` is clamped, and the AWR fit of such an action is dominated by the clamp.
+    """
+    a = cfg.actor
+    action_dim = action_spec.shape[-1]
+    space = action_spec.space
+    low, high = space.low.to(cfg.device), space.high.to(cfg.device)
+    mlp = MLP(
+        in_features=obs_dim,
+        out_features=(1 if distribution == "gaussian" else 2) * action_dim,
+        num_cells=[a.hidden] * a.depth,
+        activation_class=nn.ReLU,
+    )
+    if distribution == "gaussian":
+        net = nn.Sequential(mlp, TanhSquash(low, high), AddStateIndependentNormalScale(action_dim))
+        dist_class, dist_kwargs = IndependentNormal, {}
+    elif distribution == "tanh_normal":
+        net = nn.Sequential(mlp, NormalParamExtractor())
+        dist_class, dist_kwargs = TanhNormal, {"low": low, "high": high}
+    else:
+        raise ValueError(
+            f"unknown actor distribution {distribution!r}; choose one of "
+            + ", ".join(ACTOR_DISTRIBUTIONS)
+        )
+    return ProbabilisticActor(
+        TensorDictModule(net, in_keys=["observation"], out_keys=["loc", "scale"]),
+        in_keys=["loc", "scale"],
+        spec=action_spec,
+        safe=distribution == "gaussian",
+        distribution_class=dist_class,
+        distribution_kwargs=dist_kwargs,
+        default_interaction_type=ExplorationType.RANDOM,
+        return_log_prob=return_log_prob,
+    ).to(cfg.device)
+
+
+class IQLLearner(Learner):
+    """IQL: one ``budget.offline_updates`` stage offline, then the same update online."""
+
+    title = "IQL"
+    shared_stages = ("actor_critic",)  # offline_cache: shared by every online shift
+
+    def __init__(self, run: O2ORun) -> None:
+        self.run = run
+        cfg = run.cfg
+        spec = run.env.action_spec
+        self.actor = make_iql_actor(
+            cfg, run.data.obs_dim, spec, distribution=cfg.actor.distribution
+        )
+        make_critic = CRITICS[cfg.critic.name][1]
+        self.critic = make_critic(
+            cfg,
+            run.data.obs_dim,
+            run.data.action_dim,
+            actor=self.actor,
+            temperature=cfg.actor.temperature,
+        )
+        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor.lr)
+        self.evaluation_policy = self.actor
+        self.exploration_policy = projected_policy(cfg, self.actor)
+
+    def modules(self) -> dict:
+        """The IQL loss holds the actor, V, both Q and the target Q networks."""
+        return {
+            **self.critic.modules(),
+            "actor_optimizer": self.actor_optimizer,
+        }
+
+    def offline_stages(self) -> list:
+        return [("actor_critic", self.run.pretrain_updates)]
+
+    def update(self, batch: TensorDictBase) -> dict:
+        """IQL's three losses on one batch (the actor's and V's targets are the target Q
+        networks, so no gradient crosses), one step of each optimizer, soft target update."""
+        loss = self.critic.loss
+        q_loss, _ = loss.qvalue_loss(batch)
+        v_loss, _ = loss.value_loss(batch)
+        actor_loss, _ = loss.actor_loss(batch)
+        self.critic.optimizer.zero_grad(set_to_none=True)
+        self.actor_optimizer.zero_grad(set_to_none=True)
+        (q_loss + v_loss + actor_loss).backward()
+        self.critic.optimizer.step()
+        self.actor_optimizer.step()
+        self.critic.target_updater.step()
+        return {
+            "loss_qvalue": q_loss.detach(),
+            "loss_value": v_loss.detach(),
+            "loss_actor": actor_loss.detach(),
+            "log_prob": batch[loss.tensor_keys.log_prob].mean().detach(),
+        }
+
+
+def run_iql(cfg: DictConfig) -> O2ORun:
+    """Runs (or resumes) the IQL baseline for a validated ``cfg``."""
+    return run_o2o(cfg, IQLLearner)
+
+
+IQL = Algorithm(
+    sections={"actor": IQLActorSettings, "online": OnlineSettings},
+    critics=("iql",),
+    check=check_nothing,
+    learner=IQLLearner,
+)

@@ -1,0 +1,114 @@
+"""The ``so2`` baseline: SO2 (Zhang et al. 2024) with OFF2ON's balanced replay.
+
+A tanh-Gaussian MLP actor (the ``iql`` baseline's, same sizes) trained by SAC's actor
+loss at a fixed ``α = critic.entropy_coef``, ``E[α·log π(ã|s) − min_k Q_k(s, ã)]`` with
+``ã ∼ π(·|s)`` reparameterised, on SO2's Q ensemble (the ``so2`` entry of ``CRITICS``,
+:class:`~torchrl_dual.objectives.SO2QLoss`). As in the authors' code (``opendilab/SO2``):
+
+* offline, SAC-N: the target is the ensemble's minimum at an unperturbed next action, one
+  critic and one actor step per update (``budget.offline_updates`` of them);
+* online, SO2: each member's own target at the noise-smoothed next action, and
+  ``critic.online_steps_per_update`` critic steps (each on its own batch) per actor step;
+  with ``online.utd_ratio=1`` that is SO2's 10 critic updates per environment step and one
+  actor update per 10 critic updates.
+
+``algo/so2.yaml`` selects ``critic=so2`` and ``replay=balanced`` (OFF2ON's density-ratio
+priorities, :mod:`torchrl_dual.recipe.o2o.replays`), the paper's "SO2 + OFF2ON" base critic.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from omegaconf import DictConfig
+from tensordict import TensorDictBase
+
+from torchrl_dual.recipe.algos.iql import make_iql_actor
+from torchrl_dual.recipe.kits.build import projected_policy
+from torchrl_dual.recipe.o2o.learner import Learner
+from torchrl_dual.recipe.o2o.loop import run_o2o
+from torchrl_dual.recipe.o2o.run import O2ORun
+from torchrl_dual.recipe.parts.critics import CRITICS
+from torchrl_dual.recipe.settings.algos import Algorithm, OnlineSettings, check_nothing
+from torchrl_dual.recipe.settings.rules import Integer, Real, key
+
+
+@dataclass
+class SO2ActorSettings:
+    """``algo/so2.yaml``'s ``actor``: the tanh-Gaussian MLP actor (SAC actor loss)."""
+
+    hidden: int = key(Integer(1), "MLP width of the actor")
+    depth: int = key(Integer(1), "hidden layers of the actor")
+    lr: float = key(Real(0, low_open=True), "Adam learning rate of the actor")
+
+
+class SO2Learner(Learner):
+    """SO2: SAC-N offline, then SO2's smoothed per-member targets and ``k`` critic steps
+    per actor step online."""
+
+    title = "SO2"
+    shared_stages = ("actor_critic",)  # offline_cache: shared by every online shift
+
+    def __init__(self, run: O2ORun) -> None:
+        self.run = run
+        cfg = run.cfg
+        self.actor = make_iql_actor(
+            cfg, run.data.obs_dim, run.env.action_spec, return_log_prob=True
+        )
+        self.critic = CRITICS[cfg.critic.name][1](
+            cfg, run.data.obs_dim, run.data.action_dim, actor=self.actor
+        )
+        self.online_batches_per_update = self.critic.online_steps_per_update
+        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor.lr)
+        self.alpha = cfg.critic.entropy_coef
+        self.evaluation_policy = self.actor
+        self.exploration_policy = projected_policy(cfg, self.actor)
+
+    def modules(self) -> dict:
+        """The actor (the critic loss does not hold it), the Q ensemble and its targets."""
+        return {
+            "actor": self.actor,
+            **self.critic.modules(),
+            "actor_optimizer": self.actor_optimizer,
+        }
+
+    def offline_stages(self) -> list:
+        return [("actor_critic", self.run.pretrain_updates)]
+
+    def actor_loss(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(E[α·log π(ã|s) − min_k Q_k(s, ã)], E[−log π(ã|s)])`` with ``ã`` a
+        reparameterised sample; the ensemble's weights are read detached."""
+        observation = batch["observation"]
+        dist = self.actor.get_dist(batch.select("observation"))
+        action = dist.rsample()
+        log_prob = dist.log_prob(action)
+        q = self.critic.loss.q_value(observation, action)
+        return (self.alpha * log_prob - q).mean(), -log_prob.mean().detach()
+
+    def update(self, batch: TensorDictBase) -> dict:
+        """Critic steps (one per batch of a stacked ``[k, B]``), then one actor step on the
+        last batch."""
+        critic = self.critic.step(batch, online=self.run.frames > 0)
+        actor_loss, entropy = self.actor_loss(batch[-1] if batch.ndim > 1 else batch)
+        self.actor_optimizer.zero_grad(set_to_none=True)
+        actor_loss.backward()
+        self.actor_optimizer.step()
+        return {
+            **{k: v.detach() for k, v in critic.items()},
+            "loss_actor": actor_loss.detach(),
+            "entropy": entropy.detach(),
+        }
+
+
+def run_so2(cfg: DictConfig) -> O2ORun:
+    """Runs (or resumes) the SO2 baseline for a validated ``cfg``."""
+    return run_o2o(cfg, SO2Learner)
+
+
+SO2 = Algorithm(
+    sections={"actor": SO2ActorSettings, "online": OnlineSettings},
+    critics=("so2",),
+    check=check_nothing,
+    learner=SO2Learner,
+)

@@ -1,0 +1,96 @@
+"""The protocol of one algorithm in the offline-to-online recipe: :class:`Learner`.
+
+:class:`~torchrl_dual.recipe.O2ORun` owns what every algorithm shares (data, envs,
+replay, collector, UTD schedule, evaluation, checkpoints); a learner adds the networks,
+the offline stages, one gradient update and the acting policies. ``DualLearner``
+(Algorithm 1) and the baselines' learners implement it.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from typing import Any
+
+import torch
+from tensordict import TensorDictBase
+from torch import nn
+
+
+class Learner(ABC):
+    """What one algorithm adds to an :class:`O2ORun`.
+
+    A learner is built by the run (``Learner(run)``) once the run's data, env and
+    offline buffer exist, and before its replay buffer, counters and logger; it builds
+    its networks, losses and optimizers in ``__init__`` and may keep ``run`` to read
+    ``run.cfg``, ``run.data``, ``run.logger`` or ``run.updates`` later.
+
+    Attributes:
+        title (str): the algorithm's name in the plot title.
+        exploration_policy (nn.Module): what the collector runs, under
+            ``ExplorationType.RANDOM``; it writes the executed ``"action"`` (after the env
+            kit's ``action_projection``, if any).
+        evaluation_policy (nn.Module): what the evaluator runs, under
+            ``ExplorationType.DETERMINISTIC``.
+    """
+
+    title: str = "?"
+    exploration_policy: nn.Module
+    evaluation_policy: nn.Module
+    shared_stages: tuple[str, ...] = ()
+    """The leading offline stages that runs differing only in online keys may share
+    (``offline_cache``); empty: this learner never shares its offline phase."""
+    online_keys: tuple[str, ...] = ()
+    """Dotted config keys of this algorithm that its :attr:`shared_stages` do not read
+    (beyond :data:`~torchrl_dual.recipe.o2o.offline_cache.ONLINE_KEYS`)."""
+
+    extra_online_capacity: int = 0
+    """Online transitions the learner adds beyond the collected frames (planner
+    augmentation, :func:`~torchrl_dual.recipe.parts.planner_augment.augment_capacity`): the
+    online buffer holds ``budget.online_frames`` plus these, so none overwrites another."""
+
+    online_batches_per_update: int = 1
+    """Batches each online update gets: ``k > 1`` passes ``[k, B]`` (``k`` batches of
+    D_offline ∪ D_online stacked) to :meth:`update`, e.g. SO2's ``k`` critic steps per
+    actor step (``critic.online_steps_per_update``); offline updates always get ``[B]``."""
+
+    @abstractmethod
+    def modules(self) -> dict[str, Any]:
+        """Name -> object with ``state_dict``/``load_state_dict`` (networks, losses,
+        optimizers): what the checkpoint holds, each weight once."""
+
+    @abstractmethod
+    def offline_stages(self) -> list[tuple[str, Callable[[], None]]]:
+        """The offline phase as ordered ``(name, fn)`` stages, each checkpointed when done
+        and skipped on resume; :meth:`O2ORun.pretrain_updates` is the shared
+        ``budget.offline_updates`` stage. The run appends ``offline_eval``."""
+
+    @abstractmethod
+    def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor | float]:
+        """One gradient update (critic and actor) on ``batch``; returns its metrics as
+        detached 0-dim tensors (left on the device: :meth:`O2ORun.log` reads them back
+        only when it logs, every 100 updates, so an update never syncs the host)."""
+
+    def after_updates(self) -> None:  # noqa: B027 - optional hook
+        """Called after each block of online updates (DUAL refits its Laplace posterior)."""
+
+    def shared_modules(self) -> dict[str, Any]:
+        """What a shared offline phase hands over (defaults to :meth:`modules`); leave out
+        what depends on :attr:`online_keys` (e.g. DUAL's M posterior draws)."""
+        return self.modules()
+
+    def online_transitions(self, transitions: TensorDictBase) -> TensorDictBase:
+        """What of the collected ``transitions`` enters ``D_online`` now (Alg. 1 l. 13);
+        all of them by default. Cal-QL holds an episode until it ends to label it."""
+        return transitions
+
+    def batch_metrics(self, batch: TensorDictBase) -> dict[str, float]:
+        """Metrics of a collected batch beyond ``reward_per_step`` (logged under ``online/``)."""
+        return {}
+
+    def state_dict(self) -> dict[str, Any]:
+        """The learner's counters that are not in :meth:`modules` (checkpointed)."""
+        return {}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:  # noqa: B027 - optional
+        """Restores what :meth:`state_dict` returned."""

@@ -1,0 +1,386 @@
+"""The algorithm-independent offline-to-online run, and the :class:`Learner` it drives.
+
+:class:`O2ORun` owns what every offline-to-online algorithm of the recipe shares: the
+seeds, the offline data, the online env and the evaluator, the offline replay buffer
+and TorchRL's ``OfflineToOnlineReplayBuffer``, the logger, the counters, the
+collector, the update-to-data schedule, evaluation, checkpoint and resume, and the
+learning curve at the end. What is particular to one algorithm (its networks, its
+offline stages, one gradient update, the acting policies) is a :class:`Learner`;
+:func:`run_o2o` runs one learner through the offline and the online phase. Each entry
+of :data:`~torchrl_dual.recipe.ALGORITHMS` is a learner class and a config file.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
+from tensordict import TensorDictBase
+from torchrl.collectors import BaseCollector
+from torchrl.data import LazyTensorStorage, RandomSampler, ReplayBuffer
+from tqdm.auto import tqdm
+
+from torchrl_dual.checkpoint import CheckpointError, RunCheckpoint, rng_state, set_rng_state
+from torchrl_dual.data import TRANSITION_KEYS
+from torchrl_dual.recipe.kits import build as env_kits
+from torchrl_dual.recipe.o2o.collectors import COLLECTORS, assign_episodes
+from torchrl_dual.recipe.o2o.learner import Learner
+from torchrl_dual.recipe.o2o.loggers import logs_text, make_logger
+from torchrl_dual.recipe.o2o.plots import plot_learning_curve
+from torchrl_dual.recipe.o2o.replays import REPLAYS
+from torchrl_dual.recipe.o2o.stage_clock import StageClock
+from torchrl_dual.recipe.o2o.summary import score_text, write_summary
+from torchrl_dual.recipe.settings.errors import ConfigError, UserError
+
+# Settings that may change when a run is resumed; everything else must match.
+RESUMABLE_KEYS = (
+    "output_dir",  # a run directory may be moved (or copied) and resumed where it is
+    "data_cache_dir",  # the data is regenerated identically from its seed, or read
+    "resume",
+    "progress",
+    "interrupt_at_frames",
+    "num_threads",
+    "device",
+    "debug",
+    "offline_cache",
+    "collector",  # how frames are gathered: a resumed run may use other workers or cores
+    "compile",  # how an update runs (compiled or not), not what it computes
+)
+# Part of the fingerprint: a checkpoint of another layout (e.g. written before the
+# O2ORun / Learner split) is refused with the checkpoint's "incompatible run" error.
+CHECKPOINT_LAYOUT = "o2o-learner-3"
+_COUNTERS = (
+    "stages_done",
+    "stage_seconds",
+    "stage_cpu_seconds",
+    "shared_offline",
+    "frames",
+    "updates",
+    "update_credit",
+    "next_episode",
+    "history",
+    "online_signals",
+)
+
+
+def check_output_dir(cfg: DictConfig) -> None:
+    """``output_dir`` must be a directory (or not exist yet) that this process can create
+    and write, and hold no checkpoint unless ``resume=true``: a fresh run never overwrites
+    another run's checkpoint. Writability is probed with a temporary folder in the nearest
+    existing ancestor (removed at once), so a failed check leaves nothing behind."""
+    output_dir = Path(cfg.output_dir)
+    for path in (output_dir, *output_dir.parents):
+        if path.exists() and not path.is_dir():
+            raise ConfigError("output_dir", cfg.output_dir, f"{path} is a file, not a directory")
+    existing = next(p for p in (output_dir, *output_dir.parents) if p.exists())
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".write-probe-", dir=existing))
+    except OSError as err:
+        raise ConfigError(
+            "output_dir",
+            cfg.output_dir,
+            f"cannot be created or written in {existing} ({err.strerror}); choose a "
+            "directory you can write to",
+        ) from None
+    checkpoint = output_dir / "checkpoint.pt"
+    if checkpoint.exists() and not cfg.resume:
+        raise ConfigError(
+            "resume",
+            False,
+            f"{checkpoint} exists: pass resume=true to continue that run, or choose "
+            "another output_dir (or delete it) to start afresh",
+        )
+
+
+def compiled_update(learner: Learner, settings: DictConfig | None) -> Callable:
+    """``learner.update``, or with ``compile.compile=true`` that method through
+    ``torch.compile`` (``compile.compile_mode``): the losses trace whole (no graph break,
+    ``tests/test_compile.py``), the backward passes and optimizer steps are their own
+    graphs. Dynamo replays the update's Python side effects (counters)."""
+    if settings is None or not settings.compile:
+        return learner.update
+    mode = settings.compile_mode
+    return torch.compile(learner.update, mode=None if mode in (None, "default") else mode)
+
+
+class O2ORun:
+    """Everything one offline-to-online run needs apart from its :class:`Learner`.
+
+    ``cfg`` must have passed :func:`~torchrl_dual.recipe.validate_config`;
+    ``make_learner`` is ``run -> Learner`` (usually the learner class).
+    """
+
+    def __init__(self, cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> None:
+        self.cfg = cfg
+        self.name = str(cfg.algo)
+        torch.set_num_threads(cfg.num_threads)
+        self.seed_everything(cfg.seed)
+        self.output_dir = Path(cfg.output_dir)
+        fingerprint = {
+            k: v
+            for k, v in OmegaConf.to_container(cfg, resolve=True).items()
+            if k not in RESUMABLE_KEYS
+        }
+        fingerprint["checkpoint_layout"] = self.checkpoint_layout = CHECKPOINT_LAYOUT
+        check_output_dir(cfg)
+        self.checkpoint = RunCheckpoint(
+            self.output_dir / "checkpoint.pt", fingerprint, free_keys=RESUMABLE_KEYS
+        )
+        # Read a checkpoint first, so a corrupt or incompatible one fails before any work.
+        saved = self._load_checkpoint() if cfg.resume and self.checkpoint.exists() else None
+        if cfg.resume and saved is None:
+            self.say(f"resume=true: no checkpoint in {self.output_dir}; starting a new run")
+        # ---- data and envs (Alg. 1 line 1)
+        self.data = env_kits.make_offline_dataset(cfg)
+        self.env = env_kits.make_train_env(cfg, self.data)
+        env_kits.check_dims(self.env, self.data, cfg.env.name)
+        self.evaluate_policy = env_kits.make_evaluator(cfg, self.data)
+        self.offline_buffer = self._offline_buffer()
+        # ---- the algorithm's networks, losses and policies
+        self.learner = make_learner(self)
+        self._update = compiled_update(self.learner, cfg.get("compile"))
+        self.replay = REPLAYS[cfg.replay.name][1](self)  # D_offline ∪ D_online (replays.py)
+        # ---- counters
+        self.stages_done: list[str] = []
+        self.stage_seconds: dict[str, float] = {}  # wall-clock seconds per stage
+        self.stage_cpu_seconds: dict[str, float] = {}  # this process's CPU seconds per stage
+        self.shared_offline = False
+        self.frames = 0
+        self.updates = 0
+        self.update_credit = 0.0
+        self.next_episode = int(self.data.transitions["episode"].max()) + 1  # a fresh id
+        self.open_episodes: dict[int, int] = {}  # collector trajectory id -> its episode id
+        self.history: list[dict] = []
+        self.online_signals: list[dict] = []  # per collected batch (plots.online_signals)
+        logger_state = self.load(saved) if saved is not None else None
+        self.make_logger(logger_state)
+
+    def make_logger(self, state: dict | None = None) -> None:
+        """The ``cfg.logger`` backend's TorchRL logger under ``output_dir/logs`` (continuing
+        ``state``, if given; it replaces and closes the current one)."""
+        previous = getattr(self, "logger", None)
+        self.logger = make_logger(self.cfg, self.output_dir / "logs", self.name, state, previous)
+
+    # ------------------------------------------------------------------ bookkeeping
+    @staticmethod
+    def seed_everything(seed: int) -> None:
+        random.seed(seed)
+        np.random.seed(seed)
+        torch.manual_seed(seed)
+
+    def say(self, text: str) -> None:
+        print(f"[{self.name}] {text}")
+
+    def _offline_buffer(self) -> ReplayBuffer:
+        """Uniform transitions from D_offline; a plain ``ReplayBuffer`` so its samples carry
+        the same keys as the online part of ``OfflineToOnlineReplayBuffer``."""
+        buffer = ReplayBuffer(
+            storage=LazyTensorStorage(len(self.data), device=self.cfg.device),
+            sampler=RandomSampler(),
+            batch_size=self.cfg.online.batch_size,
+        )
+        buffer.extend(self.data.transitions)
+        return buffer
+
+    def state(self, modules: dict[str, Any] | None = None) -> dict[str, Any]:
+        """Everything needed to continue: ``modules`` (default: the learner's, and then the
+        replay's state too), counters, online data, RNG and logger state. A shared offline
+        phase passes its ``modules`` and leaves the replay out: the replay is online-only."""
+        online = self.replay.online_buffer
+        state = {} if modules is not None else {"replay": self.replay.state_dict()}
+        modules = self.learner.modules() if modules is None else modules
+        state.update({name: module.state_dict() for name, module in modules.items()})
+        state.update({name: getattr(self, name) for name in _COUNTERS})
+        state.update(
+            learner=self.learner.state_dict(),
+            online_data=online[: len(online)].clone() if len(online) else None,
+            rng=rng_state(),
+            logger=self.logger.state_dict() if hasattr(self.logger, "state_dict") else None,
+        )
+        return state
+
+    def save(self) -> None:
+        """Checkpoints :meth:`state` (atomic write)."""
+        self.checkpoint.save(self.state())
+
+    def _load_checkpoint(self) -> dict:
+        try:
+            return self.checkpoint.load()
+        except CheckpointError as err:  # corrupt, not a checkpoint, or another run's settings
+            raise UserError("resume", True, str(err)) from err
+
+    def load(self, state: dict | None = None, modules: dict[str, Any] | None = None):
+        """Restores the checkpoint's ``state`` (read if not given) into ``modules`` (default:
+        the learner's); returns the logger's state."""
+        state = self._load_checkpoint() if state is None else state
+        modules = self.learner.modules() if modules is None else modules
+        try:
+            for name, module in modules.items():
+                module.load_state_dict(state[name])
+            self.learner.load_state_dict(state["learner"])
+        except (KeyError, RuntimeError, ValueError) as err:
+            raise UserError(
+                "resume",
+                True,
+                f"the checkpoint {self.checkpoint.path} does not fit this run's networks "
+                f"({err}). Resume with the settings that wrote it, or use another output_dir.",
+            ) from err
+        for name in _COUNTERS:  # online_signals may be absent (checkpoints from before it)
+            setattr(self, name, state[name] if name != "online_signals" else state.get(name, []))
+        if state["online_data"] is not None:
+            self.replay.extend(state["online_data"])
+            # next_episode (a counter above) is past every id handed out, stored or held
+            # by the learner (Cal-QL's MonteCarloLabels): the collector's new episode
+            # after the resume takes it, the cut one keeps its own.
+        if "replay" in state:  # after the online data: the priorities follow it
+            self.replay.load_state_dict(state["replay"])
+        set_rng_state(state["rng"])
+        return state["logger"]
+
+    def stage(self, name: str, fn: Callable[[], Any]) -> None:
+        """Runs one offline stage unless a resumed run already did it; then checkpoints."""
+        if name in self.stages_done:
+            self.say(f"{name}: done in the checkpoint, skipped")
+            return
+        clock = StageClock(self, name)
+        self.say(f"{name}: started")
+        fn()
+        clock.tick()
+        self.say(
+            f"{name}: done in {self.stage_seconds[name]:.0f} s "
+            f"({self.stage_cpu_seconds[name]:.0f} CPU-s)"
+        )
+        self.stages_done.append(name)
+        self.save()
+
+    def log(self, values: dict, step: int, prefix: str) -> None:
+        for key, value in values.items():
+            self.logger.log_scalar(f"{prefix}{key}", float(value), step=step)
+
+    def all_transitions(self, chunk: int = 8192):
+        """D_offline then D_online, in chunks on the run's device."""
+        for source in (self.data.transitions, self.replay.online_buffer):
+            for start in range(0, len(source), chunk):
+                yield source[start : start + chunk].to(self.cfg.device)
+
+    # ------------------------------------------------------------------ updates
+    def update(self, batch: TensorDictBase) -> dict:
+        """One learner update, counted."""
+        metrics = self._update(batch)
+        self.updates += 1
+        return metrics
+
+    def pretrain_updates(self) -> None:
+        """``budget.offline_updates`` updates on D_offline (DUAL: Alg. 1 lines 6-8)."""
+        bar = tqdm(
+            range(self.cfg.budget.offline_updates),
+            desc="actor+critic",
+            disable=not self.cfg.progress,
+            leave=False,
+        )
+        tenth = max(self.cfg.budget.offline_updates // 10, 1)
+        for i in bar:
+            metrics = self.update(self.offline_buffer.sample().to(self.cfg.device))
+            if i % 100 == 0:
+                self.log(metrics, self.updates, "offline/")
+                if "loss_actor" in metrics:
+                    bar.set_postfix(actor=f"{metrics['loss_actor']:.3f}")
+            if not self.cfg.progress and (i + 1) % tenth == 0:  # no bar: a line per 10 %
+                self.say(f"actor+critic: {i + 1}/{self.cfg.budget.offline_updates} updates")
+
+    def evaluate(self, label: str) -> dict:
+        result = self.evaluate_policy(self.learner.evaluation_policy)
+        result.update(frames=self.frames, label=label)
+        self.history.append(result)
+        self.log({k: v for k, v in result.items() if k != "label"}, self.frames, "eval/")
+        unshifted = result.get("normalized_score_unshifted")  # under env.shift only
+        self.say(
+            f"{label} @ {self.frames} frames: normalized score "
+            f"{score_text(result['normalized_score'])} (return {result['return']:.3f})"
+            + ("" if unshifted is None else f"; without the shift {score_text(unshifted)}")
+        )
+        return result
+
+    # ------------------------------------------------------------------ online phase
+    def collector(self) -> BaseCollector:
+        """Acts with the learner's exploration policy in the online env (Alg. 1 l. 11-12):
+        the ``collector.name`` entry of :data:`~torchrl_dual.recipe.o2o.collectors.COLLECTORS`."""
+        remaining = max(self.cfg.budget.online_frames - self.frames, 0)
+        self.open_episodes = {}  # a new collector starts new trajectories
+        return COLLECTORS[self.cfg.collector.name].make(self, remaining)
+
+    def store(self, batch: TensorDictBase) -> dict:
+        """D_online ← D_online ∪ {(s_t, a_t, s_t+1, r_t)} with the executed action (l. 13)."""
+        batch = batch.reshape(-1)  # [workers, T] (multi_sync) or [T]
+        episode, self.next_episode = assign_episodes(
+            batch["collector", "traj_ids"],
+            batch["next", "done"],
+            self.open_episodes,
+            self.next_episode,
+        )
+        keys = [k for k in TRANSITION_KEYS if k != "episode"]
+        online = batch.select(*keys).clone()
+        online.set("episode", episode)
+        online = self.learner.online_transitions(online)
+        if len(online):
+            self.replay.extend(online.cpu())
+        self.frames += batch.numel()
+        return {
+            "reward_per_step": float(batch["next", "reward"].mean()),
+            **self.learner.batch_metrics(batch),
+        }
+
+    def online_batch(self) -> TensorDictBase:
+        """One update's sample of D_offline ∪ D_online on the run's device: a ``[B]`` batch,
+        or ``[k, B]`` (``k`` batches stacked) for a learner with
+        :attr:`~torchrl_dual.recipe.Learner.online_batches_per_update` ``k > 1``."""
+        k = self.learner.online_batches_per_update
+        if k == 1:
+            return self.replay.sample().to(self.cfg.device)
+        return torch.stack([self.replay.sample() for _ in range(k)]).to(self.cfg.device)
+
+    def train_online(self, num_frames: int) -> dict:
+        """``online.utd_ratio`` updates per collected frame on D_offline ∪ D_online, each
+        followed by the replay's own step (balanced replay: density ratio, priorities)."""
+        self.update_credit += self.cfg.online.utd_ratio * num_frames
+        metrics: dict = {}
+        while self.update_credit >= 1:
+            batch = self.online_batch()
+            metrics = self.update(batch)
+            metrics.update(self.replay.after_update(batch))
+            self.update_credit -= 1
+        return metrics
+
+    def finish(self) -> None:
+        """Writes the learning curve and ``summary.json``, closes the logger; prints where
+        everything is."""
+        self.save()
+        self.logger.shutdown()
+        write_summary(self, self.output_dir / "summary.json")
+        png = plot_learning_curve(
+            self.history,
+            self.output_dir / "learning_curve.png",
+            title=f"{self.learner.title} on {self.cfg.env.name}",
+            signals=self.online_signals,
+        )
+        offline = next((h for h in self.history if h["label"] == "offline"), None)
+        final = self.history[-1] if self.history else None
+        self.say("done.")
+        if offline is not None:
+            self.say(
+                f"normalized score after the offline phase: {score_text(offline['normalized_score'])}"
+            )
+        if final is not None:
+            self.say(
+                "normalized score at the end of the online phase: "
+                + score_text(final["normalized_score"])
+            )
+        self.say(logs_text(self.cfg, self.output_dir / "logs", self.name))
+        self.say(f"learning curve: {png}")

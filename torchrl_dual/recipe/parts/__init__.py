@@ -1,0 +1,3 @@
+"""Parts shared by several algorithms, one home each: the critics, the actor networks,
+the Laplace refit schedule, the planner's offline stage and augmentation, and Cal-QL's
+Monte-Carlo labels."""

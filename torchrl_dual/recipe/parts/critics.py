@@ -1,0 +1,396 @@
+"""The recipe's critics ``Q_φ`` and ``V`` (Alg. 1 lines 7 and 15): a table by ``critic.name``.
+
+TorchRL's IQL critics (``critic/iql.yaml``, every algorithm), Cal-QL's
+(``critic/calql.yaml``: :class:`~torchrl_dual.objectives.CalQLLoss`, TorchRL's ``CQLLoss``
+with the Monte-Carlo bound; ``algo=calql`` and ``algo=dual``) and SO2's
+(``critic/so2.yaml``: :class:`~torchrl_dual.objectives.SO2QLoss`, a Q ensemble on
+policy-smoothed targets; ``algo=so2`` and ``algo=dual``).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import partial
+from typing import Any
+
+import torch
+from omegaconf import DictConfig
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModule
+from torch import nn
+from torchrl.data import TensorSpec
+from torchrl.modules import MLP, ProbabilisticActor, ValueOperator
+from torchrl.objectives import IQLLoss, SoftUpdate
+
+from torchrl_dual.modules.actors.action_box import ClippedNormal, box_bounds
+from torchrl_dual.objectives import PENALTY_LAYOUTS, WEIGHTINGS, CalQLLoss, SO2QLoss
+from torchrl_dual.objectives.so2 import TARGET_REDUCTIONS
+from torchrl_dual.recipe.settings.rules import Choice, Integer, Maybe, Real, Text, key
+
+
+@dataclass
+class CriticSettings:
+    """The ``critic.*`` keys every critic has (its networks, optimizer and targets)."""
+
+    name: str = key(Text(), "the CRITICS entry")
+    hidden: int = key(Integer(1), "MLP width of the critic networks")
+    depth: int = key(Integer(1), "hidden layers of the critic networks")
+    lr: float = key(Real(0, low_open=True), "Adam learning rate of the critic networks")
+    discount: float = key(Real(0, 1, low_open=True), "γ")
+    target_update_tau: float = key(Real(0, 1, low_open=True), "soft target update rate")
+    actor_weighting: str = key(Choice(WEIGHTINGS), "preset of DUAL's actor.weighting")
+
+
+@dataclass
+class IQLCriticSettings(CriticSettings):
+    """``critic/iql.yaml``: TorchRL ``IQLLoss`` expectile value network and twin Q networks."""
+
+    expectile: float = key(Real(0, 1, low_open=True, high_open=True), "IQL expectile τ")
+
+
+@dataclass
+class CalQLCriticSettings(CriticSettings):
+    """``critic/calql.yaml``: Cal-QL's twin Q networks (TorchRL ``CQLLoss`` + MC bound;
+    ``discount`` is also the bound's)."""
+
+    min_q_weight: float = key(Real(0), "weight of the conservative penalty")
+    num_random: int = key(Integer(1), "uniform and policy actions per state in the penalty")
+    temperature: float = key(Real(0, low_open=True), "temperature of the penalty's logsumexp")
+    penalty_layout: str = key(Choice(PENALTY_LAYOUTS), "logsumexp grouping (CalQLLoss)")
+    sparse_failure_reward: Any = key(
+        Maybe(Real()), "r_fail of Cal-QL's sparse-reward bound r_fail / (1 - γ); null: off"
+    )
+
+
+@dataclass
+class SO2CriticSettings(CriticSettings):
+    """``critic/so2.yaml``: SO2's Q ensemble (:class:`~torchrl_dual.objectives.SO2QLoss`).
+
+    Offline it is SAC-N (the target is the ensemble's minimum, no smoothing noise, one
+    critic step per update); online, SO2's changes: each member's own target at the
+    noise-smoothed next action, ``online_steps_per_update`` critic steps per update."""
+
+    num_qvalue_nets: int = key(Integer(1), "ensemble size E (SO2: 10)")
+    policy_noise: float = key(Real(0), "σ of the target action's smoothing noise (online)")
+    noise_clip: float = key(Real(0), "c: the smoothing noise is clipped to [-c, c]")
+    target_reduction: str = key(Choice(TARGET_REDUCTIONS), "online targets per member or reduced")
+    offline_target_reduction: str = key(Choice(TARGET_REDUCTIONS), "offline (SAC-N: min)")
+    entropy_coef: float = key(Real(0), "α of the targets' and the SAC actor's entropy term")
+    online_steps_per_update: int = key(Integer(1), "critic steps per update online (SO2: 10)")
+
+
+CriticLoss = IQLLoss | CalQLLoss | SO2QLoss
+
+
+@dataclass
+class Critic:
+    """A critic loss (TorchRL ``IQLLoss``, :class:`~torchrl_dual.objectives.CalQLLoss` or
+    :class:`~torchrl_dual.objectives.SO2QLoss`), the optimizer of its Q (and V) networks,
+    its target-network updater and its loss terms (:data:`CRITIC_TERMS`)."""
+
+    loss: CriticLoss
+    optimizer: torch.optim.Optimizer
+    target_updater: SoftUpdate
+    terms: Callable[[Any, TensorDictBase], dict[str, torch.Tensor]]
+    """``(loss, batch) -> {name: loss term}``: what one critic step minimises (the sum)."""
+
+    saves_actor: bool = True
+    """``False`` when the loss samples a :func:`policy_view` of the learner's actor, which
+    the learner saves itself: the checkpoint then holds each weight once."""
+
+    online_steps_per_update: int = 1
+    """Critic steps per learner update online (SO2: 10, each on its own batch)."""
+
+    phases: Callable[..., None] | None = None
+    """``(loss, online=bool) -> None``: sets the loss's offline or online settings (SO2)."""
+
+    def modules(self) -> dict[str, Any]:
+        """What a learner's checkpoint holds of the critics (:meth:`Learner.modules`): the
+        loss (V, the Q and the target Q networks) and its optimizer."""
+        return {
+            "critic": _CriticState(self.loss, keep_actor=self.saves_actor),
+            "critic_optimizer": self.optimizer,
+        }
+
+    def step(self, batch: TensorDictBase, *, online: bool = False) -> dict[str, torch.Tensor]:
+        """Critic updates of Alg. 1 (lines 7 and 15): per batch (``[B]``, or each of a
+        stacked ``[k, B]``), one gradient step on the sum of :attr:`terms` (IQL: TD to
+        ``r + γ V(s')`` plus the expectile V loss; Cal-QL: TD plus the bounded
+        conservative penalty; SO2: the ensemble's TD), then the soft update of the target
+        Q networks. ``online`` selects the critic's online settings (SO2's smoothed,
+        per-member targets). Returns the last step's terms, detached.
+
+        The IQL and Cal-QL baselines do not call it: their updates sum the actor loss into
+        the same backward pass (e.g. :meth:`~torchrl_dual.recipe.IQLLearner.update`).
+        """
+        if self.phases is not None:
+            self.phases(self.loss, online=online)
+        terms: dict[str, torch.Tensor] = {}
+        for one in batch.unbind(0) if batch.ndim > 1 else (batch,):
+            terms = self.terms(self.loss, one)
+            self.optimizer.zero_grad(set_to_none=True)
+            sum(terms.values()).backward()
+            self.optimizer.step()
+            self.target_updater.step()
+        return {name: term.detach() for name, term in terms.items()}
+
+
+def iql_terms(loss: IQLLoss, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+    """IQL: the Q loss (TD to ``r + γ V(s')``) and the expectile V loss."""
+    return {"loss_qvalue": loss.qvalue_loss(batch)[0], "loss_value": loss.value_loss(batch)[0]}
+
+
+def calql_terms(loss: CalQLLoss, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+    """Cal-QL: the Bellman loss and the conservative penalty with the Monte-Carlo bound."""
+    return {"loss_qvalue": loss.q_loss(batch)[0], "loss_cql": loss.cql_loss(batch)[0]}
+
+
+def so2_terms(loss: SO2QLoss, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+    """SO2: the ensemble's TD loss on policy-smoothed targets."""
+    return {"loss_qvalue": loss.qvalue_loss(batch)[0].mean()}
+
+
+class _CriticState:
+    """What a checkpoint holds of a critic loss: its ``state_dict``, without the actor
+    weights it samples unless ``keep_actor`` (else the learner saves them as its actor's).
+    Loading renames the Q keys of checkpoints written before IQL's Q networks came from
+    :func:`q_network` (:func:`upgraded_critic_state`)."""
+
+    def __init__(self, loss: nn.Module, *, keep_actor: bool) -> None:
+        self.loss, self.keep_actor = loss, keep_actor
+
+    def state_dict(self) -> dict[str, Any]:
+        state = self.loss.state_dict()
+        return state if self.keep_actor else {k: v for k, v in state.items() if not _is_actor(k)}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Loads ``state`` after checking its keys here: TorchRL 0.14's ``LossModule``
+        (its ``TensorDictParams``) reports a parameter key it does not have as matched and
+        skips it, even with ``strict=True``, which would leave those networks as they were
+        initialised without a word (``test_critic_checkpoint.py`` shows the upstream
+        behaviour)."""
+        state = upgraded_critic_state(state)
+        given = {k for k in state if self.keep_actor or not _is_actor(k)}
+        expected = set(self.state_dict())
+        if given != expected:
+            missing, unexpected = sorted(expected - given), sorted(given - expected)
+            raise RuntimeError(
+                f"critic state does not fit: missing {missing[:5]}, unexpected {unexpected[:5]}"
+            )
+        self.loss.load_state_dict(state, strict=self.keep_actor)
+
+
+def _is_actor(name: str) -> bool:
+    return name.startswith(("actor_network_params", "target_actor_network_params"))
+
+
+_OLD_IQL_Q = re.compile(r"^((?:target_)?qvalue_network_params\.module)\.mlp\.")
+
+
+def upgraded_critic_state(state: dict[str, Any]) -> dict[str, Any]:
+    """A critic ``state_dict`` in today's key layout: until 2026-12-02 IQL's Q networks were
+    an ``MLP`` inside a small module (keys ``qvalue_network_params.module.mlp.0.weight``);
+    they are :func:`q_network`'s ``MLP`` itself now (``...module.0.weight``), the same
+    parameters. Other keys are kept.
+
+    Examples:
+        >>> upgraded_critic_state({"target_qvalue_network_params.module.mlp.0.bias": 1, "x": 2})
+        {'target_qvalue_network_params.module.0.bias': 1, 'x': 2}
+    """
+    return {_OLD_IQL_Q.sub(r"\1.", k): v for k, v in state.items()}
+
+
+class _NoActor(nn.Module):
+    """The actor slot of TorchRL 0.14.1's ``IQLLoss``, which cannot be left empty.
+
+    ``IQLLoss.__init__`` converts its ``actor_network`` to functional parameters and
+    ``qvalue_loss`` reads ``actor_network.in_keys`` for the observation keys, so an actor
+    is required even though the recipe only calls ``qvalue_loss`` and ``value_loss``:
+    DUAL's actor loss is :class:`~torchrl_dual.WeightedMAPActorLoss` (Eq. 7). This one
+    has no parameters, so the loss's state_dict holds no copy of the actor's weights.
+    """
+
+    def forward(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        raise RuntimeError(
+            "IQLLoss.actor_loss is not DUAL's actor loss; use WeightedMAPActorLoss (Eq. 7)."
+        )
+
+
+def make_iql_critic(
+    cfg: DictConfig,
+    obs_dim: int,
+    action_dim: int,
+    actor: ProbabilisticActor | None = None,
+    temperature: float = 1.0,
+) -> Critic:
+    """IQL's expectile value network V and twin Q networks (TorchRL ``IQLLoss``).
+
+    Built in a fixed order (Q MLP, V MLP, then ``IQLLoss``, which redraws the second Q
+    network's weights) so a seed gives the same critics. Without ``actor`` the loss's
+    actor slot is a parameterless stand-in (DUAL trains its actor with its own loss);
+    with one (the ``iql`` baseline), ``loss.actor_loss`` is IQL's advantage-weighted
+    regression at ``temperature`` and ``loss`` holds the actor's weights, which the
+    critic's optimizer leaves alone.
+    """
+    c = cfg.critic
+    qvalue = q_network(cfg, obs_dim, action_dim)
+    value = ValueOperator(
+        MLP(
+            in_features=obs_dim,
+            out_features=1,
+            num_cells=[c.hidden] * c.depth,
+            activation_class=nn.ReLU,
+        ),
+        in_keys=["observation"],
+    )
+    if actor is None:
+        actor = ProbabilisticActor(
+            TensorDictModule(_NoActor(), in_keys=["observation"], out_keys=["loc", "scale"]),
+            in_keys=["loc", "scale"],
+            distribution_class=torch.distributions.Normal,
+        )
+    loss = IQLLoss(
+        actor,
+        qvalue,
+        value,
+        expectile=c.expectile,
+        temperature=temperature,
+        num_qvalue_nets=2,
+        loss_function="l2",
+    ).to(cfg.device)
+    loss.make_value_estimator(gamma=c.discount)
+    params = list(loss.qvalue_network_params.values(True, True)) + list(
+        loss.value_network_params.values(True, True)
+    )
+    optimizer = torch.optim.Adam(params, lr=c.lr)
+    return Critic(loss, optimizer, SoftUpdate(loss, tau=c.target_update_tau), iql_terms)
+
+
+def make_calql_critic(
+    cfg: DictConfig,
+    obs_dim: int,
+    action_dim: int,
+    actor: ProbabilisticActor | None = None,
+    temperature: float = 1.0,
+) -> Critic:
+    """Cal-QL's twin Q networks in a :class:`~torchrl_dual.objectives.CalQLLoss` on
+    ``actor`` (a TorchRL ``TanhNormal`` actor: the penalty and the SAC actor loss sample
+    it); ``temperature`` is unused (Cal-QL's actor loss is SAC's, not AWR). The critic's
+    optimizer holds the Q networks only; the learner steps the actor and ``log_alpha``."""
+    if actor is None:
+        raise ValueError("critic=calql needs the actor it samples (a TanhNormal actor).")
+    c = cfg.critic
+    qvalue = q_network(cfg, obs_dim, action_dim)
+    loss = CalQLLoss(
+        actor,
+        qvalue,
+        penalty_layout=c.penalty_layout,
+        min_q_weight=c.min_q_weight,
+        num_random=c.num_random,
+        temperature=c.temperature,
+        action_spec=actor.spec,
+    ).to(cfg.device)
+    loss.make_value_estimator(gamma=c.discount)
+    optimizer = torch.optim.Adam(loss.qvalue_network_params.values(True, True), lr=c.lr)
+    saves_actor = not any(isinstance(m, _MeanAndStd) for m in actor.modules())  # policy_view
+    updater = SoftUpdate(loss, tau=c.target_update_tau)
+    return Critic(loss, optimizer, updater, calql_terms, saves_actor)
+
+
+def make_so2_critic(
+    cfg: DictConfig,
+    obs_dim: int,
+    action_dim: int,
+    actor: ProbabilisticActor | None = None,
+    temperature: float = 1.0,
+) -> Critic:
+    """SO2's ensemble of ``critic.num_qvalue_nets`` Q networks in a
+    :class:`~torchrl_dual.objectives.SO2QLoss` whose targets sample ``actor`` (with its
+    log-probability: ``return_log_prob=True``); ``temperature`` is unused. Built in the
+    offline (SAC-N) setting: :func:`so2_phase` switches to SO2's online one."""
+    if actor is None:
+        raise ValueError("critic=so2 needs the actor its targets sample.")
+    c = cfg.critic
+    loss = SO2QLoss(
+        actor,
+        q_network(cfg, obs_dim, action_dim),
+        action_spec=actor.spec,
+        num_qvalue_nets=c.num_qvalue_nets,
+        policy_noise=c.policy_noise,
+        noise_clip=c.noise_clip,
+        target_reduction=c.offline_target_reduction,
+        entropy_coef=c.entropy_coef,
+        gamma=c.discount,
+    ).to(cfg.device)
+    phases = partial(so2_phase, cfg=cfg)
+    phases(loss, online=False)
+    optimizer = torch.optim.Adam(loss.qvalue_network_params.values(True, True), lr=c.lr)
+    updater = SoftUpdate(loss, tau=c.target_update_tau)
+    return Critic(loss, optimizer, updater, so2_terms, True, c.online_steps_per_update, phases)
+
+
+def so2_phase(loss: SO2QLoss, *, cfg: DictConfig, online: bool) -> None:
+    """Offline: SAC-N's targets (``critic.offline_target_reduction``, no noise); online:
+    SO2's (``critic.target_reduction`` at the action smoothed by ``critic.policy_noise``)."""
+    c = cfg.critic
+    loss.target_reduction = c.target_reduction if online else c.offline_target_reduction
+    loss.policy_noise = c.policy_noise if online else 0.0
+
+
+def q_network(cfg: DictConfig, obs_dim: int, action_dim: int) -> ValueOperator:
+    """``Q(s, a)``: an MLP on the concatenated ``(s, a)``, ``critic.depth`` hidden layers of
+    ``critic.hidden`` units (every critic's: IQL's twin, Cal-QL's twin, SO2's ensemble)."""
+    c = cfg.critic
+    mlp = MLP(
+        in_features=obs_dim + action_dim,
+        out_features=1,
+        num_cells=[c.hidden] * c.depth,
+        activation_class=nn.ReLU,
+    )
+    return ValueOperator(mlp, in_keys=["observation", "action"])
+
+
+class _MeanAndStd(nn.Module):
+    """``observation -> (μ(s), σ̄)`` of a last-layer actor (DUAL's ``N(μ(s), σ̄²)``)."""
+
+    def __init__(self, actor: nn.Module) -> None:
+        super().__init__()
+        self.actor = actor
+
+    def forward(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        loc = self.actor(observation)
+        return loc, self.actor.std.expand_as(loc)
+
+
+def policy_view(actor: nn.Module, action_spec: TensorSpec) -> ProbabilisticActor:
+    """A TorchRL ``ProbabilisticActor`` sampling ``N(μ(s), σ̄²)`` from DUAL's last-layer
+    actor (the policy of Eq. 7's ``sac`` weighting), for a critic whose loss samples the
+    policy (Cal-QL's penalty and target actions, SO2's target actions). Its draws are
+    clamped to the action box (:class:`~torchrl_dual.modules.actors.action_box.ClippedNormal`):
+    the critics read Q at the actions the env would execute, never at an extrapolation.
+    It holds the actor's own parameters: the critic's optimizer never steps them and
+    :meth:`Critic.modules` does not save them."""
+    low, high = box_bounds(action_spec)
+    return ProbabilisticActor(
+        TensorDictModule(_MeanAndStd(actor), in_keys=["observation"], out_keys=["loc", "scale"]),
+        in_keys=["loc", "scale"],
+        spec=action_spec,
+        distribution_class=ClippedNormal,  # log π sums over the action dims
+        distribution_kwargs={"low": low, "high": high},
+        return_log_prob=True,  # SO2's targets read log π(a'|s')
+    )
+
+
+POLICY_CRITICS = ("calql", "so2")
+"""Critics whose loss samples the policy: a learner with its own actor passes them
+:func:`policy_view` of it (``actor=``)."""
+
+CRITICS: dict[str, tuple[type, Callable[..., Critic]]] = {
+    "iql": (IQLCriticSettings, make_iql_critic),
+    "calql": (CalQLCriticSettings, make_calql_critic),
+    "so2": (SO2CriticSettings, make_so2_critic),
+}
+"""``critic.name`` -> (schema of ``critic.*``, ``(cfg, obs_dim, action_dim, actor=None,
+temperature=1.0) -> Critic``)."""

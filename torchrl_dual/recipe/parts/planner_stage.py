@@ -1,0 +1,59 @@
+"""The planner's offline stage, shared by every learner that trains the trajectory planner
+(``dual``, ``diffuser``, ``edis``): its window buffer, the ``L_VLB`` pre-training on
+``D_offline`` (Eq. 3, Algorithm 1 lines 3-4) and the check that a window fits an episode."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from omegaconf import DictConfig
+
+from torchrl_dual.data import OfflineDataset
+from torchrl_dual.diffusion import TrajectoryDiffusion, WindowReplayBuffer
+from torchrl_dual.objectives import train_planner
+from torchrl_dual.recipe.settings.errors import ConfigError, UserError
+
+if TYPE_CHECKING:
+    from torchrl_dual.recipe.o2o.run import O2ORun
+
+
+def offline_windows(cfg: DictConfig, data: OfflineDataset, batch_size: int) -> WindowReplayBuffer:
+    """``batch_size`` windows of ``planner.horizon + 1`` steps per draw from ``D_offline``;
+    a :class:`UserError` on ``planner.horizon`` if no episode is long enough."""
+    try:
+        return WindowReplayBuffer(
+            data.transitions, cfg.planner.horizon, batch_size, device=cfg.device
+        )
+    except ValueError as err:  # no episode is long enough for a window
+        raise UserError("planner.horizon", cfg.planner.horizon, str(err)) from err
+
+
+def pretrain_planner(
+    run: O2ORun, planner: TrajectoryDiffusion, windows: WindowReplayBuffer
+) -> None:
+    """``budget.planner_updates`` ``L_VLB`` steps on ``D_offline`` windows (Eq. 3), with the
+    ``planner.*`` learning rate and ``a_0``-conditioning probability; logs ``planner/``."""
+    cfg = run.cfg
+    train_planner(
+        planner,
+        windows.sample,
+        cfg.budget.planner_updates,
+        lr=cfg.planner.lr,
+        action_condition_prob=cfg.planner.action_condition_prob,
+        logger=run.logger,
+        log_prefix="planner/",
+        progress=cfg.progress,
+    )
+
+
+def check_planner_window(cfg: DictConfig) -> None:
+    """The planner's window must fit in an episode (a null time limit is the data set's,
+    checked against its episodes when the windows are cut)."""
+    limit = cfg.env.max_episode_steps
+    if limit is not None and cfg.planner.horizon >= limit:
+        raise ConfigError(
+            "planner.horizon",
+            cfg.planner.horizon,
+            f"must be < env.max_episode_steps={cfg.env.max_episode_steps} (a window holds "
+            "horizon + 1 steps of one episode)",
+        )

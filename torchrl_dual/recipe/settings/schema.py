@@ -1,0 +1,168 @@
+"""The recipe's config schema and :func:`validate_config`, run before any data or network.
+
+The schema of a composed config is put together from tables: the top-level keys
+(:class:`RunSettings`), ``budget`` (:class:`BudgetSettings`), ``env`` (the schema of its
+``ENV_KITS`` entry), the sections of the chosen ``algo`` (its ``ALGORITHMS`` entry),
+``critic`` (its ``CRITICS`` entry), ``replay`` (its ``REPLAYS`` entry), ``collector`` (its
+``COLLECTORS`` entry) and ``logger`` (its ``LOGGERS`` entry, ``loggers``).
+Every key is checked against its rule, then the combinations across keys, then what the
+machine must provide (the device, the logger's package, a usable output_dir).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from omegaconf import DictConfig
+
+from torchrl_dual.recipe.algos.table import ALGORITHMS
+from torchrl_dual.recipe.kits.build import ENV_KITS
+from torchrl_dual.recipe.o2o.collectors import COLLECTORS, check_collector, check_worker_count
+from torchrl_dual.recipe.o2o.loggers import LOGGERS, check_logger
+from torchrl_dual.recipe.o2o.replays import REPLAYS
+from torchrl_dual.recipe.o2o.run import check_output_dir
+from torchrl_dual.recipe.parts.critics import CRITICS
+from torchrl_dual.recipe.settings.errors import ConfigError
+from torchrl_dual.recipe.settings.rules import (
+    Choice,
+    Flag,
+    Integer,
+    IntegerList,
+    Maybe,
+    Text,
+    check_section,
+    dotted_keys,
+    key,
+    read_value,
+)
+
+
+@dataclass
+class RunSettings:
+    """``config.yaml``'s own keys (the groups are checked by their own schemas)."""
+
+    algo: str = key(Text(), "the ALGORITHMS entry (looked up when validate_config runs)")
+    seed: int = key(Integer(0, 2**32 - 1), "seeds torch, numpy, python, data and envs")
+    device: str = key(Text(), "torch device of networks and updates")
+    num_threads: int = key(Integer(1), "torch.set_num_threads")
+    output_dir: str = key(Text(), "metrics, plot, checkpoint")
+    resume: bool = key(Flag(), "continue the run in output_dir")
+    interrupt_at_frames: Any = key(Maybe(Integer(0)), "test aid: stop after this many frames")
+    progress: bool = key(Flag(), "tqdm progress bars")
+    data_cache_dir: Any = key(Maybe(Text()), "where generated offline data is cached")
+    offline_cache: Any = key(Maybe(Text()), "where shared offline phases are stored")
+    debug: bool = key(Flag(), "print tracebacks of user errors")
+
+
+COMPILE_MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
+"""``torch.compile``'s modes (``compile.compile_mode``; ``null`` is ``default``)."""
+
+
+@dataclass
+class CompileSettings:
+    """``config.yaml``'s ``compile``: TorchRL sota-implementations' keys."""
+
+    compile: bool = key(Flag(), "torch.compile each gradient update of the learner")
+    compile_mode: Any = key(Maybe(Choice(COMPILE_MODES)), "torch.compile mode (null: default)")
+
+
+@dataclass
+class BudgetSettings:
+    """``budget/*.yaml``: how much data, computation and evaluation a run gets."""
+
+    name: str = key(Text(), "used in output_dir")
+    dataset_transitions: int = key(Integer(1), "offline transitions generated")
+    network_width: int = key(Integer(1), "hidden width of the planner and critic networks")
+    batch_size: int = key(Integer(1), "windows or transitions per gradient update")
+    planner_updates: int = key(Integer(0), "diffusion planner updates")
+    distill_updates: list = key(IntegerList(1), "updates of each halving round")
+    offline_updates: int = key(Integer(0), "actor + critic updates in the offline phase")
+    online_frames: int = key(Integer(0), "environment steps in the online phase")
+    frames_per_batch: int = key(Integer(1), "collector batch between update blocks")
+    laplace_refit_every: int = key(Integer(1), "gradient updates between Laplace refits")
+    eval_every: int = key(Integer(1), "online frames between evaluations")
+    eval_episodes: int = key(Integer(1), "episodes per evaluation")
+    checkpoint_every: int = key(Integer(1), "online frames between checkpoints")
+
+
+def _choice(cfg: DictConfig, path: str, table: dict, what: str) -> Any:
+    """The table entry a selector key (``env.kind``, ``critic.name``, ...) picks."""
+    group, name = path.split(".") if "." in path else (None, path)
+    node = cfg if group is None else cfg.get(group)
+    if not isinstance(node, DictConfig):
+        raise ConfigError(group, node, f"must be a group of keys ({what})")
+    if name not in node:
+        raise ConfigError(None, None, f"missing key '{path}' ({what})")
+    value = read_value(node, name, path)
+    complaint = Choice(tuple(table)).complaint(value)
+    if complaint is not None:
+        raise ConfigError(path, value, complaint)
+    return table[value]
+
+
+def validate_config(cfg: DictConfig) -> DictConfig:
+    """Checks a composed recipe config; raises :class:`ConfigError` on the first problem.
+
+    Returns ``cfg`` itself, for chaining.
+    """
+    algorithm = _choice(cfg, "algo", ALGORITHMS, "the algorithm")
+    kit = _choice(cfg, "env.kind", ENV_KITS, "which environment kit builds the env and data")
+    critic_schema, _ = _choice(cfg, "critic.name", CRITICS, "the critic")
+    replay_schema, _ = _choice(cfg, "replay.name", REPLAYS, "the online replay")
+    collector_schema = _choice(cfg, "collector.name", COLLECTORS, "the online collector").settings
+    check_worker_count(cfg)
+    logger = _choice(cfg, "logger.backend", LOGGERS, "the TorchRL logger backend")
+    sections = {
+        "env": kit.settings,
+        "budget": BudgetSettings,
+        **algorithm.sections,
+        "critic": critic_schema,
+        "replay": replay_schema,
+        "collector": collector_schema,
+        "logger": logger.settings,
+        "compile": CompileSettings,
+    }
+    known = dotted_keys(RunSettings, "")
+    for name, schema in sections.items():
+        known += [name, *dotted_keys(schema, name)]
+    check_section(RunSettings, cfg, "", known, skip=sections)
+    for name, schema in sections.items():
+        if name not in cfg:
+            raise ConfigError(None, None, f"missing config group '{name}'")
+        check_section(schema, cfg[name], name, known)
+    if cfg.critic.name not in algorithm.critics:
+        raise ConfigError(
+            "critic", cfg.critic.name, f"{cfg.algo} supports {', '.join(algorithm.critics)}"
+        )
+    if kit.check is not None:  # what the env needs on disk (e.g. a Minari data set)
+        kit.check(cfg)
+    algorithm.check(cfg)
+    check_collector(cfg)
+    check_machine(cfg)
+    return cfg
+
+
+def check_machine(cfg: DictConfig) -> None:
+    """What the config asks of the machine and the file system."""
+    try:
+        device = torch.device(cfg.device)
+    except (RuntimeError, ValueError) as err:
+        raise ConfigError(
+            "device", cfg.device, "not a torch device; use cpu, cuda or cuda:N"
+        ) from err
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ConfigError("device", cfg.device, "CUDA is not available here; use device=cpu")
+    if device.type == "cuda" and (device.index or 0) >= torch.cuda.device_count():
+        raise ConfigError(
+            "device", cfg.device, f"this machine has {torch.cuda.device_count()} GPUs"
+        )
+    if device.type not in ("cpu", "cuda"):
+        raise ConfigError("device", cfg.device, "the recipe runs on cpu or cuda")
+    check_logger(cfg)
+    check_output_dir(cfg)
+    for name in ("data_cache_dir", "offline_cache"):
+        if cfg[name] is not None and Path(cfg[name]).is_file():
+            raise ConfigError(name, cfg[name], "is a file, not a directory")
