@@ -47,7 +47,7 @@ from torchrl.envs import DoubleToFloat, EnvBase, GymEnv
 from torchrl.envs.utils import ExplorationType
 
 from torchrl_dual.envs import make_pointmaze_env
-from torchrl_dual.recipe.o2o.ray_collector import INSTALL_RAY, ray_installed
+from torchrl_dual.recipe.settings.o2o import INSTALL_RAY, ray_installed
 from torchrl_dual.transforms import PreviousTransition
 
 RAY = ray_installed()

@@ -57,7 +57,7 @@ def child(algo: str, updates: int, data_dir: str, overrides: list[str]) -> None:
     """Runs in the traced process: builds the learner, warms up, then brackets
     ``updates`` updates with markers on stdout (MKL's log goes there too)."""
     from torchrl_dual.recipe import O2ORun, compose_checked
-    from torchrl_dual.recipe.algos.table import ALGORITHMS
+    from torchrl_dual.recipe.settings.algos import ALGORITHMS
 
     torch.set_num_threads(int(os.environ.get("GEMM_THREADS", "1")))
     cfg = compose_checked(

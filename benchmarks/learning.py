@@ -30,7 +30,6 @@ import shlex
 import subprocess
 import sys
 from contextlib import closing
-from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -42,6 +41,7 @@ from learning_grid import (  # noqa: F401 - the grid
     REFERENCE_SCRIPTS,
     VARIANTS,
     Cell,
+    Run,
     active_cells,
     dual_cells,
 )
@@ -50,21 +50,6 @@ from learning_report import compact_result, load_results, render_section, replac
 from tqdm.auto import tqdm
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-@dataclass(frozen=True)
-class Run:
-    cell: str
-    variant: str
-    seed: int
-    overrides: tuple[str, ...]  # cell + variant overrides
-
-    def name(self) -> str:
-        return f"{self.cell}/{self.variant}/seed{self.seed}"
-
-    def sharing_key(self) -> tuple:
-        """Equal for runs that compute the same offline phase."""
-        return (tuple(o for o in self.overrides if not o.startswith(ONLINE_ONLY)), self.seed)
 
 
 def build_queue(cells: list[str], variants: list[str] | None, seeds: list[int] | None):

@@ -33,10 +33,20 @@ import uuid
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
-if TYPE_CHECKING:
-    from learning import Run, Suite
+from learning_grid import Run
+
+
+class Suite(Protocol):
+    """What a backend reads of the suite (``learning.Suite``)."""
+
+    args: argparse.Namespace
+
+    def command(self, run: Run) -> list[str]: ...
+
+    def run_dir(self, run: Run) -> Path: ...
+
 
 REPO = Path(__file__).resolve().parents[1]
 INSTALL_RAY = "pip install 'torchrl-dual[ray]'"

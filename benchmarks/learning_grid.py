@@ -310,3 +310,18 @@ def dual_cells() -> dict[str, str]:
         elif partners:
             out[name] = name if name in partners else partners[0]
     return out
+
+
+@dataclass(frozen=True)
+class Run:
+    cell: str
+    variant: str
+    seed: int
+    overrides: tuple[str, ...]  # cell + variant overrides
+
+    def name(self) -> str:
+        return f"{self.cell}/{self.variant}/seed{self.seed}"
+
+    def sharing_key(self) -> tuple:
+        """Equal for runs that compute the same offline phase."""
+        return (tuple(o for o in self.overrides if not o.startswith(ONLINE_ONLY)), self.seed)

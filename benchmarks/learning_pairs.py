@@ -20,7 +20,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 
 from learning_grid import baseline_variants, dual_variants
-from learning_report import fmt, t_interval
+from learning_stats import fmt, t_interval
 
 CRITIC_PAIRS: tuple[tuple[str, str, str], ...] = (
     ("IQL", "iql", "dual"),

@@ -10,7 +10,7 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
-from learning_report import t_interval
+from learning_stats import t_interval
 
 # Variant -> candidate of ``benchmarks/latency.py --json`` that times its acting policy;
 # a variant whose own name is a key of the latency JSON uses that entry instead.

@@ -24,39 +24,14 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 from learning_grid import IQL_VARIANTS
+from learning_pairs import pairs_sections
+from learning_stats import fmt, t_interval, t_quantile_975  # noqa: F401 - re-exported
 
 
 def markers(budget: str) -> tuple[str, str]:
     """The begin and end markers of one budget's generated section: each budget's suite
     has its own section, so regenerating one leaves the others as they are."""
     return f"<!-- learning-suite:{budget}:begin -->", f"<!-- learning-suite:{budget}:end -->"
-
-
-# Two-sided 95 % quantiles t(0.975, dof) of Student's t for dof = 1..30.
-T_975 = (
-    12.7062, 4.3027, 3.1824, 2.7764, 2.5706, 2.4469, 2.3646, 2.3060, 2.2622, 2.2281,
-    2.2010, 2.1788, 2.1604, 2.1448, 2.1314, 2.1199, 2.1098, 2.1009, 2.0930, 2.0860,
-    2.0796, 2.0739, 2.0687, 2.0639, 2.0595, 2.0555, 2.0518, 2.0484, 2.0452, 2.0423,
-)  # fmt: skip
-
-
-def t_quantile_975(dof: int) -> float:
-    """t(0.975, dof): the table for dof <= 30, else the Cornish-Fisher expansion around
-    z = 1.95996 (error < 1e-4 for dof > 30)."""
-    if dof < 1:
-        raise ValueError(f"dof must be >= 1, got {dof}")
-    if dof <= len(T_975):
-        return T_975[dof - 1]
-    z = 1.959964
-    return z + (z**3 + z) / (4 * dof) + (5 * z**5 + 16 * z**3 + 3 * z) / (96 * dof**2)
-
-
-def t_interval(values: Sequence[float]) -> tuple[float, float]:
-    """(mean, half-width of the 95 % Student-t interval, n - 1 dof); half-width nan if n < 2."""
-    mean = statistics.fmean(values)
-    if len(values) < 2:
-        return mean, math.nan
-    return mean, t_quantile_975(len(values) - 1) * statistics.stdev(values) / math.sqrt(len(values))
 
 
 def separation(a: tuple[float, float], b: tuple[float, float]) -> str:
@@ -181,11 +156,6 @@ def load_results(root: Path) -> dict[str, dict[str, list[dict]]]:
         for results in variants.values():
             results.sort(key=lambda r: r["seed"])
     return out
-
-
-def fmt(interval: tuple[float, float]) -> str:
-    mean, half = interval
-    return f"{mean:.1f}" if math.isnan(half) else f"{mean:.1f} ± {half:.1f}"
 
 
 def _offline_unshifted(result: dict) -> float:
@@ -350,8 +320,6 @@ def render_section(
             "stage under heavy load, against ×2.9 in wall time).",
             table,
         ]
-    from learning_pairs import pairs_sections  # imports this module
-
     parts += pairs_sections(cells, cell_order, dual_from)
     if "latency" in figures:
         parts += [

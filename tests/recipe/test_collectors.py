@@ -24,7 +24,8 @@ from tensordict.nn import TensorDictModule
 from torch import nn
 
 from torchrl_dual.recipe import CONFIG_DIR, O2ORun, compose_checked, run
-from torchrl_dual.recipe.o2o.collectors import COLLECTORS, assign_episodes
+from torchrl_dual.recipe.o2o.episodes import assign_episodes
+from torchrl_dual.recipe.settings.o2o import COLLECTORS
 
 pytestmark = pytest.mark.long_running(seconds=55)  # starts first under xdist
 # DUAL at the smoke budget cut down: 120 online frames in batches of 20 (episodes of 15

@@ -18,7 +18,8 @@ from torchrl_dual.envs import (
     frozenlake_optimal_policy,
     frozenlake_success_probability,
 )
-from torchrl_dual.recipe import CONFIG_DIR, ConfigError, compose_checked, env_kits
+from torchrl_dual.recipe import CONFIG_DIR, ConfigError, compose_checked
+from torchrl_dual.recipe.kits import build as env_kits
 
 
 def compose(tmp_path: Path, *overrides: str):

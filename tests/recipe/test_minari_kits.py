@@ -23,7 +23,8 @@ from torchrl_dual.data.minari_standins import (  # noqa: E402
     UMAZE_MAP,
     write_standin_dataset,
 )
-from torchrl_dual.recipe import CONFIG_DIR, ConfigError, UserError, compose_checked, env_kits, run  # noqa: E402
+from torchrl_dual.recipe import CONFIG_DIR, ConfigError, UserError, compose_checked, run  # noqa: E402
+from torchrl_dual.recipe.kits import build as env_kits  # noqa: E402
 from torchrl_dual.recipe.kits.minari_families import (  # noqa: E402
     OBSERVATION_STD_EPS,
     _gym_env,

@@ -26,9 +26,9 @@ from torchrl_dual.recipe import (
     O2ORun,
     UserError,
     compose_checked,
-    env_kits,
-    networks,
 )
+from torchrl_dual.recipe.kits import build as env_kits
+from torchrl_dual.recipe.parts import networks
 
 pytestmark = pytest.mark.long_running(seconds=140)  # starts first under xdist
 ONLINE_FRAMES = 400  # budget/smoke.yaml

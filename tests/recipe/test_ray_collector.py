@@ -28,10 +28,11 @@ from test_collectors import (
     two_worker_run,
 )
 
-from torchrl_dual.recipe import O2ORun, compose_checked, ray_collector, run
-from torchrl_dual.recipe.o2o.collectors import COLLECTORS
+from torchrl_dual.recipe import O2ORun, compose_checked, run
+from torchrl_dual.recipe.o2o import ray_collector
 from torchrl_dual.recipe.o2o.ray_collector import InterleavedTrajectories
 from torchrl_dual.recipe.settings.errors import ConfigError, UserError
+from torchrl_dual.recipe.settings.o2o import COLLECTORS
 
 pytestmark = [
     pytest.mark.usefixtures("ray_exclusive"),

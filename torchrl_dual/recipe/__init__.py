@@ -2,54 +2,50 @@
 
 :func:`main` is the program (the ``torchrl-dual`` console script, ``python -m
 torchrl_dual.recipe`` and ``recipes/o2o.py``) and :data:`CONFIG_DIR` its Hydra config
-tree, shipped in the package; everything it runs lives here, so that a ``pip install``
-gets it too:
+tree, shipped in the package. Five subpackages, each importing only the ones after it:
 
-* :data:`ENV_KITS` (``env_kits``) — one entry per ``env.kind``: offline data, train env,
-  evaluator, action projection;
-* :data:`ALGORITHMS` (``algorithms``) — one entry per ``algo``: an :class:`Algorithm`
-  (``algorithm``: config sections, critics, cross-key checks, :class:`Learner`) defined
-  next to its learner: ``dual`` (``dual_settings``), ``iql``, ``iql_la``, ``diffql``,
-  ``diffql_la`` (``diffql``), ``diffuser``, ``dacer``, ``edis``;
-* :data:`CRITICS` (``critics``) — one entry per ``critic.name``;
-* :data:`~torchrl_dual.recipe.o2o.loggers.LOGGERS` (``loggers``) — one entry per
-  ``logger.backend`` (CSV, TensorBoard, W&B, ...); ``plots`` draws the end-of-run plot;
-* :func:`validate_config` (``schema``) — the schema of every config group, checked
-  before any data or network; errors are :class:`UserError` (``errors``), reported as
-  one ``error:`` line and exit code 2;
-* :class:`O2ORun` / :func:`run_o2o` / :class:`Learner` (``o2o_run``) — the
-  algorithm-independent offline-to-online run (data, env, evaluator, replay, collector,
-  UTD updates, evaluation, checkpoint and resume) and the protocol of an algorithm;
-  ``offline_cache`` shares an offline phase between runs that differ only in online
-  keys; ``run_summary`` writes each finished run's ``summary.json``;
-* :class:`DualLearner` / :func:`run_dual` (``dual``) — Algorithm 1;
-  :class:`IQLLearner` / :func:`run_iql` (``iql``) — the IQL baseline; the other
-  baselines in ``iql_la``, ``diffql``, ``diffuser``, ``dacer``, ``edis`` (``laplace_refits``: their
-  shared Laplace refit schedule; ``planner_stage``: the planner's offline stage;
-  ``planner_augment``: Algorithm 1 line 14's planner augmentation, also DUAL's
-  ``augment.kind=planner``).
+* ``algos`` — one learner per algorithm: :class:`DualLearner` (``algos/dual.py``,
+  Algorithm 1), :class:`IQLLearner` and the other baselines;
+* ``parts`` — what several algorithms share: the critics, DUAL's network builders, the
+  Laplace refit schedule, the planner's offline stage and augmentation, Cal-QL's labels;
+* ``o2o`` — the algorithm-independent run: :class:`O2ORun`, :func:`run_o2o` (the loop),
+  :class:`Learner`, replays, collectors, loggers, checkpoint and resume;
+* ``kits`` — the env kits' data, envs and evaluators;
+* ``settings`` — the config schema and the tables :data:`ALGORITHMS`,
+  :data:`ENV_KITS`, :data:`CRITICS` (and the replays, collectors and loggers), each
+  entry a schema plus a reference to its builder; :func:`validate_config` and the
+  :class:`UserError` path (one ``error:`` line, exit code 2). It imports neither torch
+  nor TorchRL, so a bad config value is reported at once.
+
+The names below are imported on first use (``docs/architecture.md``, "The recipe's
+modules", lists every module).
 """
 
-from torchrl_dual.recipe.algos.dual import DualLearner, run_dual
-from torchrl_dual.recipe.algos.iql import IQLLearner, run_iql
-from torchrl_dual.recipe.algos.table import ALGORITHMS
-from torchrl_dual.recipe.cli import (
-    CONFIG_DIR,
-    check_command_line,
-    compose_checked,
-    hydra_task,
-    main,
-    run,
-)
-from torchrl_dual.recipe.kits.build import ENV_KITS, EnvKit
-from torchrl_dual.recipe.o2o.learner import Learner
-from torchrl_dual.recipe.o2o.loop import run_o2o
-from torchrl_dual.recipe.o2o.plots import plot_learning_curve
-from torchrl_dual.recipe.o2o.run import O2ORun
-from torchrl_dual.recipe.parts.critics import CRITICS
-from torchrl_dual.recipe.settings.algos import Algorithm
-from torchrl_dual.recipe.settings.errors import ConfigError, UserError, user_errors
-from torchrl_dual.recipe.settings.schema import validate_config
+from typing import TYPE_CHECKING
+
+from torchrl_dual._lazy import lazy_exports
+
+if TYPE_CHECKING:  # the eager imports, for type checkers and IDEs
+    from torchrl_dual.recipe.algos.dual import DualLearner, run_dual
+    from torchrl_dual.recipe.algos.iql import IQLLearner, run_iql
+    from torchrl_dual.recipe.cli import (
+        CONFIG_DIR,
+        check_command_line,
+        compose_checked,
+        hydra_task,
+        main,
+        run,
+    )
+    from torchrl_dual.recipe.o2o.learner import Learner
+    from torchrl_dual.recipe.o2o.loop import run_o2o
+    from torchrl_dual.recipe.o2o.plots import plot_learning_curve
+    from torchrl_dual.recipe.o2o.run import O2ORun
+    from torchrl_dual.recipe.settings.algo_common import Algorithm
+    from torchrl_dual.recipe.settings.algos import ALGORITHMS
+    from torchrl_dual.recipe.settings.envs import ENV_KITS, EnvKit
+    from torchrl_dual.recipe.settings.errors import ConfigError, UserError, user_errors
+    from torchrl_dual.recipe.settings.parts import CRITICS
+    from torchrl_dual.recipe.settings.schema import validate_config
 
 __all__ = [
     "ALGORITHMS",
@@ -76,3 +72,32 @@ __all__ = [
     "user_errors",
     "validate_config",
 ]
+
+__getattr__, __dir__ = lazy_exports(
+    __name__,
+    {
+        "DualLearner": "torchrl_dual.recipe.algos.dual",
+        "run_dual": "torchrl_dual.recipe.algos.dual",
+        "IQLLearner": "torchrl_dual.recipe.algos.iql",
+        "run_iql": "torchrl_dual.recipe.algos.iql",
+        "CONFIG_DIR": "torchrl_dual.recipe.cli",
+        "check_command_line": "torchrl_dual.recipe.cli",
+        "compose_checked": "torchrl_dual.recipe.cli",
+        "hydra_task": "torchrl_dual.recipe.cli",
+        "main": "torchrl_dual.recipe.cli",
+        "run": "torchrl_dual.recipe.cli",
+        "ENV_KITS": "torchrl_dual.recipe.settings.envs",
+        "EnvKit": "torchrl_dual.recipe.settings.envs",
+        "Learner": "torchrl_dual.recipe.o2o.learner",
+        "run_o2o": "torchrl_dual.recipe.o2o.loop",
+        "plot_learning_curve": "torchrl_dual.recipe.o2o.plots",
+        "O2ORun": "torchrl_dual.recipe.o2o.run",
+        "ALGORITHMS": "torchrl_dual.recipe.settings.algos",
+        "Algorithm": "torchrl_dual.recipe.settings.algo_common",
+        "ConfigError": "torchrl_dual.recipe.settings.errors",
+        "UserError": "torchrl_dual.recipe.settings.errors",
+        "user_errors": "torchrl_dual.recipe.settings.errors",
+        "CRITICS": "torchrl_dual.recipe.settings.parts",
+        "validate_config": "torchrl_dual.recipe.settings.schema",
+    },
+)

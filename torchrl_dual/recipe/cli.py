@@ -27,7 +27,7 @@ from hydra.core.override_parser.types import Override, OverrideType
 from hydra.errors import HydraException, OverrideParseException
 from omegaconf import DictConfig, OmegaConf
 
-from torchrl_dual.recipe.algos.table import ALGORITHMS
+from torchrl_dual.recipe.settings.algos import ALGORITHMS
 from torchrl_dual.recipe.settings.errors import ConfigError, UserError, unknown_key, user_errors
 from torchrl_dual.recipe.settings.schema import validate_config
 

@@ -13,8 +13,6 @@ is :class:`~torchrl_dual.recipe.O2ORun`'s.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
@@ -24,19 +22,8 @@ from torchrl_dual.recipe.kits.build import projected_policy
 from torchrl_dual.recipe.o2o.learner import Learner
 from torchrl_dual.recipe.o2o.loop import run_o2o
 from torchrl_dual.recipe.o2o.run import O2ORun
-from torchrl_dual.recipe.parts.critics import CRITICS
 from torchrl_dual.recipe.parts.mc_labels import MonteCarloLabels
-from torchrl_dual.recipe.settings.algos import Algorithm, OnlineSettings, check_nothing
-from torchrl_dual.recipe.settings.rules import Integer, Real, key
-
-
-@dataclass
-class CalQLActorSettings:
-    """``algo/calql.yaml``'s ``actor``: the tanh-Gaussian MLP actor (SAC actor loss)."""
-
-    hidden: int = key(Integer(1), "MLP width of the actor")
-    depth: int = key(Integer(1), "hidden layers of the actor")
-    lr: float = key(Real(0, low_open=True), "Adam learning rate of the actor and of log α")
+from torchrl_dual.recipe.settings.parts import CRITICS
 
 
 class CalQLLearner(Learner):
@@ -97,11 +84,3 @@ class CalQLLearner(Learner):
 def run_calql(cfg: DictConfig) -> O2ORun:
     """Runs (or resumes) the Cal-QL baseline for a validated ``cfg``."""
     return run_o2o(cfg, CalQLLearner)
-
-
-CALQL = Algorithm(
-    sections={"actor": CalQLActorSettings, "online": OnlineSettings},
-    critics=("calql",),
-    check=check_nothing,
-    learner=CalQLLearner,
-)

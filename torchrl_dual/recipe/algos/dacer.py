@@ -42,11 +42,9 @@ updates.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import torch
-from omegaconf import DictConfig
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictSequential
 
@@ -55,45 +53,10 @@ from torchrl_dual.modules.exploration import (
     dacer_target_entropy,
     sampled_entropy,
 )
-from torchrl_dual.recipe.algos.diffql import DiffQLActorSettings, DiffQLLearner
+from torchrl_dual.recipe.algos.diffql import DiffQLLearner
 from torchrl_dual.recipe.o2o.run import O2ORun
-from torchrl_dual.recipe.settings.algos import Algorithm, OnlineSettings
-from torchrl_dual.recipe.settings.errors import ConfigError
-from torchrl_dual.recipe.settings.rules import Integer, Maybe, Real, dotted_keys, key
-
-
-@dataclass
-class DACERSettings:
-    """``algo/dacer.yaml``'s ``dacer``: the entropy regulator of the online phase."""
-
-    noise_scale: float = key(Real(0, low_open=True), "noise std per unit of α")
-    init_alpha: float = key(Real(0, low_open=True), "α when the online phase starts")
-    target_entropy: Any = key(Maybe(Real()), "H̄ in nats; null: DACER's −0.9 · dim(A)")
-    alpha_lr: float = key(Real(0, low_open=True), "Adam learning rate of log α")
-    entropy_every: int = key(Integer(1), "online updates between entropy estimates")
-    num_states: int = key(Integer(1), "states of the update's batch Ĥ is averaged over")
-    num_samples: int = key(Integer(1), "K: exploration actions sampled per state")
-    num_components: int = key(Integer(1), "C: components of the Gaussian mixture")
-
-
-def check_dacer(cfg: DictConfig) -> None:
-    """``dacer.num_samples >= dacer.num_components`` (EM needs a sample per component) and
-    ``dacer.num_states <= online.batch_size`` (the states come from the update's batch)."""
-    d = cfg.dacer
-    if d.num_samples < d.num_components:
-        raise ConfigError(
-            "dacer.num_samples",
-            d.num_samples,
-            f"must be >= dacer.num_components={d.num_components}: the Gaussian mixture "
-            "needs at least one sampled action per component",
-        )
-    if d.num_states > cfg.online.batch_size:
-        raise ConfigError(
-            "dacer.num_states",
-            d.num_states,
-            f"must be <= online.batch_size={cfg.online.batch_size}: the entropy is "
-            "estimated on states of the update's batch",
-        )
+from torchrl_dual.recipe.settings.baselines import DACERSettings
+from torchrl_dual.recipe.settings.rules import dotted_keys
 
 
 class DACERLearner(DiffQLLearner):
@@ -166,11 +129,3 @@ class DACERLearner(DiffQLLearner):
         super().load_state_dict(state)
         self.online_updates = state["online_updates"]
         self.entropy = state["entropy"]
-
-
-DACER = Algorithm(
-    sections={"actor": DiffQLActorSettings, "dacer": DACERSettings, "online": OnlineSettings},
-    critics=("iql",),
-    check=check_dacer,
-    learner=DACERLearner,
-)

@@ -46,9 +46,6 @@ action (the MAP mean, deterministic) is ``diffql``'s: the same zero-latent chain
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any
-
 import torch
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
@@ -61,53 +58,12 @@ from torchrl_dual.objectives.diffql_actor_loss import DiffQLActorLoss
 from torchrl_dual.recipe.kits.build import projected_policy
 from torchrl_dual.recipe.o2o.learner import Learner
 from torchrl_dual.recipe.o2o.run import O2ORun
-from torchrl_dual.recipe.parts.critics import CRITICS
 from torchrl_dual.recipe.parts.laplace_refits import LaplaceRefits
-from torchrl_dual.recipe.settings.algos import (
-    Algorithm,
-    NoShiftExplorationSettings,
-    OnlineSettings,
-    check_no_shift_weight,
-    check_nothing,
-)
-from torchrl_dual.recipe.settings.rules import Choice, Either, Integer, Real, key
+from torchrl_dual.recipe.settings.parts import CRITICS
 
-# ----------------------------------------------------------------------------- settings
 ACTIVATIONS: dict[str, type[nn.Module]] = {"silu": nn.SiLU, "mish": nn.Mish}
-"""``actor.activation``: ``silu`` (TorchRL's ``DiffusionActor`` default) or ``mish``
-(Wang et al.'s; on one CPU thread its forward and backward cost 4x SiLU's)."""
-
-
-@dataclass
-class DiffQLActorSettings:
-    """``algo/diffql*.yaml``'s ``actor``: the DDPM actor and its loss."""
-
-    num_steps: int = key(Integer(1), "N: DDPM denoising steps")
-    hidden: int = key(Integer(1), "width of the score network")
-    depth: int = key(Integer(1), "hidden layers of the score network")
-    activation: str = key(Choice(tuple(ACTIVATIONS)), "activation of the score network")
-    lr: float = key(Real(0, low_open=True), "Adam learning rate")
-    eta: float = key(Real(0), "η: weight of the normalised Q-term")
-    max_grad_norm: float = key(Real(0, low_open=True), "clip of the actor's gradient norm")
-
-
-@dataclass
-class DiffQLLaplaceSettings:
-    """``algo/diffql_la.yaml``'s ``laplace``: Eq. (8-9) on the last DDPM step."""
-
-    num_samples: int = key(Integer(0), "M sub-policies; 0 = no epistemic UQ (MAP mean, σ̄)")
-    prior_precision: Any = key(
-        Either(
-            (Choice(("evidence",)), Real(0, low_open=True)), "must be 'evidence' or a number > 0"
-        ),
-        "λ of the Gaussian prior",
-    )
-    posterior_temperature: Any = key(
-        Either((Choice(("data",)), Real(0, low_open=True)), "must be 'data' or a number > 0"),
-        "T: the posterior covariance × T (1: the summed loss); data: Eq. 7's mean loss",
-    )
-    temperature: float = key(Real(0), "β of the Laplace fit's weights exp(β (Q - V))")
-    max_weight: float = key(Real(0, low_open=True), "clip of those weights")
+"""``actor.activation`` -> its module (the names are
+:data:`~torchrl_dual.recipe.settings.baselines.DIFFQL_ACTIVATIONS`)."""
 
 
 # ----------------------------------------------------------------------------- networks
@@ -253,23 +209,3 @@ class DiffQLLALearner(LaplaceRefits, DiffQLLearner):
             total = total + (weight[:, None] * residual.square()).sum(0)
             weight_sum = weight_sum + weight.sum()
         return (total / weight_sum).sqrt()
-
-
-DIFFQL = Algorithm(
-    sections={"actor": DiffQLActorSettings, "online": OnlineSettings},
-    critics=("iql",),
-    check=check_nothing,
-    learner=DiffQLLearner,
-)
-
-DIFFQL_LA = Algorithm(
-    sections={
-        "actor": DiffQLActorSettings,
-        "laplace": DiffQLLaplaceSettings,
-        "exploration": NoShiftExplorationSettings,
-        "online": OnlineSettings,
-    },
-    critics=("iql",),
-    check=check_no_shift_weight,
-    learner=DiffQLLALearner,
-)

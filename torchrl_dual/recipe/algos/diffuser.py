@@ -20,13 +20,10 @@ teacher itself, ``N = planner.num_steps = 32`` (no distillation, no Laplace, no 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 from tensordict import TensorDictBase
 
 from torchrl_dual.diffusion import WindowReplayBuffer
-from torchrl_dual.diffusion.model import SAMPLERS
 from torchrl_dual.modules import PlannerPolicy
 from torchrl_dual.objectives import DiffusionPlannerLoss
 from torchrl_dual.objectives.update_loop import run_updates
@@ -34,17 +31,7 @@ from torchrl_dual.recipe.kits.build import projected_policy
 from torchrl_dual.recipe.o2o.learner import Learner
 from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.parts import networks
-from torchrl_dual.recipe.parts.planner_stage import check_planner_window, offline_windows
-from torchrl_dual.recipe.settings.algos import Algorithm, OnlineSettings
-from torchrl_dual.recipe.settings.dual import PlannerSettings
-from torchrl_dual.recipe.settings.rules import Choice, key
-
-
-@dataclass
-class DiffuserSettings:
-    """How the ``N``-step plan explores online."""
-
-    sampler: str = key(Choice(SAMPLERS), "sampler of the exploration plans (random latent)")
+from torchrl_dual.recipe.parts.planner_stage import offline_windows
 
 
 class DiffuserLearner(Learner):
@@ -129,11 +116,3 @@ class DiffuserLearner(Learner):
         torch.nn.utils.clip_grad_norm_(self.loss.parameters(), 1.0)
         self.optimizer.step()
         return {k: v.detach() for k, v in out.items()}
-
-
-DIFFUSER = Algorithm(
-    sections={"planner": PlannerSettings, "diffuser": DiffuserSettings, "online": OnlineSettings},
-    critics=("iql",),  # the critic section is not read: the Diffuser has no critic
-    check=check_planner_window,
-    learner=DiffuserLearner,
-)

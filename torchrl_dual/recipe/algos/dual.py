@@ -19,11 +19,12 @@ from torchrl_dual.recipe.o2o.learner import Learner
 from torchrl_dual.recipe.o2o.loop import run_o2o
 from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.parts import networks
-from torchrl_dual.recipe.parts.critics import CRITICS, POLICY_CRITICS, policy_view
+from torchrl_dual.recipe.parts.critics import policy_view
 from torchrl_dual.recipe.parts.laplace_refits import ensemble_signals
 from torchrl_dual.recipe.parts.mc_labels import MonteCarloLabels
 from torchrl_dual.recipe.parts.planner_augment import augment_capacity, make_augmenter
 from torchrl_dual.recipe.parts.planner_stage import offline_windows, pretrain_planner
+from torchrl_dual.recipe.settings.parts import CRITICS, POLICY_CRITICS
 
 
 class DualLearner(Learner):

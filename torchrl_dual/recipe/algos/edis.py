@@ -23,25 +23,17 @@ from __future__ import annotations
 
 from typing import Any
 
-from omegaconf import DictConfig
-
-from torchrl_dual.recipe.algos.iql import IQLActorSettings, IQLLearner
+from torchrl_dual.recipe.algos.iql import IQLLearner
 from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.parts import networks
 from torchrl_dual.recipe.parts.planner_augment import (
-    AugmentSettings,
     PlannerAugmenter,
     augment_capacity,
-    check_augment,
 )
 from torchrl_dual.recipe.parts.planner_stage import (
-    check_planner_window,
     offline_windows,
     pretrain_planner,
 )
-from torchrl_dual.recipe.settings.algos import Algorithm, OnlineSettings
-from torchrl_dual.recipe.settings.dual import PlannerSettings
-from torchrl_dual.recipe.settings.errors import ConfigError
 
 
 class EDISLearner(IQLLearner):
@@ -82,29 +74,3 @@ class EDISLearner(IQLLearner):
     def load_state_dict(self, state: dict[str, Any]) -> None:
         super().load_state_dict(state)
         self.augmenter.load_state_dict(state["augment"])
-
-
-def check_edis(cfg: DictConfig) -> None:
-    """The window fits an episode; EDIS is IQL plus the augmentation, so it is on."""
-    check_planner_window(cfg)
-    if cfg.augment.kind != "planner":
-        raise ConfigError(
-            "augment.kind",
-            cfg.augment.kind,
-            "must be planner for algo=edis (EDIS is IQL plus planner augmentation; IQL "
-            "alone is algo=iql)",
-        )
-    check_augment(cfg)
-
-
-EDIS = Algorithm(
-    sections={
-        "planner": PlannerSettings,
-        "actor": IQLActorSettings,
-        "online": OnlineSettings,
-        "augment": AugmentSettings,
-    },
-    critics=("iql",),
-    check=check_edis,
-    learner=EDISLearner,
-)

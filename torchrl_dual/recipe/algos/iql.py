@@ -17,8 +17,6 @@ evaluated with its deterministic action (the Gaussian's mean; ``tanh(loc)`` for 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
@@ -36,28 +34,8 @@ from torchrl_dual.recipe.kits.build import projected_policy
 from torchrl_dual.recipe.o2o.learner import Learner
 from torchrl_dual.recipe.o2o.loop import run_o2o
 from torchrl_dual.recipe.o2o.run import O2ORun
-from torchrl_dual.recipe.parts.critics import CRITICS
-from torchrl_dual.recipe.settings.algos import Algorithm, OnlineSettings, check_nothing
-from torchrl_dual.recipe.settings.rules import Choice, Integer, Real, key
-
-ACTOR_DISTRIBUTIONS = ("gaussian", "tanh_normal")
-"""``actor.distribution`` of the AWR baselines: ``gaussian`` (CORL's and d3rlpy's IQL actor,
-the default) or ``tanh_normal`` (TorchRL's ``TanhNormal`` with a state-dependent scale)."""
-
-
-@dataclass
-class IQLActorSettings:
-    """``algo/iql.yaml``'s ``actor``: the Gaussian MLP actor and its AWR loss."""
-
-    hidden: int = key(Integer(1), "MLP width of the actor")
-    depth: int = key(Integer(1), "hidden layers of the actor")
-    lr: float = key(Real(0, low_open=True), "Adam learning rate")
-    temperature: float = key(Real(0), "β of exp(β (Q - V)), clipped at 100 by IQLLoss")
-    distribution: str = key(
-        Choice(ACTOR_DISTRIBUTIONS),
-        "gaussian: N(tanh mean on the box, state-independent σ) as CORL and d3rlpy; "
-        "tanh_normal: TorchRL's TanhNormal(loc(s), scale(s))",
-    )
+from torchrl_dual.recipe.settings.baselines import ACTOR_DISTRIBUTIONS
+from torchrl_dual.recipe.settings.parts import CRITICS
 
 
 def make_iql_actor(
@@ -174,11 +152,3 @@ class IQLLearner(Learner):
 def run_iql(cfg: DictConfig) -> O2ORun:
     """Runs (or resumes) the IQL baseline for a validated ``cfg``."""
     return run_o2o(cfg, IQLLearner)
-
-
-IQL = Algorithm(
-    sections={"actor": IQLActorSettings, "online": OnlineSettings},
-    critics=("iql",),
-    check=check_nothing,
-    learner=IQLLearner,
-)

@@ -45,51 +45,15 @@ evaluation. What changes is how it acts online:
 
 from __future__ import annotations
 
-import dataclasses
-from dataclasses import dataclass
-from typing import Any
-
 import torch
 
 from torchrl_dual import LinearHeadActor, WeightedMAPActorLoss
-from torchrl_dual.recipe.algos.iql import IQLActorSettings, IQLLearner
+from torchrl_dual.recipe.algos.iql import IQLLearner
 from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.parts.laplace_refits import LaplaceRefits
-from torchrl_dual.recipe.settings.algos import (
-    Algorithm,
-    NoShiftExplorationSettings,
-    OnlineSettings,
-    check_no_shift_weight,
-)
-from torchrl_dual.recipe.settings.dual import LaplaceSettings
-from torchrl_dual.recipe.settings.rules import Choice, Either, Real, key
 
 IQL_MAX_WEIGHT = 100.0
 """TorchRL ``IQLLoss``'s clip of ``exp(β (Q − V))`` (fixed in its ``actor_loss``)."""
-
-
-_DUAL_LAPLACE = {f.name: f for f in dataclasses.fields(LaplaceSettings)}
-
-
-def _dual_laplace_key(name: str) -> Any:
-    """DUAL's ``laplace.<name>`` key: the same rule and meaning."""
-    return dataclasses.field(metadata=_DUAL_LAPLACE[name].metadata)
-
-
-@dataclass
-class IQLLALaplaceSettings:
-    """``algo/iql_la.yaml``'s ``laplace``: DUAL's keys of Eq. (8-9) that apply to a plain
-    actor (``M`` and the prior, with DUAL's rules) and where ``σ̄`` comes from."""
-
-    num_samples: int = _dual_laplace_key("num_samples")
-    prior_precision: Any = _dual_laplace_key("prior_precision")
-    posterior_temperature: Any = _dual_laplace_key("posterior_temperature")
-    noise_std: Any = key(
-        Either(
-            (Choice(("iql",)), Real(0, 2, low_open=True)), "must be 'iql' or a number in (0, 2]"
-        ),
-        "σ̄: the IQL actor's RMS std at each fit, or a fixed value",
-    )
 
 
 class IQLLALearner(LaplaceRefits, IQLLearner):
@@ -137,16 +101,3 @@ class IQLLALearner(LaplaceRefits, IQLLearner):
             scale = loc_scale(batch.select("observation"))["scale"]
             total, count = total + scale.square().sum(0), count + scale.shape[0]
         return (total / count).sqrt()
-
-
-IQL_LA = Algorithm(
-    sections={
-        "actor": IQLActorSettings,
-        "laplace": IQLLALaplaceSettings,
-        "exploration": NoShiftExplorationSettings,
-        "online": OnlineSettings,
-    },
-    critics=("iql",),
-    check=check_no_shift_weight,
-    learner=IQLLALearner,
-)

@@ -18,8 +18,6 @@ priorities, :mod:`torchrl_dual.recipe.o2o.replays`), the paper's "SO2 + OFF2ON" 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
@@ -29,18 +27,7 @@ from torchrl_dual.recipe.kits.build import projected_policy
 from torchrl_dual.recipe.o2o.learner import Learner
 from torchrl_dual.recipe.o2o.loop import run_o2o
 from torchrl_dual.recipe.o2o.run import O2ORun
-from torchrl_dual.recipe.parts.critics import CRITICS
-from torchrl_dual.recipe.settings.algos import Algorithm, OnlineSettings, check_nothing
-from torchrl_dual.recipe.settings.rules import Integer, Real, key
-
-
-@dataclass
-class SO2ActorSettings:
-    """``algo/so2.yaml``'s ``actor``: the tanh-Gaussian MLP actor (SAC actor loss)."""
-
-    hidden: int = key(Integer(1), "MLP width of the actor")
-    depth: int = key(Integer(1), "hidden layers of the actor")
-    lr: float = key(Real(0, low_open=True), "Adam learning rate of the actor")
+from torchrl_dual.recipe.settings.parts import CRITICS
 
 
 class SO2Learner(Learner):
@@ -104,11 +91,3 @@ class SO2Learner(Learner):
 def run_so2(cfg: DictConfig) -> O2ORun:
     """Runs (or resumes) the SO2 baseline for a validated ``cfg``."""
     return run_o2o(cfg, SO2Learner)
-
-
-SO2 = Algorithm(
-    sections={"actor": SO2ActorSettings, "online": OnlineSettings},
-    critics=("so2",),
-    check=check_nothing,
-    learner=SO2Learner,
-)

@@ -1,11 +1,10 @@
-"""The table of environment kits: one entry per ``env.kind`` (Algorithm 1 line 1).
+"""The builders of the PointMaze and Frozen-Lake env kits, and what every run asks of
+its kit (Algorithm 1 line 1): :func:`make_offline_dataset`, :func:`make_train_env`,
+:class:`TrainEnvFactory`, :func:`make_evaluator`, :func:`projected_policy`.
 
-An :class:`EnvKit` holds everything the recipe needs from one kind of environment: the
-schema of its ``env.*`` keys, the offline data set ``D_offline``, the online env, the
-evaluator returning D4RL-normalized scores, and the projection of the policy's action
-onto what the env executes. Adding an environment is adding one entry to
-:data:`ENV_KITS` and one ``torchrl_dual/recipe/config/env/<name>.yaml`` that sets ``kind``; nothing
-else in the recipe branches on the env.
+The table of kits, :data:`~torchrl_dual.recipe.settings.envs.ENV_KITS`, names these
+builders (and the Minari families' in :mod:`~torchrl_dual.recipe.kits.minari_families`)
+next to each kind's ``env.*`` schema.
 
 ``env.shift`` (a :data:`~torchrl_dual.envs.SHIFTS` name, ``none`` by default) changes
 the dynamics of the online env and of the evaluation env, never of the env the offline
@@ -16,7 +15,7 @@ on) and without it (``normalized_score_unshifted``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -34,8 +33,6 @@ from torchrl_dual.data import (
 )
 from torchrl_dual.data.cache import default_cache_dir
 from torchrl_dual.envs import (
-    FROZENLAKE_MAPS,
-    POINTMAZE_IDS,
     flatten_pointmaze_obs,
     frozenlake_num_states,
     frozenlake_success_probability,
@@ -43,45 +40,18 @@ from torchrl_dual.envs import (
     make_frozenlake_env,
     make_pointmaze_env,
     make_pointmaze_gym_env,
-    shift_names,
 )
 from torchrl_dual.evaluation import evaluate_episodes, frozenlake_policy_actions
-from torchrl_dual.recipe.kits.kit import EnvKit, EnvSettings, Evaluator
-from torchrl_dual.recipe.kits.minari_families import MINARI_KITS
+from torchrl_dual.recipe.settings.envs import ENV_KITS, EnvKit
 from torchrl_dual.recipe.settings.errors import ConfigError, UserError
-from torchrl_dual.recipe.settings.rules import (
-    CellList,
-    Choice,
-    Either,
-    IntegerList,
-    Maybe,
-    Real,
-    key,
-)
 from torchrl_dual.transforms import PreviousTransition
 
-
-# ----------------------------------------------------------------------------- PointMaze
-@dataclass
-class PointMazeSettings(EnvSettings):
-    """``env/pointmaze_*.yaml``: Gymnasium-Robotics PointMaze, maze2d-style local data."""
-
-    maze: str = key(Choice(tuple(POINTMAZE_IDS)), "layout")
-    shift: str = key(Choice(shift_names("pointmaze")), "online-only dynamics shift")
-    shift_angle: float = key(Real(-180, 180), "degrees of shift=rotation")
-    shift_scale: Any = key(
-        Maybe(Either((Real(0, 1000, low_open=True),), "must be a number in (0, 1000]")),
-        "factor of shift=damping / mass (null: the shift's default)",
-    )
-    goal_cell: Any = key(
-        Maybe(IntegerList(0)), "fixed goal cell [row, col] (null: a random open cell per episode)"
-    )
-    data_avoid_cells: Any = key(
-        Maybe(CellList()), "open cells the offline data never enter (null: none)"
-    )
+Evaluator = Callable[[nn.Module], dict[str, float]]
+"""``policy -> {"return": ..., "normalized_score": ..., ...}`` under deterministic actions
+(``normalized_score`` is NaN when the data set has no reference returns)."""
 
 
-def _check_pointmaze(cfg: DictConfig) -> None:
+def check_pointmaze(cfg: DictConfig) -> None:
     """``env.goal_cell`` and every ``env.data_avoid_cells`` entry are open cells of
     ``env.maze`` (``[row, col]`` pairs)."""
     goal_cell = cfg.env.goal_cell
@@ -110,7 +80,7 @@ def _pointmaze_avoided(env: DictConfig) -> list[list[int]] | None:
     return None if not cells else [list(cell) for cell in cells]
 
 
-def _pointmaze_data(cfg: DictConfig) -> OfflineDataset:
+def pointmaze_data(cfg: DictConfig) -> OfflineDataset:
     env = cfg.env
     return load_or_generate_maze_dataset(
         env.maze,
@@ -123,7 +93,7 @@ def _pointmaze_data(cfg: DictConfig) -> OfflineDataset:
     )
 
 
-def _pointmaze_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
+def pointmaze_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
     env = cfg.env
     return make_pointmaze_env(
         env.maze,
@@ -135,7 +105,7 @@ def _pointmaze_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
     )
 
 
-def _pointmaze_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
+def pointmaze_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
     env = cfg.env
 
     def returns(policy: nn.Module, shift: dict[str, Any]) -> np.ndarray:
@@ -171,19 +141,7 @@ def _pointmaze_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
     return evaluate
 
 
-# ----------------------------------------------------------------------------- Frozen-Lake
-@dataclass
-class FrozenLakeSettings(EnvSettings):
-    """``env/frozenlake.yaml``: slippery Frozen-Lake with the paper's slip shift."""
-
-    map_name: str = key(Choice(FROZENLAKE_MAPS), "map")
-    offline_success_rate: float = key(Real(0, 1, low_open=True), "intended-move probability")
-    online_success_rate: float = key(Real(0, 1, low_open=True), "intended-move probability")
-    epsilon: float = key(Real(0, 1), "random-action probability of the behaviour policy")
-    shift: str = key(Choice(shift_names("frozenlake")), "online-only dynamics shift")
-
-
-def _frozenlake_data(cfg: DictConfig) -> OfflineDataset:
+def frozenlake_data(cfg: DictConfig) -> OfflineDataset:
     env = cfg.env
     return load_or_generate_frozenlake_dataset(
         env.map_name,
@@ -197,7 +155,7 @@ def _frozenlake_data(cfg: DictConfig) -> OfflineDataset:
     )
 
 
-def _frozenlake_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
+def frozenlake_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
     env = cfg.env
     return make_frozenlake_env(
         env.map_name,
@@ -208,7 +166,7 @@ def _frozenlake_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
     )
 
 
-def _frozenlake_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
+def frozenlake_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
     """The exact success probability of the greedy policy (value iteration, no sampling)."""
     env = cfg.env
     num_states = frozenlake_num_states(env.map_name)
@@ -240,27 +198,6 @@ def _frozenlake_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
 def one_hot_argmax(action: torch.Tensor) -> torch.Tensor:
     """The executed discrete action as a one-hot vector (what the env receives)."""
     return nn.functional.one_hot(action.argmax(-1), action.shape[-1]).to(action.dtype)
-
-
-# ----------------------------------------------------------------------------- the table
-ENV_KITS: dict[str, EnvKit] = {
-    "pointmaze": EnvKit(
-        PointMazeSettings,
-        _pointmaze_data,
-        _pointmaze_env,
-        _pointmaze_evaluator,
-        check=_check_pointmaze,
-    ),
-    "frozenlake": EnvKit(
-        FrozenLakeSettings,
-        _frozenlake_data,
-        _frozenlake_env,
-        _frozenlake_evaluator,
-        action_projection=one_hot_argmax,
-    ),
-    **MINARI_KITS,  # antmaze, locomotion, adroit (torchrl_dual.recipe.kits.minari_families)
-}
-"""``env.kind`` -> :class:`EnvKit`."""
 
 
 def env_kit(cfg: DictConfig) -> EnvKit:

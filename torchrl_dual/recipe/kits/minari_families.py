@@ -27,7 +27,6 @@ A data set that is not on disk stops ``validate_config`` with the exact
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -43,142 +42,14 @@ from torchrl_dual.envs import (
     make_flat_env,
     register_robotics_envs,
     release_maze_xml,
-    shift_names,
 )
 from torchrl_dual.evaluation import evaluate_episodes
-from torchrl_dual.recipe.kits.kit import EnvKit, EnvSettings, Evaluator
-from torchrl_dual.recipe.settings.errors import ConfigError, UserError
-from torchrl_dual.recipe.settings.rules import (
-    Choice,
-    Either,
-    Flag,
-    Integer,
-    Maybe,
-    Real,
-    RealList,
-    Text,
-    key,
-)
+from torchrl_dual.recipe.kits.build import Evaluator
+from torchrl_dual.recipe.settings.envs import FAMILIES
+from torchrl_dual.recipe.settings.errors import UserError
 
 OBSERVATION_STD_EPS = 1e-3
 """Added to the data set's state std (CORL's ``compute_mean_std(eps=1e-3)``)."""
-
-
-@dataclass(frozen=True)
-class MinariFamily:
-    """Published Minari data sets of one env kind.
-
-    Args:
-        id_format (str): the data set id with ``{task}``, ``{dataset}``, ``{version}``.
-        tasks (tuple of str): values of ``env.task`` (empty: the family has one task).
-        datasets (tuple of str): known data set names (others are accepted: Minari grows).
-    """
-
-    id_format: str
-    tasks: tuple[str, ...]
-    datasets: tuple[str, ...]
-
-    def dataset_id(self, env: DictConfig) -> str:
-        """The Minari id of ``env.task`` / ``env.dataset`` / ``env.dataset_version``."""
-        task = env.get("task", "")
-        return self.id_format.format(task=task, dataset=env.dataset, version=env.dataset_version)
-
-
-FAMILIES: dict[str, MinariFamily] = {
-    "antmaze": MinariFamily(
-        "D4RL/antmaze/{dataset}-{version}",
-        (),
-        ("umaze", "umaze-diverse", "medium-play", "medium-diverse", "large-play", "large-diverse"),
-    ),
-    "locomotion": MinariFamily(
-        "mujoco/{task}/{dataset}-{version}",
-        ("hopper", "halfcheetah", "walker2d"),
-        ("medium", "expert", "simple"),
-    ),
-    "adroit": MinariFamily(
-        "D4RL/{task}/{dataset}-{version}",
-        ("pen", "door", "hammer", "relocate"),
-        ("cloned", "human", "expert"),
-    ),
-}
-"""``env.kind`` -> :class:`MinariFamily`."""
-
-
-@dataclass
-class MinariSettings(EnvSettings):
-    """``env/antmaze.yaml``, ``env/hopper.yaml``, ...: a Minari data set and its env."""
-
-    max_episode_steps: Any = key(
-        Maybe(Integer(1)), "time limit; null: the data set's env spec (AntMaze 700/1000)"
-    )
-    dataset: str = key(Text(), "data set name, e.g. umaze, medium, cloned")
-    dataset_version: str = key(Text(), "Minari version suffix, e.g. v1")
-    reward_scale: Any = key(
-        Either((Real(0, low_open=True), Choice(("returns",))), "must be a number > 0 or 'returns'"),
-        "r' = reward_scale * r + reward_shift; returns: T / (max - min episode return)",
-    )
-    reward_shift: float = key(Real(), "added after the scale (CORL AntMaze: -1)")
-    normalize_observations: bool = key(Flag(), "states -> (s - mean) / (std + 1e-3) of the data")
-    reference_returns: Any = key(
-        Maybe(RealList(2)), "[random, expert] returns instead of the data set's references"
-    )
-    shift_scale: Any = key(
-        Maybe(Real(0, low_open=True)), "factor of the shift (null: the shift's default)"
-    )
-
-
-@dataclass
-class AntMazeSettings(MinariSettings):
-    """``env/antmaze.yaml``: Minari ``D4RL/antmaze/<dataset>-<version>``."""
-
-    shift: str = key(Choice(shift_names("antmaze")), "online-only dynamics shift")
-
-
-@dataclass
-class LocomotionSettings(MinariSettings):
-    """``env/hopper.yaml``, ``halfcheetah.yaml``, ``walker2d.yaml``: Minari
-    ``mujoco/<task>/<dataset>-<version>`` and the ODRL shifts."""
-
-    task: str = key(Choice(FAMILIES["locomotion"].tasks), "the robot")
-    shift: str = key(Choice(shift_names("locomotion")), "online-only dynamics shift (ODRL)")
-
-
-@dataclass
-class AdroitSettings(MinariSettings):
-    """``env/adroit.yaml``: Minari ``D4RL/<task>/<dataset>-<version>``."""
-
-    task: str = key(Choice(FAMILIES["adroit"].tasks), "the Adroit hand task")
-    shift: str = key(Choice(shift_names("adroit")), "online-only dynamics shift")
-
-
-SETTINGS: dict[str, type] = {
-    "antmaze": AntMazeSettings,
-    "locomotion": LocomotionSettings,
-    "adroit": AdroitSettings,
-}
-
-
-# ----------------------------------------------------------------------------- checks
-def check_minari_dataset(cfg: DictConfig) -> None:
-    """Stops before any work when minari is missing or the data set is not on disk."""
-    dataset_id = FAMILIES[cfg.env.kind].dataset_id(cfg.env)
-    try:
-        from minari.storage import get_dataset_path
-    except ImportError as err:
-        raise ConfigError(
-            "env.kind",
-            cfg.env.kind,
-            "reading Minari data sets needs the minari package: pip install 'torchrl-dual[minari]'",
-        ) from err
-    path = get_dataset_path(dataset_id)
-    if not (path / "data").exists():
-        raise ConfigError(
-            "env.dataset",
-            cfg.env.dataset,
-            f"the Minari data set {dataset_id} is not on disk (looked in {path}; set "
-            f"MINARI_DATASETS_PATH to look elsewhere); download it with: "
-            f"minari download {dataset_id}",
-        )
 
 
 def check_observation_layout(dataset_space: Any, env_space: Any, dataset_id: str) -> None:
@@ -236,7 +107,7 @@ def _time_limit(cfg: DictConfig, dataset_id: str) -> int | None:
     return None if spec is None else spec.max_episode_steps
 
 
-def _minari_data(cfg: DictConfig) -> OfflineDataset:
+def minari_data(cfg: DictConfig) -> OfflineDataset:
     env = cfg.env
     dataset_id = FAMILIES[env.kind].dataset_id(env)
     data = load_minari_dataset(dataset_id)
@@ -293,9 +164,9 @@ def _gym_env(cfg: DictConfig, data: OfflineDataset, *, eval_env: bool, shifted: 
     )
 
 
-def _minari_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
+def minari_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
     if data is None:  # its observation normalization and reward scale come from the data
-        data = _minari_data(cfg)
+        data = minari_data(cfg)
     return make_flat_env(
         _gym_env(cfg, data, eval_env=False, shifted=True),
         reward_scale=data.metadata["reward_scale"],
@@ -304,7 +175,7 @@ def _minari_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
     )
 
 
-def _minari_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
+def minari_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
     """Deterministic episodes in the data set's evaluation env; raw (unmodified) returns."""
     has_references = data.reference_min is not None and data.reference_max is not None
 
@@ -340,12 +211,3 @@ def _minari_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
         return result
 
     return evaluate
-
-
-MINARI_KITS: dict[str, EnvKit] = {
-    kind: EnvKit(
-        SETTINGS[kind], _minari_data, _minari_env, _minari_evaluator, check=check_minari_dataset
-    )
-    for kind in FAMILIES
-}
-"""The Minari kinds of :data:`~torchrl_dual.recipe.kits.build.ENV_KITS`."""

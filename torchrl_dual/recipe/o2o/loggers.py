@@ -12,85 +12,11 @@ and the same W&B run (its run id).
 
 from __future__ import annotations
 
-import importlib.util
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 from torchrl.record.loggers import Logger, get_logger
-
-from torchrl_dual.recipe.settings.errors import ConfigError
-from torchrl_dual.recipe.settings.rules import Choice, Maybe, Text, key
-
-WANDB_MODES = ("offline", "online", "disabled")
-
-
-@dataclass
-class LoggerSettings:
-    """``logger/*.yaml``: the keys every backend has."""
-
-    backend: str = key(Text(), "the LOGGERS entry (torchrl.record.loggers.get_logger type)")
-
-
-@dataclass
-class WandbSettings(LoggerSettings):
-    """``logger/wandb.yaml``: where the Weights & Biases run goes (``wandb.init``)."""
-
-    project: str = key(Text(), "W&B project")
-    entity: Any = key(Maybe(Text()), "W&B user or team; null: the account's default")
-    mode: str = key(Choice(WANDB_MODES), "offline: local files only, no account (wandb sync)")
-
-
-@dataclass(frozen=True)
-class LoggerBackend:
-    """One ``logger.backend``: its config schema, the package it needs and how to install
-    it, and whether TorchRL can resume it from a checkpoint."""
-
-    settings: type
-    package: str | None = None
-    install: str | None = None
-    resumable: bool = False
-
-
-LOGGERS: dict[str, LoggerBackend] = {
-    "csv": LoggerBackend(LoggerSettings, resumable=True),
-    "tensorboard": LoggerBackend(
-        LoggerSettings, "tensorboard", "pip install 'torchrl-dual[tensorboard]'", True
-    ),
-    "wandb": LoggerBackend(WandbSettings, "wandb", "pip install 'torchrl-dual[wandb]'", True),
-    "mlflow": LoggerBackend(LoggerSettings, "mlflow", "pip install mlflow"),
-    "trackio": LoggerBackend(LoggerSettings, "trackio", "pip install trackio"),
-}
-"""``torchrl.record.loggers.get_logger``'s backends (TorchRL 0.14.1); ``resumable``: its
-``state_dict=`` accepts them."""
-
-
-def check_logger(cfg: DictConfig) -> None:
-    """What ``cfg.logger`` asks of the machine: the backend's package, and a backend that
-    resumes when ``resume=true``.
-
-    Examples:
-        >>> from omegaconf import OmegaConf
-        >>> check_logger(OmegaConf.create({"logger": {"backend": "mlflow"}, "resume": True}))
-        Traceback (most recent call last):
-        ...
-        torchrl_dual.recipe.settings.errors.ConfigError: logger.backend=mlflow: ...
-    """
-    backend = LOGGERS[cfg.logger.backend]
-    if backend.package is not None and importlib.util.find_spec(backend.package) is None:
-        raise ConfigError(
-            "logger.backend",
-            cfg.logger.backend,
-            f"needs the {backend.package} package ({backend.install})",
-        )
-    if cfg.resume and not backend.resumable:
-        resumable = [name for name, b in LOGGERS.items() if b.resumable]
-        raise ConfigError(
-            "logger.backend",
-            cfg.logger.backend,
-            f"cannot resume (resume=true); use one of {', '.join(resumable)}",
-        )
 
 
 def make_logger(

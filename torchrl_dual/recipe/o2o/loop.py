@@ -13,12 +13,12 @@ from collections.abc import Callable
 
 from omegaconf import DictConfig
 
-from torchrl_dual.recipe.o2o.collectors import COLLECTORS
 from torchrl_dual.recipe.o2o.learner import Learner
 from torchrl_dual.recipe.o2o.offline_cache import run_offline_stages
 from torchrl_dual.recipe.o2o.plots import online_signals
 from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.o2o.stage_clock import StageClock
+from torchrl_dual.recipe.settings.o2o import COLLECTORS
 
 
 def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORun:
@@ -35,7 +35,7 @@ def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORu
     budget = cfg.budget
     next_eval = (run.frames // budget.eval_every + 1) * budget.eval_every
     next_save = run.frames + budget.checkpoint_every
-    clock = StageClock(run, "online")
+    clock = StageClock(run.stage_seconds, run.stage_cpu_seconds, "online")
     collector = run.collector() if run.frames < budget.online_frames else None
     push = COLLECTORS[cfg.collector.name].push  # the weights' way to the collector
     try:

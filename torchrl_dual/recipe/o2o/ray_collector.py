@@ -25,7 +25,7 @@ frames per actor (as ``multi_sync``), ``false`` hands the run whichever actor's
 * **Trajectory ids.** Each remote collector numbers its trajectories from 0, so the ids
   of two actors would collide; :class:`InterleavedTrajectories` gives actor ``i`` of
   ``n`` the ids ``i, i + n, i + 2n, ...``, unique across actors, which
-  :func:`~torchrl_dual.recipe.o2o.collectors.assign_episodes` maps to the run's episode ids.
+  :func:`~torchrl_dual.recipe.o2o.episodes.assign_episodes` maps to the run's episode ids.
 * **Seeds.** Actor 0 is seeded ``seed + 1 + frames``, the others with the seeds TorchRL's
   ``set_seed`` chains from it (as the process collectors).
 
@@ -36,24 +36,20 @@ stops with ``pip install "torchrl-dual[ray]"`` (:func:`check_ray_collector`).
 from __future__ import annotations
 
 import copy
-import importlib.util
 from typing import TYPE_CHECKING
 
 import torch
-from omegaconf import DictConfig
 from tensordict import TensorDict
 from torch import nn
 from torchrl.envs.utils import ExplorationType
 
 from torchrl_dual.recipe.kits.build import TrainEnvFactory
-from torchrl_dual.recipe.settings.errors import ConfigError, UserError
+from torchrl_dual.recipe.settings.errors import UserError
 
 if TYPE_CHECKING:
     from torchrl.collectors import BaseCollector
 
     from torchrl_dual.recipe.o2o.run import O2ORun
-
-INSTALL_RAY = 'pip install "torchrl-dual[ray]"'
 
 
 class InterleavedTrajectories:
@@ -93,25 +89,6 @@ class InterleavedTrajectories:
     def load_state_dict(self, state: dict[str, int]) -> None:
         """Continues after the ids ``state`` had handed out."""
         self.count = int(state["count"])
-
-
-def ray_installed() -> bool:
-    """Whether Ray can be imported (without importing it)."""
-    return importlib.util.find_spec("ray") is not None
-
-
-def check_ray_collector(cfg: DictConfig) -> None:
-    """What ``collector=ray`` needs beyond the process collectors' checks
-    (:func:`~torchrl_dual.recipe.o2o.collectors.check_collector`): Ray, and ``device=cpu``."""
-    if not ray_installed():
-        raise ConfigError("collector", "ray", f"needs Ray, which is not installed: {INSTALL_RAY}")
-    if cfg.device != "cpu":
-        raise ConfigError(
-            "device",
-            cfg.device,
-            "collector=ray's remote collectors act on the CPUs of the Ray nodes: use "
-            "device=cpu with it, or collector=multi_sync / multi_async on this machine",
-        )
 
 
 def make_ray(run: O2ORun, total_frames: int) -> BaseCollector:

@@ -20,8 +20,6 @@ Both share one surface, :class:`Replay`: ``extend`` / ``sample`` / ``online_buff
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import torch
@@ -30,28 +28,9 @@ from torchrl.data import OfflineToOnlineReplayBuffer, RandomSampler, ReplayBuffe
 
 from torchrl_dual.data import BalancedReplayBuffer
 from torchrl_dual.objectives import DensityRatioLoss, make_density_ratio_network
-from torchrl_dual.recipe.settings.rules import Integer, Real, Text, key
 
 if TYPE_CHECKING:
     from torchrl_dual.recipe.o2o.run import O2ORun
-
-
-@dataclass
-class ReplaySettings:
-    """``replay/mixed.yaml``: the name only (the offline share is ``online.offline_fraction``)."""
-
-    name: str = key(Text(), "the REPLAYS entry")
-
-
-@dataclass
-class BalancedReplaySettings(ReplaySettings):
-    """``replay/balanced.yaml``: OFF2ON's density-ratio network and priorities."""
-
-    temperature: float = key(Real(0, low_open=True), "T of the priorities w^(1/T) (OFF2ON: 5)")
-    hidden: int = key(Integer(1), "MLP width of the density-ratio network")
-    depth: int = key(Integer(1), "hidden layers of the density-ratio network")
-    lr: float = key(Real(0, low_open=True), "Adam learning rate of the density-ratio network")
-    ratio_batch_size: int = key(Integer(1), "offline and online transitions (each) per ratio step")
 
 
 class Replay:
@@ -164,10 +143,3 @@ class BalancedReplay(Replay):
 def online_capacity(run: O2ORun) -> int:
     """``budget.online_frames`` plus what the learner adds (never overwritten)."""
     return max(run.cfg.budget.online_frames + run.learner.extra_online_capacity, 1)
-
-
-REPLAYS: dict[str, tuple[type, Callable[[O2ORun], Replay]]] = {
-    "mixed": (ReplaySettings, make_mixed_replay),
-    "balanced": (BalancedReplaySettings, BalancedReplay),
-}
-"""``replay.name`` -> (schema of ``replay.*``, ``run -> Replay``)."""

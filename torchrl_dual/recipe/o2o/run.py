@@ -12,9 +12,7 @@ of :data:`~torchrl_dual.recipe.ALGORITHMS` is a learner class and a config file.
 
 from __future__ import annotations
 
-import os
 import random
-import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -30,14 +28,14 @@ from tqdm.auto import tqdm
 from torchrl_dual.checkpoint import CheckpointError, RunCheckpoint, rng_state, set_rng_state
 from torchrl_dual.data import TRANSITION_KEYS
 from torchrl_dual.recipe.kits import build as env_kits
-from torchrl_dual.recipe.o2o.collectors import COLLECTORS, assign_episodes
+from torchrl_dual.recipe.o2o.episodes import assign_episodes
 from torchrl_dual.recipe.o2o.learner import Learner
 from torchrl_dual.recipe.o2o.loggers import logs_text, make_logger
 from torchrl_dual.recipe.o2o.plots import plot_learning_curve
-from torchrl_dual.recipe.o2o.replays import REPLAYS
 from torchrl_dual.recipe.o2o.stage_clock import StageClock
 from torchrl_dual.recipe.o2o.summary import score_text, write_summary
-from torchrl_dual.recipe.settings.errors import ConfigError, UserError
+from torchrl_dual.recipe.settings.errors import UserError
+from torchrl_dual.recipe.settings.o2o import COLLECTORS, REPLAYS, check_output_dir
 
 # Settings that may change when a run is resumed; everything else must match.
 RESUMABLE_KEYS = (
@@ -68,35 +66,6 @@ _COUNTERS = (
     "history",
     "online_signals",
 )
-
-
-def check_output_dir(cfg: DictConfig) -> None:
-    """``output_dir`` must be a directory (or not exist yet) that this process can create
-    and write, and hold no checkpoint unless ``resume=true``: a fresh run never overwrites
-    another run's checkpoint. Writability is probed with a temporary folder in the nearest
-    existing ancestor (removed at once), so a failed check leaves nothing behind."""
-    output_dir = Path(cfg.output_dir)
-    for path in (output_dir, *output_dir.parents):
-        if path.exists() and not path.is_dir():
-            raise ConfigError("output_dir", cfg.output_dir, f"{path} is a file, not a directory")
-    existing = next(p for p in (output_dir, *output_dir.parents) if p.exists())
-    try:
-        os.rmdir(tempfile.mkdtemp(prefix=".write-probe-", dir=existing))
-    except OSError as err:
-        raise ConfigError(
-            "output_dir",
-            cfg.output_dir,
-            f"cannot be created or written in {existing} ({err.strerror}); choose a "
-            "directory you can write to",
-        ) from None
-    checkpoint = output_dir / "checkpoint.pt"
-    if checkpoint.exists() and not cfg.resume:
-        raise ConfigError(
-            "resume",
-            False,
-            f"{checkpoint} exists: pass resume=true to continue that run, or choose "
-            "another output_dir (or delete it) to start afresh",
-        )
 
 
 def compiled_update(learner: Learner, settings: DictConfig | None) -> Callable:
@@ -249,7 +218,7 @@ class O2ORun:
         if name in self.stages_done:
             self.say(f"{name}: done in the checkpoint, skipped")
             return
-        clock = StageClock(self, name)
+        clock = StageClock(self.stage_seconds, self.stage_cpu_seconds, name)
         self.say(f"{name}: started")
         fn()
         clock.tick()
@@ -311,7 +280,7 @@ class O2ORun:
     # ------------------------------------------------------------------ online phase
     def collector(self) -> BaseCollector:
         """Acts with the learner's exploration policy in the online env (Alg. 1 l. 11-12):
-        the ``collector.name`` entry of :data:`~torchrl_dual.recipe.o2o.collectors.COLLECTORS`."""
+        the ``collector.name`` entry of :data:`~torchrl_dual.recipe.settings.o2o.COLLECTORS`."""
         remaining = max(self.cfg.budget.online_frames - self.frames, 0)
         self.open_episodes = {}  # a new collector starts new trajectories
         return COLLECTORS[self.cfg.collector.name].make(self, remaining)

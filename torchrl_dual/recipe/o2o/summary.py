@@ -11,12 +11,22 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol
 
-from omegaconf import OmegaConf
+from omegaconf import DictConfig, OmegaConf
 
-if TYPE_CHECKING:
-    from torchrl_dual.recipe.o2o.run import O2ORun
+
+class FinishedRun(Protocol):
+    """What :func:`run_summary` reads of a run (a :class:`~torchrl_dual.recipe.O2ORun`)."""
+
+    cfg: DictConfig
+    history: list[dict]
+    online_signals: list[dict]
+    stage_seconds: dict[str, float]
+    stage_cpu_seconds: dict[str, float]
+    shared_offline: bool
+    frames: int
+    updates: int
 
 
 NO_REFERENCES = "n/a (the data set has no reference returns; set env.reference_returns)"
@@ -32,14 +42,14 @@ def score_text(score: float) -> str:
     return NO_REFERENCES if math.isnan(score) else f"{score:.1f}"
 
 
-def run_summary(run: O2ORun) -> dict:
+def run_summary(run: FinishedRun) -> dict:
     """The summary of ``run`` as a JSON-ready dict.
 
     ``offline_seconds`` sums the offline stages (``offline_eval`` included; stages loaded
     from a shared offline phase count with the time their first run spent on them), and
     ``wall_seconds`` adds the online phase: the cost of one run on its own.
     ``stage_cpu_seconds`` and ``cpu_seconds`` are the same in CPU seconds of the run's
-    process (:class:`~torchrl_dual.recipe.o2o.run.StageClock`), which runs sharing the
+    process (:class:`~torchrl_dual.recipe.o2o.stage_clock.StageClock`), which runs sharing the
     cores do not inflate.
     """
     cfg = run.cfg
@@ -66,7 +76,7 @@ def run_summary(run: O2ORun) -> dict:
     }
 
 
-def write_summary(run: O2ORun, path: Path) -> Path:
+def write_summary(run: FinishedRun, path: Path) -> Path:
     """Writes :func:`run_summary` to ``path`` atomically; returns ``path``."""
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(run_summary(run), indent=1, default=float))

@@ -25,61 +25,7 @@ from torchrl.modules import MLP, ProbabilisticActor, ValueOperator
 from torchrl.objectives import IQLLoss, SoftUpdate
 
 from torchrl_dual.modules.actors.action_box import ClippedNormal, box_bounds
-from torchrl_dual.objectives import PENALTY_LAYOUTS, WEIGHTINGS, CalQLLoss, SO2QLoss
-from torchrl_dual.objectives.so2 import TARGET_REDUCTIONS
-from torchrl_dual.recipe.settings.rules import Choice, Integer, Maybe, Real, Text, key
-
-
-@dataclass
-class CriticSettings:
-    """The ``critic.*`` keys every critic has (its networks, optimizer and targets)."""
-
-    name: str = key(Text(), "the CRITICS entry")
-    hidden: int = key(Integer(1), "MLP width of the critic networks")
-    depth: int = key(Integer(1), "hidden layers of the critic networks")
-    lr: float = key(Real(0, low_open=True), "Adam learning rate of the critic networks")
-    discount: float = key(Real(0, 1, low_open=True), "γ")
-    target_update_tau: float = key(Real(0, 1, low_open=True), "soft target update rate")
-    actor_weighting: str = key(Choice(WEIGHTINGS), "preset of DUAL's actor.weighting")
-
-
-@dataclass
-class IQLCriticSettings(CriticSettings):
-    """``critic/iql.yaml``: TorchRL ``IQLLoss`` expectile value network and twin Q networks."""
-
-    expectile: float = key(Real(0, 1, low_open=True, high_open=True), "IQL expectile τ")
-
-
-@dataclass
-class CalQLCriticSettings(CriticSettings):
-    """``critic/calql.yaml``: Cal-QL's twin Q networks (TorchRL ``CQLLoss`` + MC bound;
-    ``discount`` is also the bound's)."""
-
-    min_q_weight: float = key(Real(0), "weight of the conservative penalty")
-    num_random: int = key(Integer(1), "uniform and policy actions per state in the penalty")
-    temperature: float = key(Real(0, low_open=True), "temperature of the penalty's logsumexp")
-    penalty_layout: str = key(Choice(PENALTY_LAYOUTS), "logsumexp grouping (CalQLLoss)")
-    sparse_failure_reward: Any = key(
-        Maybe(Real()), "r_fail of Cal-QL's sparse-reward bound r_fail / (1 - γ); null: off"
-    )
-
-
-@dataclass
-class SO2CriticSettings(CriticSettings):
-    """``critic/so2.yaml``: SO2's Q ensemble (:class:`~torchrl_dual.objectives.SO2QLoss`).
-
-    Offline it is SAC-N (the target is the ensemble's minimum, no smoothing noise, one
-    critic step per update); online, SO2's changes: each member's own target at the
-    noise-smoothed next action, ``online_steps_per_update`` critic steps per update."""
-
-    num_qvalue_nets: int = key(Integer(1), "ensemble size E (SO2: 10)")
-    policy_noise: float = key(Real(0), "σ of the target action's smoothing noise (online)")
-    noise_clip: float = key(Real(0), "c: the smoothing noise is clipped to [-c, c]")
-    target_reduction: str = key(Choice(TARGET_REDUCTIONS), "online targets per member or reduced")
-    offline_target_reduction: str = key(Choice(TARGET_REDUCTIONS), "offline (SAC-N: min)")
-    entropy_coef: float = key(Real(0), "α of the targets' and the SAC actor's entropy term")
-    online_steps_per_update: int = key(Integer(1), "critic steps per update online (SO2: 10)")
-
+from torchrl_dual.objectives import CalQLLoss, SO2QLoss
 
 CriticLoss = IQLLoss | CalQLLoss | SO2QLoss
 
@@ -381,16 +327,3 @@ def policy_view(actor: nn.Module, action_spec: TensorSpec) -> ProbabilisticActor
         distribution_kwargs={"low": low, "high": high},
         return_log_prob=True,  # SO2's targets read log π(a'|s')
     )
-
-
-POLICY_CRITICS = ("calql", "so2")
-"""Critics whose loss samples the policy: a learner with its own actor passes them
-:func:`policy_view` of it (``actor=``)."""
-
-CRITICS: dict[str, tuple[type, Callable[..., Critic]]] = {
-    "iql": (IQLCriticSettings, make_iql_critic),
-    "calql": (CalQLCriticSettings, make_calql_critic),
-    "so2": (SO2CriticSettings, make_so2_critic),
-}
-"""``critic.name`` -> (schema of ``critic.*``, ``(cfg, obs_dim, action_dim, actor=None,
-temperature=1.0) -> Critic``)."""

@@ -71,7 +71,7 @@ class LaplaceRefits:
         """Acts online with the Laplace ensemble over ``actor`` (Eq. 9, ``M =
         laplace.num_samples``, ``laplace.prior_precision``), then Eq. (10)'s noise with
         ``λ = exploration.shift_weight`` (0 without a transition model:
-        :func:`~torchrl_dual.recipe.settings.algos.check_no_shift_weight`) and the env kit's
+        :func:`~torchrl_dual.recipe.settings.algo_common.check_no_shift_weight`) and the env kit's
         ``action_projection``. Sets ``policy``, ``ensemble`` and ``exploration_policy``."""
         cfg = self.run.cfg
         self.policy = make_dual_policy(

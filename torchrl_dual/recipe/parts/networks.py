@@ -19,12 +19,6 @@ from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
 from torchrl_dual.recipe.kits.build import env_kit
 from torchrl_dual.recipe.parts.critics import Critic
 
-TRANSITION_MODELS = ("frozen", "shared")
-"""Where Eq. (10)'s ``ŝ_t`` comes from (``exploration.transition_model``)."""
-ACTOR_INITS = ("distilled", "scratch")
-"""What the actor starts from (``actor.init``): the distilled planner (DUAL) or its
-architecture's fresh initialisation (the paper's "w/o planner" ablation)."""
-
 
 def make_planner(cfg: DictConfig, data: OfflineDataset) -> TrajectoryDiffusion:
     """The N-step diffusion planner ``g_θ'`` (Eq. 3), its normalizer fitted on ``D_offline``."""

@@ -31,8 +31,6 @@ transitions feed the next block's gradient steps. A round with no real online wi
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
 from typing import Any
 
 import torch
@@ -50,11 +48,8 @@ from torchrl_dual.modules import PlannerSampler, RewardModel
 from torchrl_dual.recipe.kits.build import env_kit
 from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.parts.planner_stage import offline_windows
-from torchrl_dual.recipe.settings.errors import ConfigError
-from torchrl_dual.recipe.settings.rules import Choice, Integer, Real, key
+from torchrl_dual.recipe.settings.parts import online_updates
 
-AUGMENT_KINDS = ("none", "planner")
-"""``augment.kind``: no augmentation, or guided planner windows (EDIS)."""
 _REWARD_KEYS = (
     "observation",
     "action",
@@ -64,26 +59,6 @@ _REWARD_KEYS = (
 )
 
 
-@dataclass
-class AugmentSettings:
-    """``augment``: planner data augmentation (EDIS, Algorithm 1 line 14)."""
-
-    kind: str = key(Choice(AUGMENT_KINDS), "none | planner (guided planner transitions)")
-    every: int = key(Integer(1), "online updates between augmentation rounds")
-    num_windows: int = key(Integer(1), "windows generated per round (H transitions each)")
-    guidance_scale: float = key(Real(0), "scale of the classifier guidance; 0 = unguided")
-    guider_updates: int = key(Integer(0), "classifier updates per round")
-    reward_updates: int = key(Integer(0), "reward-model updates per round")
-    hidden: int = key(Integer(1), "width of the classifier and the reward model")
-    lr: float = key(Real(0, low_open=True), "Adam learning rate of both")
-    batch_size: int = key(Integer(1), "offline and online windows (transitions) per update")
-
-
-def online_updates(cfg: DictConfig) -> int:
-    """The online phase's gradient updates (at most): ``online.utd_ratio × online_frames``."""
-    return math.ceil(cfg.online.utd_ratio * cfg.budget.online_frames)
-
-
 def augment_capacity(cfg: DictConfig) -> int:
     """Room the online buffer needs beyond the collected frames: at most one round per
     ``augment.every`` online updates, ``num_windows × H`` transitions each."""
@@ -91,29 +66,6 @@ def augment_capacity(cfg: DictConfig) -> int:
     if a is None or a.kind == "none":
         return 0
     return online_updates(cfg) // a.every * a.num_windows * cfg.planner.horizon
-
-
-def check_augment(cfg: DictConfig) -> None:
-    """``augment.kind=planner`` needs a multi-step DDPM teacher and at least one round."""
-    a = cfg.augment
-    if a.kind == "none":
-        return
-    if cfg.planner.num_steps < 2:
-        raise ConfigError(
-            "planner.num_steps",
-            cfg.planner.num_steps,
-            "must be >= 2 with augment.kind=planner: the guidance shifts the means of the "
-            "teacher's DDPM steps",
-        )
-    updates = online_updates(cfg)
-    if 0 < updates < a.every:
-        raise ConfigError(
-            "augment.every",
-            a.every,
-            f"exceeds the online phase's {updates} updates (online.utd_ratio x "
-            "budget.online_frames): no augmentation round would run; lower augment.every "
-            "or use augment.kind=none",
-        )
 
 
 def is_generated(transitions: TensorDictBase) -> torch.Tensor:

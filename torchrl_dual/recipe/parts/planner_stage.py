@@ -11,7 +11,7 @@ from omegaconf import DictConfig
 from torchrl_dual.data import OfflineDataset
 from torchrl_dual.diffusion import TrajectoryDiffusion, WindowReplayBuffer
 from torchrl_dual.objectives import train_planner
-from torchrl_dual.recipe.settings.errors import ConfigError, UserError
+from torchrl_dual.recipe.settings.errors import UserError
 
 if TYPE_CHECKING:
     from torchrl_dual.recipe.o2o.run import O2ORun
@@ -44,16 +44,3 @@ def pretrain_planner(
         log_prefix="planner/",
         progress=cfg.progress,
     )
-
-
-def check_planner_window(cfg: DictConfig) -> None:
-    """The planner's window must fit in an episode (a null time limit is the data set's,
-    checked against its episodes when the windows are cut)."""
-    limit = cfg.env.max_episode_steps
-    if limit is not None and cfg.planner.horizon >= limit:
-        raise ConfigError(
-            "planner.horizon",
-            cfg.planner.horizon,
-            f"must be < env.max_episode_steps={cfg.env.max_episode_steps} (a window holds "
-            "horizon + 1 steps of one episode)",
-        )

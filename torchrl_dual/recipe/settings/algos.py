@@ -1,77 +1,39 @@
-"""An entry of the recipe's algorithm table, and the settings every algorithm shares.
+"""The table of algorithms the recipe runs, selected by the ``algo`` config group.
 
-An :class:`Algorithm` names the config sections it reads with their schemas, the
-critics it works with, the checks across its keys, and the :class:`Learner` that runs
-it; each algorithm's module defines its entry (``DUAL`` in ``dual_settings``, ``IQL`` in
-``iql``, ...) and :data:`~torchrl_dual.recipe.ALGORITHMS` lists them by ``algo`` name.
+Each entry is an :class:`~torchrl_dual.recipe.settings.algo_common.Algorithm`: its config
+sections and their schemas, its critics, its checks across keys and a
+:class:`~torchrl_dual.recipe.settings.lazy.Ref` to its learner in
+:mod:`torchrl_dual.recipe.algos`. ``torchrl_dual/recipe/config/algo/<name>.yaml`` holds
+its settings. Adding an algorithm is adding a learner module, its settings, a config
+file and one line here.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
+from torchrl_dual.recipe.settings.algo_common import Algorithm
+from torchrl_dual.recipe.settings.baselines import (
+    CALQL,
+    DACER,
+    DIFFQL,
+    DIFFQL_LA,
+    DIFFUSER,
+    EDIS,
+    IQL,
+    IQL_LA,
+    SO2,
+)
+from torchrl_dual.recipe.settings.dual import DUAL
 
-from omegaconf import DictConfig
-
-from torchrl_dual.recipe.o2o.learner import Learner
-from torchrl_dual.recipe.o2o.loop import run_o2o
-from torchrl_dual.recipe.o2o.run import O2ORun
-from torchrl_dual.recipe.settings.errors import ConfigError
-from torchrl_dual.recipe.settings.rules import Integer, Real, key
-
-
-@dataclass(frozen=True)
-class Algorithm:
-    """One entry of :data:`ALGORITHMS`.
-
-    Args:
-        sections (dict): top-level config section -> schema dataclass of its keys.
-        critics (tuple of str): the ``critic`` options it supports.
-        check (callable): ``cfg -> None``, raises ``ConfigError`` on an impossible
-            combination of keys (run after every key passed its own rule).
-        learner (callable): ``O2ORun -> Learner``, usually the learner class;
-            :meth:`run` runs it through :func:`~torchrl_dual.recipe.run_o2o`.
-    """
-
-    sections: dict[str, type]
-    critics: tuple[str, ...]
-    check: Callable[[DictConfig], None]
-    learner: Callable[[O2ORun], Learner]
-
-    def run(self, cfg: DictConfig) -> O2ORun:
-        """The whole run (or its resumption) for a validated ``cfg``."""
-        return run_o2o(cfg, self.learner)
-
-
-@dataclass
-class OnlineSettings:
-    """Algorithm 1, online phase (lines 10-18)."""
-
-    offline_fraction: float = key(
-        Real(0, 1, low_open=True, high_open=True), "share of each batch from D_offline"
-    )
-    utd_ratio: float = key(Real(0), "gradient updates per collected frame")
-    batch_size: int = key(Integer(1), "transitions per update")
-
-
-def check_nothing(cfg: DictConfig) -> None:
-    """No checks across keys."""
-
-
-@dataclass
-class NoShiftExplorationSettings:
-    """``exploration`` of a baseline without a transition model (``iql_la``, ``diffql_la``):
-    Eq. (10) with ``λ = 0``."""
-
-    shift_weight: float = key(Real(0), "λ of Eq. 10; must be 0 (no transition model)")
-
-
-def check_no_shift_weight(cfg: DictConfig) -> None:
-    """``exploration.shift_weight`` must be 0: the actor predicts no next state ``ŝ_t``."""
-    if cfg.exploration.shift_weight != 0:
-        raise ConfigError(
-            "exploration.shift_weight",
-            cfg.exploration.shift_weight,
-            f"must be 0 for {cfg.algo}: its actor has no transition model for Eq. 10's ŝ_t; "
-            "shift-aware exploration is DUAL's (algo=dual)",
-        )
+ALGORITHMS: dict[str, Algorithm] = {
+    "dual": DUAL,
+    "iql": IQL,
+    "iql_la": IQL_LA,
+    "diffql": DIFFQL,
+    "diffql_la": DIFFQL_LA,
+    "diffuser": DIFFUSER,
+    "dacer": DACER,
+    "edis": EDIS,
+    "calql": CALQL,
+    "so2": SO2,
+}
+"""``algo`` -> :class:`~torchrl_dual.recipe.settings.algo_common.Algorithm`."""

@@ -1,5 +1,6 @@
 """DUAL's config sections (``algo/dual.yaml``), their checks across keys, and its
-:data:`~torchrl_dual.recipe.ALGORITHMS` entry."""
+:data:`~torchrl_dual.recipe.ALGORITHMS` entry; the learner is
+:class:`~torchrl_dual.recipe.algos.dual.DualLearner`."""
 
 from __future__ import annotations
 
@@ -9,17 +10,20 @@ from typing import Any
 
 from omegaconf import DictConfig
 
-from torchrl_dual.diffusion import SCHEDULES
-from torchrl_dual.diffusion.model import LATENTS
-from torchrl_dual.modules.dual_policy import UNCERTAINTIES
-from torchrl_dual.objectives.weighted_map_actor import WEIGHTINGS
-from torchrl_dual.recipe.algos.dual import DualLearner
-from torchrl_dual.recipe.parts.networks import ACTOR_INITS, TRANSITION_MODELS
-from torchrl_dual.recipe.parts.planner_augment import AugmentSettings, check_augment
-from torchrl_dual.recipe.parts.planner_stage import check_planner_window
-from torchrl_dual.recipe.settings.algos import Algorithm, OnlineSettings
+from torchrl_dual.recipe.settings.algo_common import Algorithm, OnlineSettings
 from torchrl_dual.recipe.settings.errors import ConfigError
+from torchrl_dual.recipe.settings.lazy import Ref
+from torchrl_dual.recipe.settings.names import LATENTS, SCHEDULES, UNCERTAINTIES, WEIGHTINGS
+from torchrl_dual.recipe.settings.parts import AugmentSettings, check_augment, check_planner_window
 from torchrl_dual.recipe.settings.rules import Choice, Either, Integer, PowerOfTwo, Real, key
+
+TRANSITION_MODELS = ("frozen", "shared")
+"""Where Eq. (10)'s ``ŝ_t`` comes from (``exploration.transition_model``)."""
+
+
+ACTOR_INITS = ("distilled", "scratch")
+"""What the actor starts from (``actor.init``): the distilled planner (DUAL) or its
+architecture's fresh initialisation (the paper's "w/o planner" ablation)."""
 
 
 @dataclass
@@ -189,5 +193,5 @@ DUAL = Algorithm(
     },
     critics=("iql", "calql", "so2"),
     check=check_dual,
-    learner=DualLearner,
+    learner=Ref("torchrl_dual.recipe.algos.dual:DualLearner"),
 )

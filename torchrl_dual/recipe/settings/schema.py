@@ -6,7 +6,9 @@ The schema of a composed config is put together from tables: the top-level keys
 ``critic`` (its ``CRITICS`` entry), ``replay`` (its ``REPLAYS`` entry), ``collector`` (its
 ``COLLECTORS`` entry) and ``logger`` (its ``LOGGERS`` entry, ``loggers``).
 Every key is checked against its rule, then the combinations across keys, then what the
-machine must provide (the device, the logger's package, a usable output_dir).
+env and the machine must provide (a goal cell of the maze, a Minari data set on disk, the
+device, the logger's package, a usable output_dir). Nothing before those last checks
+imports torch or TorchRL, so a bad value is reported in well under a second.
 """
 
 from __future__ import annotations
@@ -15,17 +17,21 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import torch
 from omegaconf import DictConfig
 
-from torchrl_dual.recipe.algos.table import ALGORITHMS
-from torchrl_dual.recipe.kits.build import ENV_KITS
-from torchrl_dual.recipe.o2o.collectors import COLLECTORS, check_collector, check_worker_count
-from torchrl_dual.recipe.o2o.loggers import LOGGERS, check_logger
-from torchrl_dual.recipe.o2o.replays import REPLAYS
-from torchrl_dual.recipe.o2o.run import check_output_dir
-from torchrl_dual.recipe.parts.critics import CRITICS
+from torchrl_dual.recipe.settings.algos import ALGORITHMS
+from torchrl_dual.recipe.settings.envs import ENV_KITS
 from torchrl_dual.recipe.settings.errors import ConfigError
+from torchrl_dual.recipe.settings.o2o import (
+    COLLECTORS,
+    LOGGERS,
+    REPLAYS,
+    check_collector,
+    check_logger,
+    check_output_dir,
+    check_worker_count,
+)
+from torchrl_dual.recipe.settings.parts import CRITICS
 from torchrl_dual.recipe.settings.rules import (
     Choice,
     Flag,
@@ -137,16 +143,20 @@ def validate_config(cfg: DictConfig) -> DictConfig:
         raise ConfigError(
             "critic", cfg.critic.name, f"{cfg.algo} supports {', '.join(algorithm.critics)}"
         )
-    if kit.check is not None:  # what the env needs on disk (e.g. a Minari data set)
-        kit.check(cfg)
     algorithm.check(cfg)
     check_collector(cfg)
+    # What the env and the machine must provide (the only checks that import the
+    # library: a goal cell of the maze, a Minari data set on disk, the device).
+    if kit.check is not None:
+        kit.check(cfg)
     check_machine(cfg)
     return cfg
 
 
 def check_machine(cfg: DictConfig) -> None:
     """What the config asks of the machine and the file system."""
+    import torch  # the device check needs it; every check above runs without it
+
     try:
         device = torch.device(cfg.device)
     except (RuntimeError, ValueError) as err:

@@ -1,0 +1,84 @@
+"""An entry of the recipe's algorithm table, and the settings several algorithms share.
+
+An :class:`Algorithm` names the config sections it reads with their schemas, the
+critics it works with, the checks across its keys, and (as a
+:class:`~torchrl_dual.recipe.settings.lazy.Ref`) the
+:class:`~torchrl_dual.recipe.o2o.learner.Learner` that runs it. DUAL's entry is in
+:mod:`~torchrl_dual.recipe.settings.dual`, the baselines' in
+:mod:`~torchrl_dual.recipe.settings.baselines`;
+:data:`~torchrl_dual.recipe.settings.algos.ALGORITHMS` lists them by ``algo`` name.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from omegaconf import DictConfig
+
+from torchrl_dual.recipe.settings.errors import ConfigError
+from torchrl_dual.recipe.settings.lazy import Ref
+from torchrl_dual.recipe.settings.rules import Integer, Real, key
+
+
+@dataclass(frozen=True)
+class Algorithm:
+    """One entry of :data:`~torchrl_dual.recipe.settings.algos.ALGORITHMS`.
+
+    Args:
+        sections (dict): top-level config section -> schema dataclass of its keys.
+        critics (tuple of str): the ``critic`` options it supports.
+        check (callable): ``cfg -> None``, raises ``ConfigError`` on an impossible
+            combination of keys (run after every key passed its own rule).
+        learner (callable): ``O2ORun -> Learner``, usually a :class:`Ref` to the learner
+            class; :meth:`run` runs it through :func:`~torchrl_dual.recipe.run_o2o`.
+    """
+
+    sections: dict[str, type]
+    critics: tuple[str, ...]
+    check: Callable[[DictConfig], None]
+    learner: Callable[..., Any]
+
+    def run(self, cfg: DictConfig) -> Any:
+        """The whole run (or its resumption) for a validated ``cfg``: the finished
+        :class:`~torchrl_dual.recipe.O2ORun`."""
+        return RUN_O2O(cfg, self.learner)
+
+
+RUN_O2O = Ref("torchrl_dual.recipe.o2o.loop:run_o2o")
+"""Algorithm 1 for a learner (:func:`~torchrl_dual.recipe.o2o.loop.run_o2o`)."""
+
+
+@dataclass
+class OnlineSettings:
+    """Algorithm 1, online phase (lines 10-18)."""
+
+    offline_fraction: float = key(
+        Real(0, 1, low_open=True, high_open=True), "share of each batch from D_offline"
+    )
+    utd_ratio: float = key(Real(0), "gradient updates per collected frame")
+    batch_size: int = key(Integer(1), "transitions per update")
+
+
+def check_nothing(cfg: DictConfig) -> None:
+    """No checks across keys."""
+
+
+@dataclass
+class NoShiftExplorationSettings:
+    """``exploration`` of a baseline without a transition model (``iql_la``, ``diffql_la``):
+    Eq. (10) with ``λ = 0``."""
+
+    shift_weight: float = key(Real(0), "λ of Eq. 10; must be 0 (no transition model)")
+
+
+def check_no_shift_weight(cfg: DictConfig) -> None:
+    """``exploration.shift_weight`` must be 0: the actor predicts no next state ``ŝ_t``."""
+    if cfg.exploration.shift_weight != 0:
+        raise ConfigError(
+            "exploration.shift_weight",
+            cfg.exploration.shift_weight,
+            f"must be 0 for {cfg.algo}: its actor has no transition model for Eq. 10's ŝ_t; "
+            "shift-aware exploration is DUAL's (algo=dual)",
+        )

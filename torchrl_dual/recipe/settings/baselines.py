@@ -1,0 +1,284 @@
+"""The baselines' config sections (``algo/<name>.yaml``), their checks across keys and
+their :data:`~torchrl_dual.recipe.ALGORITHMS` entries; each learner is in its own module of
+:mod:`torchrl_dual.recipe.algos`.
+
+Sections another algorithm defines are reused, not copied: ``edis`` and ``diffuser``
+read DUAL's ``planner``, ``iql_la`` DUAL's ``laplace`` keys, ``dacer`` Diff-QL's
+``actor``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+from omegaconf import DictConfig
+
+from torchrl_dual.recipe.settings.algo_common import (
+    Algorithm,
+    NoShiftExplorationSettings,
+    OnlineSettings,
+    check_no_shift_weight,
+    check_nothing,
+)
+from torchrl_dual.recipe.settings.dual import LaplaceSettings, PlannerSettings
+from torchrl_dual.recipe.settings.errors import ConfigError
+from torchrl_dual.recipe.settings.lazy import Ref
+from torchrl_dual.recipe.settings.names import SAMPLERS
+from torchrl_dual.recipe.settings.parts import AugmentSettings, check_augment, check_planner_window
+from torchrl_dual.recipe.settings.rules import (
+    Choice,
+    Either,
+    Integer,
+    Maybe,
+    Real,
+    key,
+)
+
+# ----------------------------------------------------------------------------- IQL
+ACTOR_DISTRIBUTIONS = ("gaussian", "tanh_normal")
+"""``actor.distribution`` of the AWR baselines: ``gaussian`` (CORL's and d3rlpy's IQL actor,
+the default) or ``tanh_normal`` (TorchRL's ``TanhNormal`` with a state-dependent scale)."""
+
+
+@dataclass
+class IQLActorSettings:
+    """``algo/iql.yaml``'s ``actor``: the Gaussian MLP actor and its AWR loss."""
+
+    hidden: int = key(Integer(1), "MLP width of the actor")
+    depth: int = key(Integer(1), "hidden layers of the actor")
+    lr: float = key(Real(0, low_open=True), "Adam learning rate")
+    temperature: float = key(Real(0), "β of exp(β (Q - V)), clipped at 100 by IQLLoss")
+    distribution: str = key(
+        Choice(ACTOR_DISTRIBUTIONS),
+        "gaussian: N(tanh mean on the box, state-independent σ) as CORL and d3rlpy; "
+        "tanh_normal: TorchRL's TanhNormal(loc(s), scale(s))",
+    )
+
+
+IQL = Algorithm(
+    sections={"actor": IQLActorSettings, "online": OnlineSettings},
+    critics=("iql",),
+    check=check_nothing,
+    learner=Ref("torchrl_dual.recipe.algos.iql:IQLLearner"),
+)
+
+
+_DUAL_LAPLACE = {f.name: f for f in dataclasses.fields(LaplaceSettings)}
+
+
+def _dual_laplace_key(name: str) -> Any:
+    """DUAL's ``laplace.<name>`` key: the same rule and meaning."""
+    return dataclasses.field(metadata=_DUAL_LAPLACE[name].metadata)
+
+
+@dataclass
+class IQLLALaplaceSettings:
+    """``algo/iql_la.yaml``'s ``laplace``: DUAL's keys of Eq. (8-9) that apply to a plain
+    actor (``M`` and the prior, with DUAL's rules) and where ``σ̄`` comes from."""
+
+    num_samples: int = _dual_laplace_key("num_samples")
+    prior_precision: Any = _dual_laplace_key("prior_precision")
+    posterior_temperature: Any = _dual_laplace_key("posterior_temperature")
+    noise_std: Any = key(
+        Either(
+            (Choice(("iql",)), Real(0, 2, low_open=True)), "must be 'iql' or a number in (0, 2]"
+        ),
+        "σ̄: the IQL actor's RMS std at each fit, or a fixed value",
+    )
+
+
+IQL_LA = Algorithm(
+    sections={
+        "actor": IQLActorSettings,
+        "laplace": IQLLALaplaceSettings,
+        "exploration": NoShiftExplorationSettings,
+        "online": OnlineSettings,
+    },
+    critics=("iql",),
+    check=check_no_shift_weight,
+    learner=Ref("torchrl_dual.recipe.algos.iql_la:IQLLALearner"),
+)
+
+
+# ----------------------------------------------------------------------------- Diff-QL
+DIFFQL_ACTIVATIONS = ("silu", "mish")
+"""``actor.activation`` (the keys of :data:`~torchrl_dual.recipe.algos.diffql.ACTIVATIONS`):
+``silu`` (TorchRL's ``DiffusionActor`` default) or ``mish`` (Wang et al.'s; on one CPU
+thread its forward and backward cost 4x SiLU's)."""
+
+
+@dataclass
+class DiffQLActorSettings:
+    """``algo/diffql*.yaml``'s ``actor``: the DDPM actor and its loss."""
+
+    num_steps: int = key(Integer(1), "N: DDPM denoising steps")
+    hidden: int = key(Integer(1), "width of the score network")
+    depth: int = key(Integer(1), "hidden layers of the score network")
+    activation: str = key(Choice(DIFFQL_ACTIVATIONS), "activation of the score network")
+    lr: float = key(Real(0, low_open=True), "Adam learning rate")
+    eta: float = key(Real(0), "η: weight of the normalised Q-term")
+    max_grad_norm: float = key(Real(0, low_open=True), "clip of the actor's gradient norm")
+
+
+@dataclass
+class DiffQLLaplaceSettings:
+    """``algo/diffql_la.yaml``'s ``laplace``: Eq. (8-9) on the last DDPM step."""
+
+    num_samples: int = key(Integer(0), "M sub-policies; 0 = no epistemic UQ (MAP mean, σ̄)")
+    prior_precision: Any = key(
+        Either(
+            (Choice(("evidence",)), Real(0, low_open=True)), "must be 'evidence' or a number > 0"
+        ),
+        "λ of the Gaussian prior",
+    )
+    posterior_temperature: Any = key(
+        Either((Choice(("data",)), Real(0, low_open=True)), "must be 'data' or a number > 0"),
+        "T: the posterior covariance × T (1: the summed loss); data: Eq. 7's mean loss",
+    )
+    temperature: float = key(Real(0), "β of the Laplace fit's weights exp(β (Q - V))")
+    max_weight: float = key(Real(0, low_open=True), "clip of those weights")
+
+
+DIFFQL = Algorithm(
+    sections={"actor": DiffQLActorSettings, "online": OnlineSettings},
+    critics=("iql",),
+    check=check_nothing,
+    learner=Ref("torchrl_dual.recipe.algos.diffql:DiffQLLearner"),
+)
+
+
+DIFFQL_LA = Algorithm(
+    sections={
+        "actor": DiffQLActorSettings,
+        "laplace": DiffQLLaplaceSettings,
+        "exploration": NoShiftExplorationSettings,
+        "online": OnlineSettings,
+    },
+    critics=("iql",),
+    check=check_no_shift_weight,
+    learner=Ref("torchrl_dual.recipe.algos.diffql:DiffQLLALearner"),
+)
+
+
+# ----------------------------------------------------------------------------- DACER
+@dataclass
+class DACERSettings:
+    """``algo/dacer.yaml``'s ``dacer``: the entropy regulator of the online phase."""
+
+    noise_scale: float = key(Real(0, low_open=True), "noise std per unit of α")
+    init_alpha: float = key(Real(0, low_open=True), "α when the online phase starts")
+    target_entropy: Any = key(Maybe(Real()), "H̄ in nats; null: DACER's −0.9 · dim(A)")
+    alpha_lr: float = key(Real(0, low_open=True), "Adam learning rate of log α")
+    entropy_every: int = key(Integer(1), "online updates between entropy estimates")
+    num_states: int = key(Integer(1), "states of the update's batch Ĥ is averaged over")
+    num_samples: int = key(Integer(1), "K: exploration actions sampled per state")
+    num_components: int = key(Integer(1), "C: components of the Gaussian mixture")
+
+
+def check_dacer(cfg: DictConfig) -> None:
+    """``dacer.num_samples >= dacer.num_components`` (EM needs a sample per component) and
+    ``dacer.num_states <= online.batch_size`` (the states come from the update's batch)."""
+    d = cfg.dacer
+    if d.num_samples < d.num_components:
+        raise ConfigError(
+            "dacer.num_samples",
+            d.num_samples,
+            f"must be >= dacer.num_components={d.num_components}: the Gaussian mixture "
+            "needs at least one sampled action per component",
+        )
+    if d.num_states > cfg.online.batch_size:
+        raise ConfigError(
+            "dacer.num_states",
+            d.num_states,
+            f"must be <= online.batch_size={cfg.online.batch_size}: the entropy is "
+            "estimated on states of the update's batch",
+        )
+
+
+DACER = Algorithm(
+    sections={"actor": DiffQLActorSettings, "dacer": DACERSettings, "online": OnlineSettings},
+    critics=("iql",),
+    check=check_dacer,
+    learner=Ref("torchrl_dual.recipe.algos.dacer:DACERLearner"),
+)
+
+
+# ----------------------------------------------------------------------------- Diffuser
+@dataclass
+class DiffuserSettings:
+    """How the ``N``-step plan explores online."""
+
+    sampler: str = key(Choice(SAMPLERS), "sampler of the exploration plans (random latent)")
+
+
+DIFFUSER = Algorithm(
+    sections={"planner": PlannerSettings, "diffuser": DiffuserSettings, "online": OnlineSettings},
+    critics=("iql",),  # the critic section is not read: the Diffuser has no critic
+    check=check_planner_window,
+    learner=Ref("torchrl_dual.recipe.algos.diffuser:DiffuserLearner"),
+)
+
+
+# ----------------------------------------------------------------------------- EDIS
+def check_edis(cfg: DictConfig) -> None:
+    """The window fits an episode; EDIS is IQL plus the augmentation, so it is on."""
+    check_planner_window(cfg)
+    if cfg.augment.kind != "planner":
+        raise ConfigError(
+            "augment.kind",
+            cfg.augment.kind,
+            "must be planner for algo=edis (EDIS is IQL plus planner augmentation; IQL "
+            "alone is algo=iql)",
+        )
+    check_augment(cfg)
+
+
+EDIS = Algorithm(
+    sections={
+        "planner": PlannerSettings,
+        "actor": IQLActorSettings,
+        "online": OnlineSettings,
+        "augment": AugmentSettings,
+    },
+    critics=("iql",),
+    check=check_edis,
+    learner=Ref("torchrl_dual.recipe.algos.edis:EDISLearner"),
+)
+
+
+# ----------------------------------------------------------------------------- Cal-QL
+@dataclass
+class CalQLActorSettings:
+    """``algo/calql.yaml``'s ``actor``: the tanh-Gaussian MLP actor (SAC actor loss)."""
+
+    hidden: int = key(Integer(1), "MLP width of the actor")
+    depth: int = key(Integer(1), "hidden layers of the actor")
+    lr: float = key(Real(0, low_open=True), "Adam learning rate of the actor and of log α")
+
+
+CALQL = Algorithm(
+    sections={"actor": CalQLActorSettings, "online": OnlineSettings},
+    critics=("calql",),
+    check=check_nothing,
+    learner=Ref("torchrl_dual.recipe.algos.calql:CalQLLearner"),
+)
+
+
+# ----------------------------------------------------------------------------- SO2
+@dataclass
+class SO2ActorSettings:
+    """``algo/so2.yaml``'s ``actor``: the tanh-Gaussian MLP actor (SAC actor loss)."""
+
+    hidden: int = key(Integer(1), "MLP width of the actor")
+    depth: int = key(Integer(1), "hidden layers of the actor")
+    lr: float = key(Real(0, low_open=True), "Adam learning rate of the actor")
+
+
+SO2 = Algorithm(
+    sections={"actor": SO2ActorSettings, "online": OnlineSettings},
+    critics=("so2",),
+    check=check_nothing,
+    learner=Ref("torchrl_dual.recipe.algos.so2:SO2Learner"),
+)

@@ -1,0 +1,277 @@
+"""The schema of the offline-to-online run's own parts: the online replay
+(:data:`REPLAYS`), the collector (:data:`COLLECTORS`), the metrics logger
+(:data:`LOGGERS`) and the output directory, with their checks.
+
+Builders are :class:`~torchrl_dual.recipe.settings.lazy.Ref` s into
+:mod:`torchrl_dual.recipe.o2o`, imported when a run starts.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NamedTuple
+
+from omegaconf import DictConfig
+
+from torchrl_dual.recipe.settings.errors import ConfigError
+from torchrl_dual.recipe.settings.lazy import Ref
+from torchrl_dual.recipe.settings.rules import Choice, Flag, Integer, Maybe, Real, Text, key
+
+
+@dataclass
+class ReplaySettings:
+    """``replay/mixed.yaml``: the name only (the offline share is ``online.offline_fraction``)."""
+
+    name: str = key(Text(), "the REPLAYS entry")
+
+
+@dataclass
+class BalancedReplaySettings(ReplaySettings):
+    """``replay/balanced.yaml``: OFF2ON's density-ratio network and priorities."""
+
+    temperature: float = key(Real(0, low_open=True), "T of the priorities w^(1/T) (OFF2ON: 5)")
+    hidden: int = key(Integer(1), "MLP width of the density-ratio network")
+    depth: int = key(Integer(1), "hidden layers of the density-ratio network")
+    lr: float = key(Real(0, low_open=True), "Adam learning rate of the density-ratio network")
+    ratio_batch_size: int = key(Integer(1), "offline and online transitions (each) per ratio step")
+
+
+class ReplayKind(NamedTuple):
+    """One ``replay.name``: its schema and its builder."""
+
+    settings: type
+    """The dataclass of ``replay.*`` (checked by ``validate_config``)."""
+    make: Callable[..., Any]
+    """``run -> Replay`` (:class:`~torchrl_dual.recipe.o2o.replays.Replay`)."""
+
+
+_REPLAYS = "torchrl_dual.recipe.o2o.replays"
+
+REPLAYS: dict[str, ReplayKind] = {
+    "mixed": ReplayKind(ReplaySettings, Ref(f"{_REPLAYS}:make_mixed_replay")),
+    "balanced": ReplayKind(BalancedReplaySettings, Ref(f"{_REPLAYS}:BalancedReplay")),
+}
+"""``replay.name`` -> its :class:`ReplayKind`."""
+
+
+@dataclass
+class CollectorSettings:
+    """``collector/single.yaml``: the name only (one process, the run's own env)."""
+
+    name: str = key(Text(), "the COLLECTORS entry")
+
+
+@dataclass
+class MultiCollectorSettings(CollectorSettings):
+    """``collector/multi_sync.yaml`` and ``collector/multi_async.yaml``."""
+
+    num_workers: int = key(Integer(1), "worker processes, each stepping its own env")
+
+
+@dataclass
+class RayCollectorSettings(CollectorSettings):
+    """``collector/ray.yaml`` (:mod:`torchrl_dual.recipe.o2o.ray_collector`)."""
+
+    num_workers: int = key(Integer(1), "remote collectors (Ray actors), each stepping an env")
+    sync: bool = key(Flag(), "true: batches stacked as multi_sync; false: first come")
+    address: Any = key(Maybe(Text()), "the Ray cluster (null: a running one, else local)")
+
+
+def check_worker_count(cfg: DictConfig) -> None:
+    """``collector.num_workers`` with ``collector=single`` (run before the key checks, which
+    would only call it an unknown key)."""
+    if cfg.collector.name == "single" and "num_workers" in cfg.collector:
+        raise ConfigError(
+            "collector.num_workers",
+            cfg.collector.num_workers,
+            "collector=single collects in this process; choose collector=multi_sync or "
+            "collector=multi_async for worker processes, collector=ray for Ray actors",
+        )
+
+
+def check_collector(cfg: DictConfig) -> None:
+    """The combinations of ``collector.*`` with other keys that cannot work."""
+    name = cfg.collector.name
+    if name == "single":
+        return
+    if name == "ray":
+        check_ray_collector(cfg)
+    workers = cfg.collector.num_workers
+    stacked = name == "multi_sync" or (name == "ray" and cfg.collector.sync)
+    if stacked and cfg.budget.frames_per_batch % workers:  # one slice per worker
+        sync = " collector.sync=true" if name == "ray" else ""
+        raise ConfigError(
+            "budget.frames_per_batch",
+            cfg.budget.frames_per_batch,
+            f"collector={name}{sync} splits each batch over collector.num_workers={workers}: "
+            "use a multiple of it",
+        )
+    if cfg.critic.name == "calql":
+        raise ConfigError(
+            "collector",
+            name,
+            "critic=calql labels one stream of online episodes with Monte-Carlo returns; "
+            "use collector=single with it",
+        )
+
+
+class CollectorKind(NamedTuple):
+    """One ``collector.name``: its schema, how the run builds it, how weights reach it."""
+
+    settings: type
+    """The dataclass of ``collector.*`` (checked by ``validate_config``)."""
+    make: Callable[..., Any]
+    """``(run, total_frames) -> collector``, acting with the learner's exploration policy."""
+    push: Callable[..., None]
+    """``(collector, policy) -> None``, after every update block: the policy's current
+    parameters and buffers reach the collector's next batch."""
+
+
+_COLLECTORS = "torchrl_dual.recipe.o2o.collectors"
+_RAY = "torchrl_dual.recipe.o2o.ray_collector"
+
+COLLECTORS: dict[str, CollectorKind] = {
+    "single": CollectorKind(
+        CollectorSettings, Ref(f"{_COLLECTORS}:make_single"), Ref(f"{_COLLECTORS}:push_nothing")
+    ),
+    "multi_sync": CollectorKind(
+        MultiCollectorSettings,
+        Ref(f"{_COLLECTORS}:make_multi_sync"),
+        Ref(f"{_COLLECTORS}:push_to_processes"),
+    ),
+    "multi_async": CollectorKind(
+        MultiCollectorSettings,
+        Ref(f"{_COLLECTORS}:make_multi_async"),
+        Ref(f"{_COLLECTORS}:push_to_processes"),
+    ),
+    "ray": CollectorKind(
+        RayCollectorSettings, Ref(f"{_RAY}:make_ray"), Ref(f"{_RAY}:push_to_actors")
+    ),
+}
+"""``collector.name`` -> its :class:`CollectorKind`."""
+
+
+INSTALL_RAY = 'pip install "torchrl-dual[ray]"'
+
+
+def ray_installed() -> bool:
+    """Whether Ray can be imported (without importing it)."""
+    return importlib.util.find_spec("ray") is not None
+
+
+def check_ray_collector(cfg: DictConfig) -> None:
+    """What ``collector=ray`` needs beyond the process collectors' checks
+    (:func:`check_collector`): Ray, and ``device=cpu``."""
+    if not ray_installed():
+        raise ConfigError("collector", "ray", f"needs Ray, which is not installed: {INSTALL_RAY}")
+    if cfg.device != "cpu":
+        raise ConfigError(
+            "device",
+            cfg.device,
+            "collector=ray's remote collectors act on the CPUs of the Ray nodes: use "
+            "device=cpu with it, or collector=multi_sync / multi_async on this machine",
+        )
+
+
+WANDB_MODES = ("offline", "online", "disabled")
+
+
+@dataclass
+class LoggerSettings:
+    """``logger/*.yaml``: the keys every backend has."""
+
+    backend: str = key(Text(), "the LOGGERS entry (torchrl.record.loggers.get_logger type)")
+
+
+@dataclass
+class WandbSettings(LoggerSettings):
+    """``logger/wandb.yaml``: where the Weights & Biases run goes (``wandb.init``)."""
+
+    project: str = key(Text(), "W&B project")
+    entity: Any = key(Maybe(Text()), "W&B user or team; null: the account's default")
+    mode: str = key(Choice(WANDB_MODES), "offline: local files only, no account (wandb sync)")
+
+
+@dataclass(frozen=True)
+class LoggerBackend:
+    """One ``logger.backend``: its config schema, the package it needs and how to install
+    it, and whether TorchRL can resume it from a checkpoint."""
+
+    settings: type
+    package: str | None = None
+    install: str | None = None
+    resumable: bool = False
+
+
+LOGGERS: dict[str, LoggerBackend] = {
+    "csv": LoggerBackend(LoggerSettings, resumable=True),
+    "tensorboard": LoggerBackend(
+        LoggerSettings, "tensorboard", "pip install 'torchrl-dual[tensorboard]'", True
+    ),
+    "wandb": LoggerBackend(WandbSettings, "wandb", "pip install 'torchrl-dual[wandb]'", True),
+    "mlflow": LoggerBackend(LoggerSettings, "mlflow", "pip install mlflow"),
+    "trackio": LoggerBackend(LoggerSettings, "trackio", "pip install trackio"),
+}
+"""``torchrl.record.loggers.get_logger``'s backends (TorchRL 0.14.1); ``resumable``: its
+``state_dict=`` accepts them."""
+
+
+def check_logger(cfg: DictConfig) -> None:
+    """What ``cfg.logger`` asks of the machine: the backend's package, and a backend that
+    resumes when ``resume=true``.
+
+    Examples:
+        >>> from omegaconf import OmegaConf
+        >>> check_logger(OmegaConf.create({"logger": {"backend": "mlflow"}, "resume": True}))
+        Traceback (most recent call last):
+        ...
+        torchrl_dual.recipe.settings.errors.ConfigError: logger.backend=mlflow: ...
+    """
+    backend = LOGGERS[cfg.logger.backend]
+    if backend.package is not None and importlib.util.find_spec(backend.package) is None:
+        raise ConfigError(
+            "logger.backend",
+            cfg.logger.backend,
+            f"needs the {backend.package} package ({backend.install})",
+        )
+    if cfg.resume and not backend.resumable:
+        resumable = [name for name, b in LOGGERS.items() if b.resumable]
+        raise ConfigError(
+            "logger.backend",
+            cfg.logger.backend,
+            f"cannot resume (resume=true); use one of {', '.join(resumable)}",
+        )
+
+
+def check_output_dir(cfg: DictConfig) -> None:
+    """``output_dir`` must be a directory (or not exist yet) that this process can create
+    and write, and hold no checkpoint unless ``resume=true``: a fresh run never overwrites
+    another run's checkpoint. Writability is probed with a temporary folder in the nearest
+    existing ancestor (removed at once), so a failed check leaves nothing behind."""
+    output_dir = Path(cfg.output_dir)
+    for path in (output_dir, *output_dir.parents):
+        if path.exists() and not path.is_dir():
+            raise ConfigError("output_dir", cfg.output_dir, f"{path} is a file, not a directory")
+    existing = next(p for p in (output_dir, *output_dir.parents) if p.exists())
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".write-probe-", dir=existing))
+    except OSError as err:
+        raise ConfigError(
+            "output_dir",
+            cfg.output_dir,
+            f"cannot be created or written in {existing} ({err.strerror}); choose a "
+            "directory you can write to",
+        ) from None
+    checkpoint = output_dir / "checkpoint.pt"
+    if checkpoint.exists() and not cfg.resume:
+        raise ConfigError(
+            "resume",
+            False,
+            f"{checkpoint} exists: pass resume=true to continue that run, or choose "
+            "another output_dir (or delete it) to start afresh",
+        )
