@@ -414,3 +414,15 @@ def test_commit_speed_imports_each_side_from_its_own_exported_tree(tmp_path):
     assert (tree / "recipes" / "o2o.py").is_file() and not (tree / ".git").exists()
     assert commit_speed.imported_from(tree, tmp_path) == tree
     assert commit_speed.imported_from(REPO, tmp_path) == REPO
+
+
+def test_config_error_time_measures_the_bad_value_and_its_floor(monkeypatch):
+    """The benchmark's commands behave as it expects (exit 2 and one error line for the
+    bad value); timed once, without the heavy imports."""
+    import config_error_time
+
+    commands = {k: config_error_time.COMMANDS[k] for k in ("bad value", "python")}
+    monkeypatch.setattr(config_error_time, "COMMANDS", commands)
+    medians = config_error_time.measure(1, cwd=REPO)
+    assert set(medians) == {"bad value", "python"}
+    assert all(seconds > 0 for seconds in medians.values())

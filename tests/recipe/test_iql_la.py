@@ -188,7 +188,7 @@ def test_a_resumed_run_restores_the_ensemble_and_acts_like_the_checkpointed_one(
     resumed = O2ORun(cfg, IQLLALearner).learner
     for name in ("weight_deviation", "bias_deviation", "actor.log_std", "laplace.theta_map"):
         torch.testing.assert_close(resumed.ensemble.state_dict()[name], saved["ensemble"][name])
-    assert resumed.updates_since_refit == saved["learner"]["updates_since_refit"]
+    assert resumed.refits.since == saved["learner"]["updates_since_refit"]
     # the trained IQL actor came back through IQL's loss, and with it the shared head
     for name, value in frozenlake.learner.actor.state_dict().items():
         torch.testing.assert_close(resumed.actor.state_dict()[name], value, msg=name)

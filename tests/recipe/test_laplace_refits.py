@@ -54,9 +54,9 @@ def test_the_laplace_stage_follows_the_base_stages_and_resets_the_count():
     learner = _Refitted(refit_every=3)
     stages = learner.offline_stages()
     assert [name for name, _ in stages] == ["actor_critic", "laplace"]
-    learner.updates_since_refit = 5
+    learner.refits.since = 5
     stages[1][1]()
-    assert (learner.fits, learner.updates_since_refit) == (1, 0)
+    assert (learner.fits, learner.refits.since) == (1, 0)
 
 
 @pytest.mark.parametrize("block", [1, 2, 3, 5])
@@ -68,7 +68,7 @@ def test_refits_once_refit_every_updates_have_accumulated_after_a_block(block):
     assert learner.updates == 6 * block  # the base learner's update ran every time
     blocks_per_fit = -(-3 // block)  # ceil(3 / block)
     assert learner.fits == 6 // blocks_per_fit
-    assert learner.updates_since_refit == (6 % blocks_per_fit) * block
+    assert learner.refits.since == (6 % blocks_per_fit) * block
 
 
 def test_the_count_is_checkpointed_with_the_base_state_and_metrics_add_epistemic_std():
@@ -79,7 +79,7 @@ def test_the_count_is_checkpointed_with_the_base_state_and_metrics_add_epistemic
     assert state == {"updates": 4, "updates_since_refit": 4}
     fresh = _Refitted(refit_every=10)
     fresh.load_state_dict(state)
-    assert (fresh.updates, fresh.updates_since_refit) == (4, 4)
+    assert (fresh.updates, fresh.refits.since) == (4, 4)
     batch = TensorDict(epistemic_variance=torch.full((5, 2), 0.25), batch_size=[5])
     assert learner.batch_metrics(batch) == {"base": 2.0, "epistemic_std": 0.5}
 

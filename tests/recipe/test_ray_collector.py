@@ -29,8 +29,8 @@ from test_collectors import (
 )
 
 from torchrl_dual.recipe import O2ORun, compose_checked, run
-from torchrl_dual.recipe.o2o import ray_collector
 from torchrl_dual.recipe.o2o.ray_collector import InterleavedTrajectories
+from torchrl_dual.recipe.settings import o2o as o2o_settings
 from torchrl_dual.recipe.settings.errors import ConfigError, UserError
 from torchrl_dual.recipe.settings.o2o import COLLECTORS
 
@@ -170,7 +170,7 @@ def test_interleaved_trajectory_ids_are_unique_across_collectors():
     ],
 )
 def test_collector_ray_config_errors(overrides, message, tmp_path, monkeypatch):
-    monkeypatch.setattr(ray_collector, "ray_installed", lambda: True)
+    monkeypatch.setattr(o2o_settings, "ray_installed", lambda: True)
     base = ["collector=ray", f"output_dir={tmp_path / 'run'}", "data_cache_dir=null"]
     with pytest.raises(ConfigError) as error:
         compose_checked(CONFIG_DIR, [*base, *overrides])
@@ -178,7 +178,7 @@ def test_collector_ray_config_errors(overrides, message, tmp_path, monkeypatch):
 
 
 def test_collector_ray_without_ray_names_the_extra_to_install(tmp_path, monkeypatch):
-    monkeypatch.setattr(ray_collector, "ray_installed", lambda: False)
+    monkeypatch.setattr(o2o_settings, "ray_installed", lambda: False)
     with pytest.raises(ConfigError) as error:
         compose_checked(CONFIG_DIR, ["collector=ray", f"output_dir={tmp_path / 'run'}"])
     assert str(error.value) == (

@@ -11,7 +11,10 @@ from torch import Tensor
 from torchrl.data.tensor_specs import BoundedContinuous, Composite, TensorSpec
 
 from torchrl_dual.modules.actors.last_layer_actor import LastLayerActor
-from torchrl_dual.modules.exploration.shift_aware_noise import ShiftAwareNoise
+from torchrl_dual.modules.exploration.shift_aware_noise import (
+    DEFAULT_SHIFT_WEIGHT,
+    ShiftAwareNoise,
+)
 from torchrl_dual.modules.laplace.laplace_ensemble_actor import LaplaceEnsembleActor
 from torchrl_dual.modules.laplace.latent_ensemble_actor import LatentEnsembleActor
 from torchrl_dual.modules.planner.transition_model import TransitionModel
@@ -29,7 +32,7 @@ def make_dual_policy(
     num_samples: int = 5,
     prior_precision: str | float = "evidence",
     posterior_temperature: str | float = 1.0,
-    shift_weight: float = 0.5,
+    shift_weight: float = DEFAULT_SHIFT_WEIGHT,
     uncertainty: str = "laplace",
     action_projection: Callable[[Tensor], Tensor] | None = None,
     return_log_prob: bool = False,

@@ -13,6 +13,9 @@ from torchrl.data.tensor_specs import BoundedContinuous, Composite, TensorSpec
 from torchrl_dual._utils import is_deterministic, read_key
 from torchrl_dual.modules._gaussian import gaussian_log_prob
 
+DEFAULT_SHIFT_WEIGHT = 0.5
+"""λ of Eq. (10) by default (the paper's; ``algo/dual.yaml`` sets the recipe's)."""
+
 __all__ = ["ShiftAwareNoise"]
 
 
@@ -143,7 +146,7 @@ class ShiftAwareNoise(TensorDictModuleBase):
     def __init__(
         self,
         spec: TensorSpec | None = None,
-        shift_weight: float = 0.5,
+        shift_weight: float = DEFAULT_SHIFT_WEIGHT,
         *,
         shift_floor: float = 0.0,
         extra_variance: float = 0.0,

@@ -20,7 +20,7 @@ from torchrl_dual.recipe.o2o.loop import run_o2o
 from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.parts import networks
 from torchrl_dual.recipe.parts.critics import policy_view
-from torchrl_dual.recipe.parts.laplace_refits import ensemble_signals
+from torchrl_dual.recipe.parts.laplace_refits import RefitSchedule, ensemble_signals
 from torchrl_dual.recipe.parts.mc_labels import MonteCarloLabels
 from torchrl_dual.recipe.parts.planner_augment import augment_capacity, make_augmenter
 from torchrl_dual.recipe.parts.planner_stage import offline_windows, pretrain_planner
@@ -72,7 +72,7 @@ class DualLearner(Learner):
         self.noise = next(m for m in self.policy.modules() if isinstance(m, ShiftAwareNoise))
         self.noise.extra_variance = float(cfg.exploration.extra_variance)  # v_c, beyond Eq. 10
         self.evaluation_policy = self.ensemble  # the MAP mean under DETERMINISTIC
-        self.updates_since_refit = 0
+        self.refits = RefitSchedule(cfg.budget.laplace_refit_every)  # Alg. 1 l. 17
         # augment.kind=planner: guided teacher windows added to D_online (Alg. 1 l. 14);
         # built last, so the networks above get the same weights either way
         self.augmenter = make_augmenter(run, self.teacher)
@@ -105,7 +105,7 @@ class DualLearner(Learner):
 
     def state_dict(self) -> dict:
         state = {
-            "updates_since_refit": self.updates_since_refit,
+            "updates_since_refit": self.refits.since,
             "shift_floor": float(self.noise.shift_floor),
         }
         if self.augmenter:
@@ -115,7 +115,7 @@ class DualLearner(Learner):
         return state
 
     def load_state_dict(self, state: dict) -> None:
-        self.updates_since_refit = state["updates_since_refit"]
+        self.refits.since = state["updates_since_refit"]
         self.noise.shift_floor.fill_(state.get("shift_floor", 0.0))  # 0: before the floor
         if self.augmenter and "augment" in state:  # absent: a shared offline phase
             self.augmenter.load_state_dict(state["augment"])  # written without one
@@ -149,14 +149,14 @@ class DualLearner(Learner):
         self.actor_optimizer.zero_grad(set_to_none=True)
         out["loss_actor"].backward()
         self.actor_optimizer.step()
-        self.updates_since_refit += 1
+        self.refits.count()
         return {k: v.detach() for k, v in {**critic, **out}.items()}
 
     def after_updates(self) -> None:
         """Alg. 1 line 17: refit the posterior once ``budget.laplace_refit_every`` updates
         have accumulated since the last fit; then line 14 (``augment.kind=planner``): add
         guided planner transitions to D_online for the next block when due."""
-        if self.updates_since_refit >= self.cfg.budget.laplace_refit_every:
+        if self.refits.due:
             self.fit_laplace()
         if self.augmenter:
             self.augmenter.after_updates()
@@ -201,7 +201,7 @@ class DualLearner(Learner):
         """Alg. 1 lines 9 and 17: last-layer Laplace of L_π on D (Eq. 8); skipped in the
         no-UQ ablation (``laplace.num_samples=0``), which never draws from the posterior,
         and in the latent-UQ one (``laplace.uq=latent``), which has none."""
-        self.updates_since_refit = 0
+        self.refits.reset()
         if not self.uses_posterior:
             return
         with torch.no_grad():

@@ -48,6 +48,40 @@ def ensemble_signals(batch: TensorDictBase) -> dict[str, float]:
     return signals
 
 
+class RefitSchedule:
+    """Alg. 1 line 17's schedule, the one home of it: the posterior is refitted after the
+    first block of updates that brings the count since the last fit to ``every``
+    (``budget.laplace_refit_every``). The count is checkpointed by the learner.
+
+    Examples:
+        >>> schedule = RefitSchedule(every=3)
+        >>> for _ in range(2):
+        ...     schedule.count()
+        >>> schedule.due
+        False
+        >>> schedule.count(); schedule.due
+        True
+        >>> schedule.reset(); schedule.since
+        0
+    """
+
+    def __init__(self, every: int) -> None:
+        self.every, self.since = int(every), 0
+
+    def count(self) -> None:
+        """One more gradient update since the last fit."""
+        self.since += 1
+
+    @property
+    def due(self) -> bool:
+        """Whether a refit is due (checked after each block of updates)."""
+        return self.since >= self.every
+
+    def reset(self) -> None:
+        """A fit happened."""
+        self.since = 0
+
+
 class LaplaceRefits:
     """Mixin: Eq. (8)'s posterior fitted after the base learner's offline stages and
     refitted on ``D_offline ∪ D_online`` every ``budget.laplace_refit_every`` updates.
@@ -65,7 +99,13 @@ class LaplaceRefits:
     actor: nn.Module
     ensemble: LaplaceEnsembleActor
     laplace_weight_fn: Callable[[TensorDictBase], torch.Tensor] | None = None
-    updates_since_refit: int = 0
+
+    @property
+    def refits(self) -> RefitSchedule:
+        """The :class:`RefitSchedule` (made on first use from ``budget.laplace_refit_every``)."""
+        if "_refits" not in self.__dict__:
+            self._refits = RefitSchedule(self.run.cfg.budget.laplace_refit_every)
+        return self._refits
 
     def act_with_ensemble(self, actor: LastLayerActor) -> None:
         """Acts online with the Laplace ensemble over ``actor`` (Eq. 9, ``M =
@@ -119,7 +159,7 @@ class LaplaceRefits:
 
     def refit(self) -> None:
         """Resets the count, then :meth:`fit_laplace`."""
-        self.updates_since_refit = 0
+        self.refits.reset()
         self.fit_laplace()
 
     def offline_stages(self) -> list:
@@ -127,23 +167,23 @@ class LaplaceRefits:
 
     def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor | float]:
         metrics = super().update(batch)
-        self.updates_since_refit += 1
+        self.refits.count()
         return metrics
 
     def after_updates(self) -> None:
         """Alg. 1 line 17: refit once ``budget.laplace_refit_every`` updates accumulated."""
-        if self.updates_since_refit >= self.run.cfg.budget.laplace_refit_every:
+        if self.refits.due:
             self.refit()
 
     def batch_metrics(self, batch: TensorDictBase) -> dict[str, float]:
         return {**super().batch_metrics(batch), **ensemble_signals(batch)}
 
     def state_dict(self) -> dict[str, Any]:
-        return {**super().state_dict(), "updates_since_refit": self.updates_since_refit}
+        return {**super().state_dict(), "updates_since_refit": self.refits.since}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         super().load_state_dict(state)
-        self.updates_since_refit = state["updates_since_refit"]
+        self.refits.since = state["updates_since_refit"]
 
 
 class EnsembleOwnState:
