@@ -196,3 +196,24 @@ def test_no_import_cycles_in_the_benchmarks():
 
     assert len(files) > 10
     assert _cycles(_import_graph(files, resolve)) == []
+
+
+def test_the_benchmarks_import_public_names_only():
+    """No benchmark imports a private module or name of the package (a ``_`` prefix)."""
+    folder = PACKAGE.parent / "benchmarks"
+    private = []
+    for path in sorted(folder.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("torchrl_dual"):
+                names = [*node.module.split("."), *(alias.name for alias in node.names)]
+            elif isinstance(node, ast.Import):
+                names = [
+                    p
+                    for a in node.names
+                    if a.name.startswith("torchrl_dual")
+                    for p in a.name.split(".")
+                ]
+            else:
+                continue
+            private += [f"{path.name}: {n}" for n in names if n.startswith("_")]
+    assert private == []

@@ -27,8 +27,8 @@ from torchrl_dual.recipe import CONFIG_DIR, ConfigError, UserError, compose_chec
 from torchrl_dual.recipe.kits import build as env_kits  # noqa: E402
 from torchrl_dual.recipe.kits.minari_families import (  # noqa: E402
     OBSERVATION_STD_EPS,
-    _gym_env,
     check_observation_layout,
+    minari_gym_env,
 )
 
 ANTMAZE_ID, HOPPER_ID, PEN_ID = (
@@ -138,8 +138,8 @@ def test_online_env_is_the_data_sets_env_behind_the_same_observation_map(minari_
     assert rollout["observation"].shape == (10, 31)
     assert torch.all(rollout["next", "reward"] == -1.0)  # far from the goal: r = 0, then r - 1
     assert rollout["next", "truncated"][-1].item()
-    train = _gym_env(cfg, data, eval_env=False, shifted=False)
-    evaluation = _gym_env(cfg, data, eval_env=True, shifted=False)
+    train = minari_gym_env(cfg, data, eval_env=False, shifted=False)
+    evaluation = minari_gym_env(cfg, data, eval_env=True, shifted=False)
     assert train.unwrapped.maze.maze_map == UMAZE_MAP
     assert evaluation.unwrapped.maze.maze_map == UMAZE_EVAL_MAP
     assert np.array_equal(train.loc, np.asarray(data.metadata["observation_loc"], np.float32))
@@ -280,9 +280,13 @@ def test_an_odrl_shift_reaches_the_online_and_evaluation_envs_not_the_data(minar
     data = env_kits.make_offline_dataset(cfg)
     plain = env_kits.make_offline_dataset(plain_cfg)
     assert (data.transitions == plain.transitions).all()
-    gravity = _gym_env(plain_cfg, plain, eval_env=True, shifted=True).unwrapped.model.opt.gravity
+    gravity = minari_gym_env(
+        plain_cfg, plain, eval_env=True, shifted=True
+    ).unwrapped.model.opt.gravity
     for eval_env in (False, True):
-        shifted = _gym_env(cfg, data, eval_env=eval_env, shifted=True).unwrapped.model.opt.gravity
+        shifted = minari_gym_env(
+            cfg, data, eval_env=eval_env, shifted=True
+        ).unwrapped.model.opt.gravity
         assert np.allclose(shifted, 2.0 * gravity)
     online = env_kits.make_train_env(cfg, data)
     assert np.allclose(online.base_env._env.unwrapped.model.opt.gravity, 2.0 * gravity)

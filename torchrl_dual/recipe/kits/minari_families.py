@@ -142,7 +142,7 @@ def minari_data(cfg: DictConfig) -> OfflineDataset:
 
 
 # ----------------------------------------------------------------------------- envs
-def _gym_env(cfg: DictConfig, data: OfflineDataset, *, eval_env: bool, shifted: bool):
+def minari_gym_env(cfg: DictConfig, data: OfflineDataset, *, eval_env: bool, shifted: bool):
     """The data set's (evaluation) env, shifted if asked, behind the data's observation map."""
     import minari
 
@@ -168,7 +168,7 @@ def minari_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
     if data is None:  # its observation normalization and reward scale come from the data
         data = minari_data(cfg)
     return make_flat_env(
-        _gym_env(cfg, data, eval_env=False, shifted=True),
+        minari_gym_env(cfg, data, eval_env=False, shifted=True),
         reward_scale=data.metadata["reward_scale"],
         reward_shift=data.metadata["reward_shift"],
         seed=cfg.seed,
@@ -183,11 +183,11 @@ def minari_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
         return float(data.normalized_score(mean_return)) if has_references else math.nan
 
     def returns(policy: nn.Module, shifted: bool) -> np.ndarray:
-        probe = _gym_env(cfg, data, eval_env=True, shifted=False)
+        probe = minari_gym_env(cfg, data, eval_env=True, shifted=False)
         low, high = probe.action_space.low, probe.action_space.high
         probe.close()
         return evaluate_episodes(
-            lambda: _gym_env(cfg, data, eval_env=True, shifted=shifted),
+            lambda: minari_gym_env(cfg, data, eval_env=True, shifted=shifted),
             policy,
             cfg.budget.eval_episodes,
             observation_fn=lambda obs: obs,
