@@ -217,3 +217,35 @@ def test_the_benchmarks_import_public_names_only():
                 continue
             private += [f"{path.name}: {n}" for n in names if n.startswith("_")]
     assert private == []
+
+
+def _run_attributes(path: Path) -> set[str]:
+    """The attributes read of ``run`` or ``self.run`` in a module."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if not isinstance(node, ast.Attribute):
+            continue
+        owner = node.value
+        if isinstance(owner, ast.Name) and owner.id == "run":
+            found.add(node.attr)
+        elif isinstance(owner, ast.Attribute) and owner.attr == "run":
+            if isinstance(owner.value, ast.Name) and owner.value.id == "self":
+                found.add(node.attr)
+    return found
+
+
+def test_learners_and_parts_use_the_run_through_its_narrow_context():
+    """``recipe/algos`` and ``recipe/parts`` read of the run only what ``RunContext``
+    declares (issue 28: a narrow context instead of the whole run)."""
+    from torchrl_dual.recipe.o2o.learner import RunContext
+
+    declared = set(RunContext.__annotations__) | {
+        name for name in vars(RunContext) if not name.startswith("_")
+    }
+    sources = [
+        *(PACKAGE / "recipe" / "algos").glob("*.py"),
+        *(PACKAGE / "recipe" / "parts").glob("*.py"),
+    ]
+    used = {(path.name, attr) for path in sources for attr in _run_attributes(path)}
+    assert {attr for _, attr in used} >= {"cfg", "data", "env"}  # the reader finds them
+    assert sorted((name, attr) for name, attr in used if attr not in declared) == []

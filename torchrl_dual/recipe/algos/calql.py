@@ -19,7 +19,7 @@ from tensordict import TensorDictBase
 
 from torchrl_dual.recipe.algos.iql import make_iql_actor
 from torchrl_dual.recipe.kits.build import projected_policy
-from torchrl_dual.recipe.o2o.learner import Learner
+from torchrl_dual.recipe.o2o.learner import Learner, RunContext
 from torchrl_dual.recipe.o2o.loop import run_o2o
 from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.parts.mc_labels import MonteCarloLabels
@@ -32,7 +32,7 @@ class CalQLLearner(Learner):
     title = "Cal-QL"
     shared_stages = ("actor_critic",)  # offline_cache: shared by every online shift
 
-    def __init__(self, run: O2ORun) -> None:
+    def __init__(self, run: RunContext) -> None:
         self.run = run
         cfg = run.cfg
         self.actor = make_iql_actor(cfg, run.data.obs_dim, run.env.action_spec)

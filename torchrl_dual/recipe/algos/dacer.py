@@ -54,7 +54,7 @@ from torchrl_dual.modules.exploration import (
     sampled_entropy,
 )
 from torchrl_dual.recipe.algos.diffql import DiffQLLearner
-from torchrl_dual.recipe.o2o.run import O2ORun
+from torchrl_dual.recipe.o2o.learner import RunContext
 from torchrl_dual.recipe.settings.baselines import DACERSettings
 from torchrl_dual.recipe.settings.rules import dotted_keys
 
@@ -66,7 +66,7 @@ class DACERLearner(DiffQLLearner):
     shared_stages = ("actor_critic",)  # offline_cache: Diff-QL's offline updates
     online_keys = tuple(dotted_keys(DACERSettings, "dacer"))
 
-    def __init__(self, run: O2ORun) -> None:
+    def __init__(self, run: RunContext) -> None:
         super().__init__(run)
         d = self.cfg.dacer
         target = d.target_entropy

@@ -56,8 +56,7 @@ from torchrl.modules import DiffusionActor
 from torchrl_dual import DDPMLastStepActor, WeightedMAPActorLoss
 from torchrl_dual.objectives.diffql_actor_loss import DiffQLActorLoss
 from torchrl_dual.recipe.kits.build import projected_policy
-from torchrl_dual.recipe.o2o.learner import Learner
-from torchrl_dual.recipe.o2o.run import O2ORun
+from torchrl_dual.recipe.o2o.learner import Learner, RunContext
 from torchrl_dual.recipe.parts.laplace_refits import LaplaceRefits
 from torchrl_dual.recipe.settings.parts import CRITICS
 
@@ -122,7 +121,7 @@ class DiffQLLearner(Learner):
     title = "Diff-QL"
     shared_stages = ("actor_critic",)
 
-    def __init__(self, run: O2ORun) -> None:
+    def __init__(self, run: RunContext) -> None:
         self.run = run
         cfg = self.cfg = run.cfg
         spec = run.env.action_spec
@@ -179,7 +178,7 @@ class DiffQLLALearner(LaplaceRefits, DiffQLLearner):
         "exploration.shift_weight",
     )
 
-    def __init__(self, run: O2ORun) -> None:
+    def __init__(self, run: RunContext) -> None:
         super().__init__(run)
         la = run.cfg.laplace
         self.last_step = DDPMLastStepActor(self.actor, latent="zero")

@@ -28,8 +28,7 @@ from torchrl_dual.modules import PlannerPolicy
 from torchrl_dual.objectives import DiffusionPlannerLoss
 from torchrl_dual.objectives.update_loop import run_updates
 from torchrl_dual.recipe.kits.build import projected_policy
-from torchrl_dual.recipe.o2o.learner import Learner
-from torchrl_dual.recipe.o2o.run import O2ORun
+from torchrl_dual.recipe.o2o.learner import Learner, RunContext
 from torchrl_dual.recipe.parts import networks
 from torchrl_dual.recipe.parts.planner_stage import offline_windows
 
@@ -41,7 +40,7 @@ class DiffuserLearner(Learner):
     shared_stages = ("planner",)  # offline_cache: shared by every online shift
     online_keys = ("diffuser.sampler",)
 
-    def __init__(self, run: O2ORun) -> None:
+    def __init__(self, run: RunContext) -> None:
         self.run = run
         cfg = self.cfg = run.cfg
         p = cfg.planner

@@ -15,7 +15,7 @@ from tensordict import TensorDictBase
 
 from torchrl_dual.modules import ShiftAwareNoise
 from torchrl_dual.objectives import progressive_distillation
-from torchrl_dual.recipe.o2o.learner import Learner
+from torchrl_dual.recipe.o2o.learner import Learner, RunContext
 from torchrl_dual.recipe.o2o.loop import run_o2o
 from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.parts import networks
@@ -44,7 +44,7 @@ class DualLearner(Learner):
         "augment",
     )
 
-    def __init__(self, run: O2ORun) -> None:
+    def __init__(self, run: RunContext) -> None:
         self.run = run
         cfg = self.cfg = run.cfg
         data = run.data

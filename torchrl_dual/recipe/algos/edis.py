@@ -24,7 +24,7 @@ from __future__ import annotations
 from typing import Any
 
 from torchrl_dual.recipe.algos.iql import IQLLearner
-from torchrl_dual.recipe.o2o.run import O2ORun
+from torchrl_dual.recipe.o2o.learner import RunContext
 from torchrl_dual.recipe.parts import networks
 from torchrl_dual.recipe.parts.planner_augment import (
     PlannerAugmenter,
@@ -43,7 +43,7 @@ class EDISLearner(IQLLearner):
     shared_stages = ("planner", "actor_critic")  # offline_cache: every online shift
     online_keys = ("augment",)
 
-    def __init__(self, run: O2ORun) -> None:
+    def __init__(self, run: RunContext) -> None:
         super().__init__(run)
         cfg = run.cfg
         self.planner = networks.make_planner(cfg, run.data)

@@ -31,7 +31,7 @@ from torchrl.modules import MLP, IndependentNormal, ProbabilisticActor, TanhNorm
 
 from torchrl_dual.modules.actors.last_layer_actor import TanhSquash
 from torchrl_dual.recipe.kits.build import projected_policy
-from torchrl_dual.recipe.o2o.learner import Learner
+from torchrl_dual.recipe.o2o.learner import Learner, RunContext
 from torchrl_dual.recipe.o2o.loop import run_o2o
 from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.settings.baselines import ACTOR_DISTRIBUTIONS
@@ -99,7 +99,7 @@ class IQLLearner(Learner):
     title = "IQL"
     shared_stages = ("actor_critic",)  # offline_cache: shared by every online shift
 
-    def __init__(self, run: O2ORun) -> None:
+    def __init__(self, run: RunContext) -> None:
         self.run = run
         cfg = run.cfg
         spec = run.env.action_spec

@@ -49,7 +49,7 @@ import torch
 
 from torchrl_dual import LinearHeadActor, WeightedMAPActorLoss
 from torchrl_dual.recipe.algos.iql import IQLLearner
-from torchrl_dual.recipe.o2o.run import O2ORun
+from torchrl_dual.recipe.o2o.learner import RunContext
 from torchrl_dual.recipe.parts.laplace_refits import LaplaceRefits
 
 IQL_MAX_WEIGHT = 100.0
@@ -71,7 +71,7 @@ class IQLLALearner(LaplaceRefits, IQLLearner):
         "exploration.shift_weight",
     )
 
-    def __init__(self, run: O2ORun) -> None:
+    def __init__(self, run: RunContext) -> None:
         super().__init__(run)
         cfg = run.cfg
         self.head_actor = LinearHeadActor.from_actor(self.actor)  # shared weights, tanh box

@@ -24,7 +24,7 @@ from tensordict import TensorDictBase
 
 from torchrl_dual.recipe.algos.iql import make_iql_actor
 from torchrl_dual.recipe.kits.build import projected_policy
-from torchrl_dual.recipe.o2o.learner import Learner
+from torchrl_dual.recipe.o2o.learner import Learner, RunContext
 from torchrl_dual.recipe.o2o.loop import run_o2o
 from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.settings.parts import CRITICS
@@ -37,7 +37,7 @@ class SO2Learner(Learner):
     title = "SO2"
     shared_stages = ("actor_critic",)  # offline_cache: shared by every online shift
 
-    def __init__(self, run: O2ORun) -> None:
+    def __init__(self, run: RunContext) -> None:
         self.run = run
         cfg = run.cfg
         self.actor = make_iql_actor(

@@ -9,12 +9,51 @@ the offline stages, one gradient update and the acting policies. ``DualLearner``
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Iterator
+from typing import Any, Protocol
 
 import torch
 from tensordict import TensorDictBase
 from torch import nn
+
+
+class RunContext(Protocol):
+    """What a learner and the parts it builds may use of the run (an
+    :class:`~torchrl_dual.recipe.O2ORun`): the config, the data and env, the counters, the
+    buffers, logging and the two helpers below. ``tests/test_import_layering.py`` checks
+    that ``recipe/algos`` and ``recipe/parts`` read nothing else of it.
+
+    Attributes:
+        cfg (DictConfig): the validated config.
+        data (OfflineDataset): ``D_offline``.
+        env (EnvBase): the online env (its ``action_spec``).
+        frames (int): online frames collected so far (0 in the offline phase).
+        updates (int): gradient updates so far.
+        logger: the TorchRL logger (for the offline stages' own loops).
+        replay: the online replay (``online_buffer``, ``extend``).
+        offline_buffer: uniform transitions of ``D_offline``.
+    """
+
+    cfg: Any
+    data: Any
+    env: Any
+    frames: int
+    updates: int
+    logger: Any
+    replay: Any
+    offline_buffer: Any
+
+    def log(self, values: dict, step: int, prefix: str) -> None:
+        """Logs ``values`` as scalars under ``prefix``."""
+
+    def all_transitions(self, chunk: int = 8192) -> Iterator[TensorDictBase]:
+        """``D_offline`` then ``D_online``, in chunks on the run's device."""
+
+    def pretrain_updates(self) -> None:
+        """``budget.offline_updates`` learner updates on ``D_offline``."""
+
+    def refresh_offline_buffer(self) -> None:
+        """Rebuilds ``offline_buffer`` from ``data`` (after the learner relabelled it)."""
 
 
 class Learner(ABC):

@@ -158,6 +158,11 @@ class O2ORun:
         buffer.extend(self.data.transitions)
         return buffer
 
+    def refresh_offline_buffer(self) -> None:
+        """Rebuilds :attr:`offline_buffer` from ``data`` (a learner that relabels the
+        offline transitions, e.g. Cal-QL's Monte-Carlo bound, calls it)."""
+        self.offline_buffer = self._offline_buffer()
+
     def state(self, modules: dict[str, Any] | None = None) -> dict[str, Any]:
         """Everything needed to continue: ``modules`` (default: the learner's, and then the
         replay's state too), counters, online data, RNG and logger state. A shared offline

@@ -24,7 +24,7 @@ from torch import nn
 
 from torchrl_dual.modules import LaplaceEnsembleActor, LastLayerActor, make_dual_policy
 from torchrl_dual.recipe.kits.build import env_kit
-from torchrl_dual.recipe.o2o.run import O2ORun
+from torchrl_dual.recipe.o2o.learner import RunContext
 
 
 def ensemble_signals(batch: TensorDictBase) -> dict[str, float]:
@@ -95,7 +95,7 @@ class LaplaceRefits:
             ``None``: uniform.
     """
 
-    run: O2ORun
+    run: RunContext
     actor: nn.Module
     ensemble: LaplaceEnsembleActor
     laplace_weight_fn: Callable[[TensorDictBase], torch.Tensor] | None = None

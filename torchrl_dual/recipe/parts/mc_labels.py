@@ -23,7 +23,7 @@ from tensordict import TensorDictBase
 from torchrl_dual.data import monte_carlo_returns
 
 if TYPE_CHECKING:
-    from torchrl_dual.recipe.o2o.run import O2ORun
+    from torchrl_dual.recipe.o2o.learner import RunContext
 
 MC_RETURN = "mc_return"
 """The key of the Monte-Carlo bound in D_offline and D_online (``CalQLLoss``'s default)."""
@@ -46,15 +46,15 @@ class MonteCarloLabels:
     """The bound of ``run``'s offline data (labelled on construction) and online episodes.
 
     Args:
-        run (O2ORun): the run, whose ``data.transitions`` gain :data:`MC_RETURN` and whose
+        run (RunContext): the run, whose ``data.transitions`` gain :data:`MC_RETURN` and whose
             ``offline_buffer`` is rebuilt from them; build it in the learner's
             ``__init__`` (before the run's replay buffer exists).
     """
 
-    def __init__(self, run: O2ORun) -> None:
+    def __init__(self, run: RunContext) -> None:
         self.cfg = run.cfg
         label_transitions(run.data.transitions, run.cfg)
-        run.offline_buffer = run._offline_buffer()
+        run.refresh_offline_buffer()
         self.pending: TensorDictBase | None = None  # the online episode in progress
 
     def online_transitions(self, transitions: TensorDictBase) -> TensorDictBase:

@@ -46,7 +46,7 @@ from torchrl_dual.diffusion import (
 )
 from torchrl_dual.modules import PlannerSampler, RewardModel
 from torchrl_dual.recipe.kits.build import env_kit
-from torchrl_dual.recipe.o2o.run import O2ORun
+from torchrl_dual.recipe.o2o.learner import RunContext
 from torchrl_dual.recipe.parts.planner_stage import offline_windows
 from torchrl_dual.recipe.settings.parts import online_updates
 
@@ -90,11 +90,11 @@ class PlannerAugmenter:
     :func:`augment_capacity`.
 
     Args:
-        run (O2ORun): the run (its config's ``augment`` section, data, env, replay).
+        run (RunContext): the run (its config's ``augment`` section, data, env, replay).
         planner (TrajectoryDiffusion): the ``N``-step planner trained on ``D_offline``.
     """
 
-    def __init__(self, run: O2ORun, planner: TrajectoryDiffusion) -> None:
+    def __init__(self, run: RunContext, planner: TrajectoryDiffusion) -> None:
         self.run = run
         cfg = run.cfg
         a = self.settings = cfg.augment
@@ -257,7 +257,7 @@ class PlannerAugmenter:
         return transitions[~past_terminal.squeeze(-1)]
 
 
-def make_augmenter(run: O2ORun, planner: TrajectoryDiffusion) -> PlannerAugmenter | None:
+def make_augmenter(run: RunContext, planner: TrajectoryDiffusion) -> PlannerAugmenter | None:
     """The run's :class:`PlannerAugmenter` (``augment.kind=planner``), else ``None``."""
     if run.cfg.augment.kind == "none":
         return None

@@ -14,7 +14,7 @@ from torchrl_dual.objectives import train_planner
 from torchrl_dual.recipe.settings.errors import UserError
 
 if TYPE_CHECKING:
-    from torchrl_dual.recipe.o2o.run import O2ORun
+    from torchrl_dual.recipe.o2o.learner import RunContext
 
 
 def offline_windows(cfg: DictConfig, data: OfflineDataset, batch_size: int) -> WindowReplayBuffer:
@@ -29,7 +29,7 @@ def offline_windows(cfg: DictConfig, data: OfflineDataset, batch_size: int) -> W
 
 
 def pretrain_planner(
-    run: O2ORun, planner: TrajectoryDiffusion, windows: WindowReplayBuffer
+    run: RunContext, planner: TrajectoryDiffusion, windows: WindowReplayBuffer
 ) -> None:
     """``budget.planner_updates`` ``L_VLB`` steps on ``D_offline`` windows (Eq. 3), with the
     ``planner.*`` learning rate and ``a_0``-conditioning probability; logs ``planner/``."""
