@@ -426,3 +426,32 @@ def test_config_error_time_measures_the_bad_value_and_its_floor(monkeypatch):
     medians = config_error_time.measure(1, cwd=REPO)
     assert set(medians) == {"bad value", "python"}
     assert all(seconds > 0 for seconds in medians.values())
+
+
+def test_mutation_testing_mutates_the_targets_only_and_counts_per_file(monkeypatch):
+    """The mutmut table keeps every other package file out, and ``mutmut results`` lines
+    are counted per source file (class methods and functions alike)."""
+    import subprocess as sp
+
+    import mutation_testing
+    import tomllib
+
+    table = tomllib.loads(
+        mutation_testing.mutmut_config(
+            ["torchrl_dual/a.py"], ["tests/x"], ["torchrl_dual/a.py", "torchrl_dual/b.py"]
+        )
+    )["tool"]["mutmut"]
+    assert table["do_not_mutate"] == ["torchrl_dual/b.py"]
+    assert table["pytest_add_cli_args_test_selection"] == ["tests/x"]
+    out = "\n".join(
+        [
+            "    torchrl_dual.m.a.xǁCǁ__init____mutmut_1: killed",
+            "    torchrl_dual.m.a.xǁCǁforward__mutmut_2: survived",
+            "    torchrl_dual.m.a.x_helper__mutmut_1: killed",
+            "    torchrl_dual.b.x_f__mutmut_1: no tests",
+        ]
+    )
+    monkeypatch.setattr(sp, "run", lambda *a, **k: sp.CompletedProcess(a, 0, stdout=out))
+    counts = mutation_testing.results(REPO, {})
+    assert counts["torchrl_dual/m/a.py"] == {"killed": 2, "survived": 1}
+    assert counts["torchrl_dual/b.py"] == {"no tests": 1}
