@@ -7,7 +7,7 @@ import pytest
 import torch
 from tensordict import TensorDict
 from tensordict.nn import TensorDictModule, TensorDictSequential
-from torchrl.data import Bounded, Composite
+from torchrl.data import Bounded, Composite, Unbounded
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from toy import transition_inputs
 
@@ -157,6 +157,17 @@ def test_box_clamp_matches_the_spec_projection_per_dimension():
     torch.testing.assert_close(noise._project(action), spec.project(action.clone()))
 
 
+def test_a_spec_that_is_no_box_projects_with_its_own_project():
+    """Specs other than a continuous box go through ``spec.project`` (here the identity of
+    an unbounded spec), not the clamp."""
+    noise = ShiftAwareNoise(Unbounded(shape=(ACT_DIM,)), shift_weight=0.5)
+    assert noise._box is None
+    action = torch.randn(50, ACT_DIM) * 5
+    torch.testing.assert_close(noise._project(action), action)
+    torch.manual_seed(0)
+    assert noise(make_td(7, shift=1.0))["action"].shape == (7, ACT_DIM)
+
+
 def test_action_projection_stores_the_executed_one_hot_action():
     def one_hot(action):
         return torch.nn.functional.one_hot(action.argmax(-1), action.shape[-1]).to(action.dtype)
@@ -206,13 +217,18 @@ def test_shift_weight_and_floor_are_the_only_state():
     noise = ShiftAwareNoise(shift_weight=0.25, shift_floor=0.5)
     assert list(noise.state_dict()) == ["shift_weight", "shift_floor"]
     assert noise.state_dict()["shift_weight"] == 0.25
-    restored = ShiftAwareNoise()
+    restored = ShiftAwareNoise(shift_weight=0.0)  # λ = 0: no shift term until the load
     restored.load_state_dict(noise.state_dict())
     out = restored(make_td(4, shift=2.0))
     torch.testing.assert_close(
         out["exploration_scale"], (0.01 + 0.25 * (2.0 - 0.5)) ** 0.5 * torch.ones(4, 2)
     )
-    assert "shift_weight=0.25, shift_floor=0.5" in repr(restored)
+    assert repr(restored) == (
+        "ShiftAwareNoise(shift_weight=0.25, shift_floor=0.5, extra_variance=0, "
+        "in_keys=['observation', 'loc', 'scale', 'expected_observation'], "
+        "out_keys=['action', 'shift_distance', 'exploration_scale'], "
+        "projected=False)"
+    )
 
 
 def test_the_floor_adds_only_the_excess_of_d_over_it_and_leaves_d_as_logged():
