@@ -146,7 +146,8 @@ def test_eq3_loss_is_the_masked_mean_v_error_computed_by_hand():
     data = windows(6, seed=2)
     loss_fn = DiffusionPlannerLoss(model, reduction="none")
     torch.manual_seed(3)
-    got = loss_fn(data)["loss_diffusion"]
+    out = loss_fn(data)
+    got = out["loss_diffusion"]
     torch.manual_seed(3)  # the loss draws t ~ U(0, 1) per window, then ε ~ N(0, I)
     t = torch.rand(6)
     x0 = torch.cat([data["observation"], data["action"]], -1)  # identity normalizer
@@ -162,6 +163,10 @@ def test_eq3_loss_is_the_masked_mean_v_error_computed_by_hand():
     free = (~mask).float()
     want = (error * free).sum((-2, -1)) / free.sum((-2, -1))
     torch.testing.assert_close(got, want)
+    # the diagnostic: x̂ = α z − σ v̂ on the generated entries, its squared error's mean
+    x_hat = alpha * z - sigma * v_hat
+    x0_error = (((x_hat - x0) ** 2 * free).sum((-2, -1)) / free.sum((-2, -1))).mean()
+    torch.testing.assert_close(out["x0_error"], x0_error)
 
 
 def test_the_distillation_target_and_weight_computed_by_hand():

@@ -50,3 +50,23 @@ def test_unknown_schedule_name_error_lists_the_options():
         NoiseSchedule("sigmoid")
     for name in SCHEDULES:
         assert name in str(err.value)
+
+
+def test_the_default_schedule_is_the_cosine_one():
+    schedule = NoiseSchedule()
+    assert schedule.kind == "cosine"
+    t = torch.tensor([0.3])
+    torch.testing.assert_close(schedule.alpha_sigma(t)[0], torch.cos(torch.pi * t / 2))
+
+
+@pytest.mark.parametrize("kind", ["cosine", "linear"])
+def test_scales_at_is_the_host_float_of_alpha_sigma(kind):
+    """``scales_at(t)`` (a host float, for the compiled sampler's step constants) equals
+    the tensor path at interior points."""
+    schedule = NoiseSchedule(kind)
+    for t in (0.1, 0.37, 0.5, 0.9):
+        alpha, sigma = schedule.scales_at(t)
+        assert isinstance(alpha, float) and isinstance(sigma, float)
+        expected = schedule.alpha_sigma(torch.tensor(t, dtype=torch.float64))
+        assert alpha == pytest.approx(float(expected[0]), rel=1e-12)
+        assert sigma == pytest.approx(float(expected[1]), rel=1e-12)

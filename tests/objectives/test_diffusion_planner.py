@@ -219,3 +219,28 @@ def test_train_planner_runs_the_requested_updates_and_trains_the_model_in_place(
     assert set(stats) == {"loss_diffusion", "x0_error"}
     assert not torch.equal(model.denoiser.head.weight, before)
     assert [step for name, step in logged if name == "loss_diffusion"] == [2, 4, 5]
+
+
+@pytest.mark.parametrize("prob", [0.0, 1.0])
+def test_action_condition_prob_accepts_both_ends(prob, make_model):
+    assert (
+        DiffusionPlannerLoss(make_model(), action_condition_prob=prob).action_condition_prob == prob
+    )
+
+
+def test_train_planner_builds_its_loss_and_adam_from_its_arguments(make_model, monkeypatch):
+    """The defaults reach the loss and the optimizer: Adam at 3e-4, ``a_0`` given half the
+    time, the bar named ``planner``; explicit values replace them."""
+    from torchrl_dual.objectives import diffusion_planner as module
+
+    seen = {}
+
+    def record(loss, sample, num_updates, optimizer, **kwargs):
+        seen.update(prob=loss.action_condition_prob, lr=optimizer.param_groups[0]["lr"], **kwargs)
+        return {}
+
+    monkeypatch.setattr(module, "run_updates", record)
+    module.train_planner(make_model(), lambda: None, 1)
+    assert (seen["prob"], seen["lr"], seen["desc"]) == (0.5, 3e-4, "planner")
+    module.train_planner(make_model(), lambda: None, 1, lr=1e-3, action_condition_prob=0.25)
+    assert (seen["prob"], seen["lr"]) == (0.25, 1e-3)
