@@ -179,7 +179,8 @@ def test_the_distillation_target_and_weight_computed_by_hand():
     data = windows(8, seed=5)
     loss_fn = DistillationLoss(student, teacher, reduction="none")
     torch.manual_seed(6)
-    got = loss_fn(data)["loss_distillation"]
+    out = loss_fn(data)
+    got = out["loss_distillation"]
 
     torch.manual_seed(6)  # the loss draws i ∈ {1, .., 4} per window, then ε ~ N(0, I)
     i = torch.randint(1, 5, (8,)).double()
@@ -215,3 +216,5 @@ def test_the_distillation_target_and_weight_computed_by_hand():
     want = (weight * (x_student - target) ** 2 * free).sum((-2, -1)) / free.sum((-2, -1))
     torch.testing.assert_close(got.double(), want, rtol=1e-4, atol=1e-6)
     assert (weight.flatten() > 5).any() and (weight.flatten() == 1).any()  # both branches
+    gap = (((x_student - target) ** 2 * free).sum((-2, -1)) / free.sum((-2, -1))).mean()
+    torch.testing.assert_close(out["target_gap"].double(), gap, rtol=1e-4, atol=1e-6)

@@ -45,15 +45,38 @@ def test_a_student_that_does_not_take_half_the_teacher_steps_is_rejected(student
     student = copy.deepcopy(teacher)
     student.num_steps = student_steps
     with pytest.raises(
-        ValueError, match=rf"teacher has 4, student {student_steps}; set student.num_steps = 2"
+        ValueError, match=rf"teacher has 4, student {student_steps}; set student.num_steps = 2\.$"
     ):
         DistillationLoss(student, teacher)
 
 
 def test_the_teacher_itself_cannot_be_the_student(make_model):
     model = make_model(num_steps=2)
-    with pytest.raises(ValueError, match="teacher has 2, student 2"):
+    with pytest.raises(
+        ValueError, match=r"^student and teacher must be distinct modules \(deepcopy"
+    ):
         DistillationLoss(model, model)
+
+
+def test_the_loss_keeps_a_frozen_private_copy_of_the_teacher_in_its_state(make_model):
+    """The caller's teacher keeps its gradients and its weights; the loss's copy has
+    neither parameters nor gradients, and its weights are saved with the loss."""
+    student, teacher = _pair(make_model)
+    loss = DistillationLoss(student, teacher)
+    assert loss.action_condition_prob == 0.5
+    assert all(p.requires_grad for p in teacher.parameters())
+    assert loss.teacher is not teacher
+    assert not any(p.requires_grad for p in loss.teacher.parameters())
+    saved = {k: v for k, v in loss.state_dict().items() if k.startswith("teacher_buffers.")}
+    weights = dict(teacher.named_parameters())
+    assert set(saved) == {f"teacher_buffers.{k}" for k in teacher.state_dict()}
+    for name, value in weights.items():
+        torch.testing.assert_close(saved[f"teacher_buffers.{name}"], value.detach())
+    with torch.no_grad():
+        next(teacher.parameters()).add_(1.0)  # the caller's teacher changes later
+    assert not torch.equal(
+        saved[f"teacher_buffers.{next(iter(weights))}"], next(teacher.parameters())
+    )
 
 
 def test_only_the_student_receives_gradients_and_updates(make_model, make_windows):
@@ -340,3 +363,39 @@ def test_progressive_distillation_rejects_a_final_steps_not_n_over_a_power_of_tw
 ):
     with pytest.raises(ValueError, match=rf"final_steps={final_steps} must be N / 2\^k"):
         progressive_distillation(make_model(num_steps=8), lambda: None, 1, final_steps=final_steps)
+
+
+def test_progressive_distillation_passes_its_settings_to_each_round(make_model, monkeypatch):
+    """Its defaults reach every round: Adam at 1e-4, ``a_0`` given half the time, a cosine
+    learning rate, a bar per round named by its steps; the student's steps stay integers."""
+    seen = []
+
+    def record(loss, sample, num_updates, optimizer, **kwargs):
+        seen.append(
+            dict(
+                prob=loss.action_condition_prob,
+                lr=optimizer.param_groups[0]["lr"],
+                steps=loss.student.num_steps,
+                **kwargs,
+            )
+        )
+        return {}
+
+    monkeypatch.setattr(distillation_module, "run_updates", record)
+    student = progressive_distillation(make_model(num_steps=4), lambda: None, 1, ema_decay=None)
+    assert [s["desc"] for s in seen] == ["distil 4->2", "distil 2->1"]
+    assert all(s["prob"] == 0.5 and s["lr"] == 1e-4 and s["cosine_lr"] is True for s in seen)
+    assert all(s["progress"] is True for s in seen)
+    assert type(student.num_steps) is int and student.num_steps == 1
+    assert all(type(s["steps"]) is int for s in seen)
+    seen.clear()
+    progressive_distillation(
+        make_model(num_steps=2), lambda: None, 1, lr=3e-3, action_condition_prob=0.0, progress=False
+    )
+    assert (seen[0]["prob"], seen[0]["lr"], seen[0]["progress"]) == (0.0, 3e-3, False)
+
+
+def test_progressive_distillation_to_the_teacher_s_own_steps_runs_no_round(make_model):
+    teacher = make_model(num_steps=8)
+    student = progressive_distillation(teacher, lambda: None, [], final_steps=8)
+    assert student.num_steps == 8

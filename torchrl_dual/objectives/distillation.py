@@ -72,13 +72,13 @@ class DistillationLoss(TrajectoryWindowLoss):
         reduction: str = "mean",
     ) -> None:
         super().__init__()
+        if student is teacher:
+            raise ValueError("student and teacher must be distinct modules (deepcopy the teacher).")
         if teacher.num_steps != 2 * student.num_steps:
             raise ValueError(
                 f"A student takes half its teacher's steps: teacher has {teacher.num_steps}, "
                 f"student {student.num_steps}; set student.num_steps = {teacher.num_steps // 2}."
             )
-        if student is teacher:
-            raise ValueError("student and teacher must be distinct modules (deepcopy the teacher).")
         self.convert_to_functional(student, "student")
         # The teacher is frozen: a private copy whose weights are buffers, never parameters
         # (the caller's teacher is neither modified nor reset by reset_parameters_recursive).
