@@ -223,6 +223,11 @@ def test_shift_weight_and_floor_are_the_only_state():
     torch.testing.assert_close(
         out["exploration_scale"], (0.01 + 0.25 * (2.0 - 0.5)) ** 0.5 * torch.ones(4, 2)
     )
+    with pytest.raises(KeyError, match="expected_observation"):  # λ > 0 now needs ŝ_t
+        restored(make_td(4))
+    plain = ShiftAwareNoise(shift_weight=0.5)
+    plain.load_state_dict(ShiftAwareNoise(shift_weight=0.0).state_dict())
+    assert plain(make_td(4))["shift_distance"].eq(0).all()  # λ = 0 now: ŝ_t not needed
     assert repr(restored) == (
         "ShiftAwareNoise(shift_weight=0.25, shift_floor=0.5, extra_variance=0, "
         "in_keys=['observation', 'loc', 'scale', 'expected_observation'], "
