@@ -16,6 +16,7 @@ from torchrl.data.tensor_specs import TensorSpec
 from torchrl_dual import PlannerActor, TransitionModel, WeightedMAPActorLoss, make_dual_policy
 from torchrl_dual.data import OfflineDataset
 from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
+from torchrl_dual.modules import LastLayerActor
 from torchrl_dual.recipe.kits.build import env_kit
 from torchrl_dual.recipe.parts.critics import Critic
 
@@ -85,11 +86,16 @@ def make_actor_loss(
 
 
 def make_policy(
-    cfg: DictConfig, actor: PlannerActor, action_spec: TensorSpec, transition: TransitionModel
+    cfg: DictConfig,
+    actor: LastLayerActor,
+    action_spec: TensorSpec,
+    transition: TransitionModel | None = None,
 ) -> TensorDictSequential:
-    """DUAL's acting policy: the ensemble of Eq. (9) over the Laplace posterior (or, with
-    ``laplace.uq=latent``, over planner latents), which also answers the transition
-    model's ``ŝ_t``, then the shift-aware noise (Eq. 10)."""
+    """The acting policy of ``cfg``'s ``laplace`` and ``exploration`` sections: the
+    ensemble of Eq. (9) over the Laplace posterior (or, with ``laplace.uq=latent``, over
+    planner latents), which also answers the transition model's ``ŝ_t`` when there is one,
+    then the shift-aware noise (Eq. 10). DUAL's, and the ``*_la`` baselines' (no
+    transition model, ``λ = 0``)."""
     return make_dual_policy(
         actor,
         action_spec,
@@ -98,7 +104,7 @@ def make_policy(
         prior_precision=cfg.laplace.prior_precision,
         posterior_temperature=cfg.laplace.posterior_temperature,
         shift_weight=cfg.exploration.shift_weight,
-        uncertainty=cfg.laplace.uq,
+        uncertainty=cfg.laplace.get("uq", "laplace"),
         action_projection=env_kit(cfg).action_projection,
         device=cfg.device,
     )

@@ -124,19 +124,12 @@ class DiffQLActorSettings:
 
 @dataclass
 class DiffQLLaplaceSettings:
-    """``algo/diffql_la.yaml``'s ``laplace``: Eq. (8-9) on the last DDPM step."""
+    """``algo/diffql_la.yaml``'s ``laplace``: Eq. (8-9) on the last DDPM step (DUAL's keys
+    of Eq. 8-9, with DUAL's rules, and the weights of the fit)."""
 
-    num_samples: int = key(Integer(0), "M sub-policies; 0 = no epistemic UQ (MAP mean, σ̄)")
-    prior_precision: Any = key(
-        Either(
-            (Choice(("evidence",)), Real(0, low_open=True)), "must be 'evidence' or a number > 0"
-        ),
-        "λ of the Gaussian prior",
-    )
-    posterior_temperature: Any = key(
-        Either((Choice(("data",)), Real(0, low_open=True)), "must be 'data' or a number > 0"),
-        "T: the posterior covariance × T (1: the summed loss); data: Eq. 7's mean loss",
-    )
+    num_samples: int = _dual_laplace_key("num_samples")
+    prior_precision: Any = _dual_laplace_key("prior_precision")
+    posterior_temperature: Any = _dual_laplace_key("posterior_temperature")
     temperature: float = key(Real(0), "β of the Laplace fit's weights exp(β (Q - V))")
     max_weight: float = key(Real(0, low_open=True), "clip of those weights")
 
