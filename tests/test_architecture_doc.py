@@ -63,3 +63,35 @@ def test_every_recipe_module_is_listed_once():
 def test_the_checks_see_a_missing_module():
     assert not _exists("recipe/no_such_module.py")
     assert _exists("recipe/o2o/run.py") and _exists("benchmarks/learning.py")
+
+
+def test_one_dual_update_reads_through_at_most_five_files_each_calling_the_next():
+    """Issue 28's goal: the reading path of one DUAL update is at most 5 files, and each
+    file of the doc's table hands over to the next by the name the doc gives."""
+    start = DOC.index("### Reading one DUAL update")
+    table = DOC[start : DOC.index("\n## ", start)]
+    files = [
+        line.split("|")[2].strip().strip("`")
+        for line in table.splitlines()
+        if re.match(r"\| \d", line)
+    ]
+    assert files == [
+        "recipe/cli.py",
+        "recipe/settings/algos.py",
+        "recipe/o2o/loop.py",
+        "recipe/algos/dual.py",
+        "recipe/parts/critics.py",
+    ]
+    text = {f: (PACKAGE / f).read_text() for f in files}
+    assert "run_o2o(cfg, ALGORITHMS[cfg.algo].learner)" in text["recipe/cli.py"]
+    assert (
+        '"dual": Algorithm(DUAL, Ref(f"{_ALGOS}.dual:DualLearner"))'
+        in text["recipe/settings/algos.py"]
+    )
+    loop = text["recipe/o2o/loop.py"]
+    assert "losses = run.update(sample)" in loop and "run.learner.after_updates()" in loop
+    dual = text["recipe/algos/dual.py"]
+    update = dual[dual.index("    def update(self, batch") :]
+    update = update[: update.index("\n    def ")]
+    assert "self.critic.step(" in update and "self.actor_loss(" in update
+    assert "def step(self, batch" in text["recipe/parts/critics.py"]

@@ -9,10 +9,10 @@ import re
 
 import pytest
 import torch
-from omegaconf import OmegaConf
 from recipe_runner import run_recipe, succeeded
 
 from torchrl_dual.recipe.parts import critics
+from torchrl_dual.recipe.settings.parts import IQLCriticSettings
 
 TINY = ("algo=iql", "env=frozenlake", "budget.offline_updates=10", "budget.online_frames=100")
 TINY += ("budget.frames_per_batch=50", "budget.eval_every=100", "budget.eval_episodes=1")
@@ -40,14 +40,17 @@ def test_an_iql_checkpoint_with_the_former_q_keys_resumes_and_saves_the_new_ones
 
 
 def _iql_critic():
-    cfg = OmegaConf.create(
-        {
-            "critic": {"name": "iql", "hidden": 8, "depth": 2, "expectile": 0.7, "lr": 3e-4},
-            "device": "cpu",
-        }
+    settings = IQLCriticSettings(
+        name="iql",
+        hidden=8,
+        depth=2,
+        lr=3e-4,
+        discount=0.99,
+        target_update_tau=0.005,
+        actor_weighting="advantage",
+        expectile=0.7,
     )
-    cfg.critic.update(discount=0.99, target_update_tau=0.005)
-    return critics.make_iql_critic(cfg, 4, 2)
+    return critics.make_iql_critic(settings, 4, 2)
 
 
 def test_torchrl_s_loss_module_skips_an_unknown_parameter_key_without_a_word():

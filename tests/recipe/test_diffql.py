@@ -25,6 +25,8 @@ from torchrl_dual.objectives.diffql_actor_loss import DiffQLActorLoss, min_q
 from torchrl_dual.recipe import CONFIG_DIR, O2ORun, check_command_line, compose_checked, run
 from torchrl_dual.recipe.algos.diffql import ActionBox, DiffQLLALearner, make_diffusion_actor
 from torchrl_dual.recipe.parts.critics import make_iql_critic
+from torchrl_dual.recipe.settings.parts import IQLCriticSettings
+from torchrl_dual.recipe.settings.rules import as_settings
 
 # the smoke budget cut further: 10 offline updates, 100 online frames in 2 blocks of 50,
 # each followed by 10 updates (UTD 0.2) and a Laplace refit (diffql_la)
@@ -184,6 +186,8 @@ def tiny_cfg(eta: float = 1.0):
             "device": "cpu",
             "actor": {"num_steps": 5, "hidden": 32, "depth": 2, "activation": "mish", "eta": eta},
             "critic": {
+                "name": "iql",
+                "actor_weighting": "advantage",
                 "hidden": 32,
                 "depth": 2,
                 "lr": 3e-4,
@@ -206,7 +210,7 @@ def pieces(eta: float = 1.0):
     torch.manual_seed(0)
     cfg = tiny_cfg(eta)
     actor = make_diffusion_actor(cfg, OBS_DIM, ACTION_DIM)
-    critic = make_iql_critic(cfg, OBS_DIM, ACTION_DIM)
+    critic = make_iql_critic(as_settings(IQLCriticSettings, cfg.critic), OBS_DIM, ACTION_DIM)
     box = ActionBox(-torch.ones(ACTION_DIM), torch.ones(ACTION_DIM))
     return actor, critic, DiffQLActorLoss.from_iql(actor, critic.loss, box, eta=eta)
 

@@ -27,8 +27,10 @@ from torchrl_dual.recipe import (
     UserError,
     compose_checked,
 )
+from torchrl_dual.recipe.algos.dual import make_actor, make_transition_model
 from torchrl_dual.recipe.kits import build as env_kits
 from torchrl_dual.recipe.parts import networks
+from torchrl_dual.recipe.settings.dual import DualSections
 
 pytestmark = pytest.mark.long_running(seconds=140)  # starts first under xdist
 ONLINE_FRAMES = 400  # budget/smoke.yaml
@@ -364,11 +366,18 @@ def test_both_transition_models_give_the_policy_a_shift_distance(source, smoke_c
     layout = TrajectoryLayout(obs_dim, env.action_spec.shape[-1], cfg.planner.horizon)
     torch.manual_seed(0)
     teacher = TrajectoryDiffusion(layout, num_steps=1, hidden=32, depth=1)
-    actor = networks.make_actor(cfg, teacher)
-    transition = networks.make_transition_model(cfg, teacher, actor)
+    sections = DualSections.of(cfg)
+    actor = make_actor(sections.actor, 1, teacher)
+    transition = make_transition_model(source, 1, teacher, actor)
     assert transition.frozen == (source == "frozen")
     assert (transition.model is actor.model) == (source == "shared")
-    policy = networks.make_policy(cfg, actor, env.action_spec, transition)
+    policy = networks.make_policy(
+        sections.laplace,
+        actor,
+        env.action_spec,
+        transition=transition,
+        shift_weight=sections.exploration.shift_weight,
+    )
     states = env.observation_spec["observation"].rand((64,)).float()
     policy[0].fit_laplace([TensorDict(observation=states, batch_size=[64])])
     rollout = env.rollout(30, policy, break_when_any_done=False)

@@ -41,9 +41,13 @@ _OTHER_CONFIG = ("config_path", "config_name", "config_dir", "experimental_rerun
 
 def run(cfg: DictConfig) -> Any:
     """Validates ``cfg`` (raising :class:`~torchrl_dual.recipe.settings.errors.ConfigError`) and
-    runs its algorithm (its ``ALGORITHMS`` entry's learner through ``run_o2o``)."""
+    runs its algorithm: Algorithm 1's loop (``o2o/loop.py``) with the ``algo`` entry's
+    learner (``settings/algos.py``; DUAL's is ``algos/dual.py``). Returns the finished
+    :class:`~torchrl_dual.recipe.O2ORun`."""
     validate_config(cfg)
-    return ALGORITHMS[cfg.algo].run(cfg)
+    from torchrl_dual.recipe.o2o.loop import run_o2o  # torch: only once the config is valid
+
+    return run_o2o(cfg, ALGORITHMS[cfg.algo].learner)
 
 
 def _parse(line: str) -> Override:

@@ -22,8 +22,8 @@ from torchrl_dual.recipe.kits.build import projected_policy
 from torchrl_dual.recipe.o2o.learner import Learner, RunContext
 from torchrl_dual.recipe.o2o.loop import run_o2o
 from torchrl_dual.recipe.o2o.run import O2ORun
+from torchrl_dual.recipe.parts.critics import make_critic
 from torchrl_dual.recipe.parts.mc_labels import MonteCarloLabels
-from torchrl_dual.recipe.settings.parts import CRITICS
 
 
 class CalQLLearner(Learner):
@@ -36,9 +36,7 @@ class CalQLLearner(Learner):
         self.run = run
         cfg = run.cfg
         self.actor = make_iql_actor(cfg, run.data.obs_dim, run.env.action_spec)
-        self.critic = CRITICS[cfg.critic.name][1](
-            cfg, run.data.obs_dim, run.data.action_dim, actor=self.actor
-        )
+        self.critic = make_critic(cfg, run.data.obs_dim, run.data.action_dim, actor=self.actor)
         self.labels = MonteCarloLabels(run)  # D_offline's bound; D_online's per episode
         loss = self.critic.loss
         self.actor_optimizer = torch.optim.Adam(

@@ -57,8 +57,8 @@ from torchrl_dual import DDPMLastStepActor, WeightedMAPActorLoss
 from torchrl_dual.objectives.diffql_actor_loss import DiffQLActorLoss
 from torchrl_dual.recipe.kits.build import projected_policy
 from torchrl_dual.recipe.o2o.learner import Learner, RunContext
+from torchrl_dual.recipe.parts.critics import make_critic
 from torchrl_dual.recipe.parts.laplace_refits import LaplaceRefits
-from torchrl_dual.recipe.settings.parts import CRITICS
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {"silu": nn.SiLU, "mish": nn.Mish}
 """``actor.activation`` -> its module (the names are
@@ -127,7 +127,7 @@ class DiffQLLearner(Learner):
         spec = run.env.action_spec
         obs_dim, action_dim = run.data.obs_dim, run.data.action_dim
         self.actor = make_diffusion_actor(cfg, obs_dim, action_dim)
-        self.critic = CRITICS[cfg.critic.name][1](cfg, obs_dim, action_dim)
+        self.critic = make_critic(cfg, obs_dim, action_dim)
         self.box = ActionBox(spec.space.low, spec.space.high).to(cfg.device)
         self.actor_loss = DiffQLActorLoss.from_iql(
             self.actor, self.critic.loss, self.box, eta=cfg.actor.eta

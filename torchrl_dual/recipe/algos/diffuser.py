@@ -31,6 +31,8 @@ from torchrl_dual.recipe.kits.build import projected_policy
 from torchrl_dual.recipe.o2o.learner import Learner, RunContext
 from torchrl_dual.recipe.parts import networks
 from torchrl_dual.recipe.parts.planner_stage import offline_windows
+from torchrl_dual.recipe.settings.dual import PlannerSettings
+from torchrl_dual.recipe.settings.rules import as_settings
 
 
 class DiffuserLearner(Learner):
@@ -47,7 +49,9 @@ class DiffuserLearner(Learner):
         self.offline_windows = offline_windows(cfg, run.data, p.batch_size)
         self.online_windows: WindowReplayBuffer | None = None
         self.online_length = 0
-        self.planner = networks.make_planner(cfg, run.data)
+        self.planner = networks.make_planner(
+            as_settings(PlannerSettings, cfg.planner), run.data, cfg.device
+        )
         self.loss = DiffusionPlannerLoss(
             self.planner, action_condition_prob=p.action_condition_prob
         )

@@ -1,10 +1,15 @@
-"""DUAL's learner (Algorithm 1 of the paper) for :class:`~torchrl_dual.recipe.O2ORun`.
+"""DUAL (Algorithm 1 of the paper) as the recipe's learner: builders, then the learner.
 
-The offline phase pre-trains the diffusion planner, distils it to one step, pre-trains
-the weighted MAP actor and the critic and fits the last-layer Laplace posterior; the
-online phase acts with the Laplace ensemble plus shift-aware noise and fine-tunes on
-offline and online data, refitting the posterior every ``budget.laplace_refit_every``
-updates. :func:`run_dual` runs it; see docs/recipe.md.
+Read top to bottom: the builders of DUAL's own networks (Alg. 1 line 1), each from its
+typed config section (:class:`~torchrl_dual.recipe.settings.dual.DualSections`, whose
+schemas and checks live in ``settings/dual.py`` so that a bad value is reported before
+torch is imported), then :class:`DualLearner`: its networks, its offline stages (lines
+2-9), its update (lines 7-8 and 15-16) and its Laplace refits (line 17). The online loop
+that calls them (lines 10-18) is :func:`~torchrl_dual.recipe.run_o2o` (``o2o/loop.py``);
+the critics are ``parts/critics.py``. The offline phase pre-trains the diffusion planner,
+distils it to one step, pre-trains the weighted MAP actor and the critic and fits the
+last-layer Laplace posterior; the online phase acts with the Laplace ensemble plus
+shift-aware noise and fine-tunes on offline and online data. See docs/recipe.md.
 """
 
 from __future__ import annotations
@@ -12,21 +17,79 @@ from __future__ import annotations
 import torch
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
+from torchrl.data.tensor_specs import TensorSpec
 
+from torchrl_dual import PlannerActor, TransitionModel, WeightedMAPActorLoss
+from torchrl_dual.diffusion import TrajectoryDiffusion
 from torchrl_dual.modules import ShiftAwareNoise
 from torchrl_dual.objectives import progressive_distillation
+from torchrl_dual.recipe.kits.build import env_kit
 from torchrl_dual.recipe.o2o.learner import Learner, RunContext
 from torchrl_dual.recipe.o2o.loop import run_o2o
 from torchrl_dual.recipe.o2o.run import O2ORun
-from torchrl_dual.recipe.parts import networks
-from torchrl_dual.recipe.parts.critics import policy_view
+from torchrl_dual.recipe.parts.critics import Critic, make_critic, policy_view
 from torchrl_dual.recipe.parts.laplace_refits import RefitSchedule, ensemble_signals
 from torchrl_dual.recipe.parts.mc_labels import MonteCarloLabels
+from torchrl_dual.recipe.parts.networks import make_planner, make_policy, student_like
 from torchrl_dual.recipe.parts.planner_augment import augment_capacity, make_augmenter
 from torchrl_dual.recipe.parts.planner_stage import offline_windows, pretrain_planner
-from torchrl_dual.recipe.settings.parts import CRITICS, POLICY_CRITICS
+from torchrl_dual.recipe.settings.dual import ActorSettings, DualSections
+from torchrl_dual.recipe.settings.parts import POLICY_CRITICS
 
 
+# ---------------------------------------------------------------------- builders (l. 1)
+def make_actor(
+    actor: ActorSettings, final_steps: int, teacher: TrajectoryDiffusion
+) -> PlannerActor:
+    """The actor ``π_θ`` (Eq. 5, 7): a planner shaped like the teacher with ``final_steps``
+    steps (``distillation.final_steps``, 1 for DUAL), whose weights the distillation loads.
+
+    Built before any training, it holds the teacher's fresh initialisation and its
+    normalizer fitted on ``D_offline``: with ``actor.init=scratch`` that is what Eq. 7
+    starts from (the distillation then only feeds the transition model)."""
+    student = student_like(teacher, final_steps)
+    return PlannerActor(student, latent=actor.latent, init_std=actor.init_std)
+
+
+def make_transition_model(
+    kind: str, final_steps: int, teacher: TrajectoryDiffusion, actor: PlannerActor
+) -> TransitionModel:
+    """``p(s' | s, a; θ)``, the source of Eq. (10)'s ``ŝ_t``; ``kind`` is
+    ``exploration.transition_model``.
+
+    ``frozen``: its own frozen copy of the distilled student (loaded after distillation),
+    which the actor's fine-tuning leaves alone; saved inside the ensemble. ``shared``: the
+    actor's own fine-tuned planner (Alg. 1's single ``θ``), held by reference and saved
+    only as the actor's weights.
+    """
+    if kind == "frozen":
+        return TransitionModel(student_like(teacher, final_steps))
+    return TransitionModel(actor.model, frozen=False)
+
+
+def make_actor_loss(
+    settings: ActorSettings,
+    actor: PlannerActor,
+    critic: Critic,
+    action_spec: TensorSpec,
+    entropy_coef: float | None = None,
+) -> WeightedMAPActorLoss:
+    """The weighted MAP actor loss of Eq. (7) on the critics; ``action_spec`` bounds the
+    actions at which the ``sac`` weighting reads Q, whose ``α`` is ``entropy_coef`` when
+    the critic has one (SO2: the same ``α`` as its targets)."""
+    entropy = {} if entropy_coef is None else {"entropy_coef": entropy_coef}
+    return WeightedMAPActorLoss.from_iql(
+        actor,
+        critic.loss,
+        weighting=settings.weighting,
+        temperature=settings.temperature,
+        max_weight=settings.max_weight,
+        action_spec=action_spec,
+        **entropy,
+    )
+
+
+# ---------------------------------------------------------------------- the learner
 class DualLearner(Learner):
     """DUAL's networks (teacher ``g_θ'``, actor ``π_θ``, transition model, IQL critics),
     its offline stages, its update (IQL critic step, then Eq. 7) and its Laplace refits."""
@@ -47,30 +110,40 @@ class DualLearner(Learner):
     def __init__(self, run: RunContext) -> None:
         self.run = run
         cfg = self.cfg = run.cfg
-        data = run.data
-        self.windows = offline_windows(cfg, data, cfg.planner.batch_size)
+        s = self.settings = DualSections.of(cfg)
+        data, spec = run.data, run.env.action_spec
+        self.windows = offline_windows(cfg, data, s.planner.batch_size)
         # ---- networks: teacher g_θ', actor π_θ and its transition model, critics
-        self.teacher = networks.make_planner(cfg, data)
-        self.actor = networks.make_actor(cfg, self.teacher)
-        self.transition = networks.make_transition_model(cfg, self.teacher, self.actor)
-        make_critic = CRITICS[cfg.critic.name][1]
+        self.teacher = make_planner(s.planner, data, cfg.device)
+        final_steps = s.distillation.final_steps
+        self.actor = make_actor(s.actor, final_steps, self.teacher)
+        self.transition = make_transition_model(
+            s.exploration.transition_model, final_steps, self.teacher, self.actor
+        )
         samples_policy = cfg.critic.name in POLICY_CRITICS  # Cal-QL: N(μ(s), σ̄²) of π_θ
-        view = policy_view(self.actor, run.env.action_spec) if samples_policy else None
+        view = policy_view(self.actor, spec) if samples_policy else None
         self.critic = make_critic(cfg, data.obs_dim, data.action_dim, actor=view)
         self.online_batches_per_update = self.critic.online_steps_per_update  # SO2: 10
         # critic=calql: the Monte-Carlo bound on D_offline now, on D_online per episode
         self.labels = MonteCarloLabels(run) if cfg.critic.name == "calql" else None
-        self.actor_loss = networks.make_actor_loss(
-            cfg, self.actor, self.critic, run.env.action_spec
+        entropy_coef = cfg.critic.get("entropy_coef")  # SO2's α
+        self.actor_loss = make_actor_loss(s.actor, self.actor, self.critic, spec, entropy_coef)
+        self.actor_optimizer = torch.optim.Adam(self.actor_loss.parameters(), lr=s.actor.lr)
+        self.policy = make_policy(  # Eq. 9 + Eq. 10
+            s.laplace,
+            self.actor,
+            spec,
+            transition=self.transition,
+            shift_weight=s.exploration.shift_weight,
+            action_projection=env_kit(cfg).action_projection,
+            device=cfg.device,
         )
-        self.actor_optimizer = torch.optim.Adam(self.actor_loss.parameters(), lr=cfg.actor.lr)
-        self.policy = networks.make_policy(cfg, self.actor, run.env.action_spec, self.transition)
         self.ensemble = self.policy[0]  # Eq. 9's ensemble: acts and holds ŝ_t's model
         # the one decision point of the no-UQ and latent-UQ ablations: no posterior to fit
-        self.uses_posterior = cfg.laplace.uq == "laplace" and cfg.laplace.num_samples > 0
+        self.uses_posterior = s.laplace.uq == "laplace" and s.laplace.num_samples > 0
         self.exploration_policy = self.policy  # Eq. 9 + Eq. 10
         self.noise = next(m for m in self.policy.modules() if isinstance(m, ShiftAwareNoise))
-        self.noise.extra_variance = float(cfg.exploration.extra_variance)  # v_c, beyond Eq. 10
+        self.noise.extra_variance = float(s.exploration.extra_variance)  # v_c, beyond Eq. 10
         self.evaluation_policy = self.ensemble  # the MAP mean under DETERMINISTIC
         self.refits = RefitSchedule(cfg.budget.laplace_refit_every)  # Alg. 1 l. 17
         # augment.kind=planner: guided teacher windows added to D_online (Alg. 1 l. 14);
@@ -138,7 +211,7 @@ class DualLearner(Learner):
 
     @property
     def uses_shift_floor(self) -> bool:
-        return self.cfg.exploration.shift_floor != 0
+        return self.settings.exploration.shift_floor != 0
 
     def update(self, batch: TensorDictBase) -> dict:
         """One critic (IQL, Cal-QL's TD + bounded penalty, or SO2's ensemble TD: one step
@@ -186,13 +259,13 @@ class DualLearner(Learner):
             self.teacher,
             self.windows.sample,
             list(self.cfg.budget.distill_updates),
-            final_steps=self.cfg.distillation.final_steps,
-            lr=self.cfg.distillation.lr,
-            action_condition_prob=self.cfg.planner.action_condition_prob,
+            final_steps=self.settings.distillation.final_steps,
+            lr=self.settings.distillation.lr,
+            action_condition_prob=self.settings.planner.action_condition_prob,
             logger=self.run.logger,
             progress=self.cfg.progress,
         )
-        if self.cfg.actor.init == "distilled":
+        if self.settings.actor.init == "distilled":
             self.actor.model.load_state_dict(student.state_dict())
         if self.transition.frozen:  # a shared transition model is actor.model itself
             self.transition.model.load_state_dict(student.state_dict())
@@ -207,7 +280,7 @@ class DualLearner(Learner):
         with torch.no_grad():
             # The Hessian of Eq. (7) carries the actor loss's own weights (uniform for
             # "uniform"; "sac" has no per-sample weights, so its GGN uses uniform ones).
-            advantage = self.cfg.actor.weighting == "advantage"
+            advantage = self.settings.actor.weighting == "advantage"
             laplace = self.ensemble.fit_laplace(
                 self.run.all_transitions(),
                 weight_fn=self.actor_loss.advantage_weights if advantage else None,
@@ -218,7 +291,7 @@ class DualLearner(Learner):
         """``exploration.shift_floor``: ``d_0`` of the noise's ``λ max(d_t − d_0, 0)``; a
         number, or ``offline``: the mean of :meth:`offline_shift_distances` (up to 20000
         transitions), the transition model's error where it was fitted."""
-        floor = self.cfg.exploration.shift_floor
+        floor = self.settings.exploration.shift_floor
         if floor == "offline":
             floor = self.offline_shift_distances(20000, int(self.cfg.seed)).mean()
         self.noise.shift_floor.fill_(float(floor))

@@ -34,6 +34,8 @@ from torchrl_dual.recipe.parts.planner_stage import (
     offline_windows,
     pretrain_planner,
 )
+from torchrl_dual.recipe.settings.dual import PlannerSettings
+from torchrl_dual.recipe.settings.rules import as_settings
 
 
 class EDISLearner(IQLLearner):
@@ -46,7 +48,9 @@ class EDISLearner(IQLLearner):
     def __init__(self, run: RunContext) -> None:
         super().__init__(run)
         cfg = run.cfg
-        self.planner = networks.make_planner(cfg, run.data)
+        self.planner = networks.make_planner(
+            as_settings(PlannerSettings, cfg.planner), run.data, cfg.device
+        )
         self.planner_windows = offline_windows(cfg, run.data, cfg.planner.batch_size)
         self.augmenter = PlannerAugmenter(run, self.planner)
         self.extra_online_capacity = augment_capacity(cfg)

@@ -34,8 +34,8 @@ from torchrl_dual.recipe.kits.build import projected_policy
 from torchrl_dual.recipe.o2o.learner import Learner, RunContext
 from torchrl_dual.recipe.o2o.loop import run_o2o
 from torchrl_dual.recipe.o2o.run import O2ORun
+from torchrl_dual.recipe.parts.critics import make_critic
 from torchrl_dual.recipe.settings.baselines import ACTOR_DISTRIBUTIONS
-from torchrl_dual.recipe.settings.parts import CRITICS
 
 
 def make_iql_actor(
@@ -106,7 +106,6 @@ class IQLLearner(Learner):
         self.actor = make_iql_actor(
             cfg, run.data.obs_dim, spec, distribution=cfg.actor.distribution
         )
-        make_critic = CRITICS[cfg.critic.name][1]
         self.critic = make_critic(
             cfg,
             run.data.obs_dim,

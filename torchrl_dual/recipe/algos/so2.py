@@ -27,7 +27,7 @@ from torchrl_dual.recipe.kits.build import projected_policy
 from torchrl_dual.recipe.o2o.learner import Learner, RunContext
 from torchrl_dual.recipe.o2o.loop import run_o2o
 from torchrl_dual.recipe.o2o.run import O2ORun
-from torchrl_dual.recipe.settings.parts import CRITICS
+from torchrl_dual.recipe.parts.critics import make_critic
 
 
 class SO2Learner(Learner):
@@ -43,9 +43,7 @@ class SO2Learner(Learner):
         self.actor = make_iql_actor(
             cfg, run.data.obs_dim, run.env.action_spec, return_log_prob=True
         )
-        self.critic = CRITICS[cfg.critic.name][1](
-            cfg, run.data.obs_dim, run.data.action_dim, actor=self.actor
-        )
+        self.critic = make_critic(cfg, run.data.obs_dim, run.data.action_dim, actor=self.actor)
         self.online_batches_per_update = self.critic.online_steps_per_update
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor.lr)
         self.alpha = cfg.critic.entropy_coef

@@ -3,22 +3,36 @@
 The offline stages of the :class:`~torchrl_dual.recipe.Learner` (shared through
 ``offline_cache`` when set), the offline evaluation, then the online loop of Algorithm 1
 (lines 10-18): collect a batch with the exploration policy, store it, run the UTD
-updates, the learner's hook (DUAL's Laplace refits), the weight push to the collector's
-workers, log, evaluate, checkpoint; the collector is shut down however the loop ends.
+updates (each the learner's ``update`` on a sample of the offline and online replay,
+counted by :meth:`O2ORun.update`, compiled with ``compile.compile=true``), the learner's
+hook (DUAL's Laplace refits), the weight push to the collector's workers, log, evaluate,
+checkpoint; the collector is shut down however the loop ends.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 
+import torch
 from omegaconf import DictConfig
+from tensordict import TensorDictBase
 
 from torchrl_dual.recipe.o2o.learner import Learner
 from torchrl_dual.recipe.o2o.offline_cache import run_offline_stages
 from torchrl_dual.recipe.o2o.plots import online_signals
+from torchrl_dual.recipe.o2o.replays import Replay
 from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.o2o.stage_clock import StageClock
 from torchrl_dual.recipe.settings.o2o import COLLECTORS
+
+
+def online_batch(replay: Replay, k: int, device: torch.device) -> TensorDictBase:
+    """One update's sample of D_offline ∪ D_online (``replay``) on ``device``: a ``[B]``
+    batch, or ``[k, B]`` (``k`` batches stacked) for a learner with
+    :attr:`~torchrl_dual.recipe.Learner.online_batches_per_update` ``k > 1`` (SO2)."""
+    if k == 1:
+        return replay.sample().to(device)
+    return torch.stack([replay.sample() for _ in range(k)]).to(device)
 
 
 def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORun:
@@ -38,11 +52,19 @@ def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORu
     clock = StageClock(run.stage_seconds, run.stage_cpu_seconds, "online")
     collector = run.collector() if run.frames < budget.online_frames else None
     push = COLLECTORS[cfg.collector.name].push  # the weights' way to the collector
+    device = torch.device(cfg.device)
     try:
         for batch in collector if collector is not None else ():
-            stats = run.store(batch)  # act with the exploration policy, store in D_online
-            losses = run.train_online(batch.numel())  # UTD-ratio updates
-            run.learner.after_updates()  # DUAL: refit the Laplace posterior when due
+            stats = run.store(batch)  # l. 11-13: acted with the exploration policy -> D_online
+            # l. 14-16: online.utd_ratio gradient updates per collected frame
+            run.update_credit += cfg.online.utd_ratio * batch.numel()
+            losses: dict = {}
+            while run.update_credit >= 1:
+                sample = online_batch(run.replay, run.learner.online_batches_per_update, device)
+                losses = run.update(sample)  # the learner's update (DUAL: IQL critic + Eq. 7)
+                losses.update(run.replay.after_update(sample))  # balanced replay's own step
+                run.update_credit -= 1
+            run.learner.after_updates()  # l. 17, DUAL: refit the Laplace posterior when due
             push(collector, run.learner.exploration_policy)  # to the workers
             run.log({**stats, **losses}, run.frames, "online/")
             if (signals := online_signals(run.frames, stats)) is not None:

@@ -311,27 +311,6 @@ class O2ORun:
             **self.learner.batch_metrics(batch),
         }
 
-    def online_batch(self) -> TensorDictBase:
-        """One update's sample of D_offline ∪ D_online on the run's device: a ``[B]`` batch,
-        or ``[k, B]`` (``k`` batches stacked) for a learner with
-        :attr:`~torchrl_dual.recipe.Learner.online_batches_per_update` ``k > 1``."""
-        k = self.learner.online_batches_per_update
-        if k == 1:
-            return self.replay.sample().to(self.cfg.device)
-        return torch.stack([self.replay.sample() for _ in range(k)]).to(self.cfg.device)
-
-    def train_online(self, num_frames: int) -> dict:
-        """``online.utd_ratio`` updates per collected frame on D_offline ∪ D_online, each
-        followed by the replay's own step (balanced replay: density ratio, priorities)."""
-        self.update_credit += self.cfg.online.utd_ratio * num_frames
-        metrics: dict = {}
-        while self.update_credit >= 1:
-            batch = self.online_batch()
-            metrics = self.update(batch)
-            metrics.update(self.replay.after_update(batch))
-            self.update_credit -= 1
-        return metrics
-
     def finish(self) -> None:
         """Writes the learning curve and ``summary.json``, closes the logger; prints where
         everything is."""

@@ -21,11 +21,20 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.data import TensorSpec
+from torchrl.data.utils import DEVICE_TYPING
 from torchrl.modules import MLP, ProbabilisticActor, ValueOperator
 from torchrl.objectives import IQLLoss, SoftUpdate
 
 from torchrl_dual.modules.actors.action_box import ClippedNormal, box_bounds
 from torchrl_dual.objectives import CalQLLoss, SO2QLoss
+from torchrl_dual.recipe.settings.parts import (
+    CRITICS,
+    CalQLCriticSettings,
+    CriticSettings,
+    IQLCriticSettings,
+    SO2CriticSettings,
+)
+from torchrl_dual.recipe.settings.rules import as_settings
 
 CriticLoss = IQLLoss | CalQLLoss | SO2QLoss
 
@@ -164,10 +173,26 @@ class _NoActor(nn.Module):
         )
 
 
-def make_iql_critic(
+def make_critic(
     cfg: DictConfig,
     obs_dim: int,
     action_dim: int,
+    actor: ProbabilisticActor | None = None,
+    temperature: float = 1.0,
+) -> Critic:
+    """The ``critic.name`` entry of :data:`~torchrl_dual.recipe.settings.parts.CRITICS`
+    built from its typed ``critic`` section on ``cfg.device`` (``actor`` and
+    ``temperature`` as its builder takes them)."""
+    kind = CRITICS[cfg.critic.name]
+    settings = as_settings(kind.settings, cfg.critic)
+    return kind.make(settings, obs_dim, action_dim, cfg.device, actor, temperature)
+
+
+def make_iql_critic(
+    settings: IQLCriticSettings,
+    obs_dim: int,
+    action_dim: int,
+    device: DEVICE_TYPING = "cpu",
     actor: ProbabilisticActor | None = None,
     temperature: float = 1.0,
 ) -> Critic:
@@ -180,8 +205,8 @@ def make_iql_critic(
     regression at ``temperature`` and ``loss`` holds the actor's weights, which the
     critic's optimizer leaves alone.
     """
-    c = cfg.critic
-    qvalue = q_network(cfg, obs_dim, action_dim)
+    c = settings
+    qvalue = q_network(c, obs_dim, action_dim)
     value = ValueOperator(
         MLP(
             in_features=obs_dim,
@@ -205,7 +230,7 @@ def make_iql_critic(
         temperature=temperature,
         num_qvalue_nets=2,
         loss_function="l2",
-    ).to(cfg.device)
+    ).to(device)
     loss.make_value_estimator(gamma=c.discount)
     params = list(loss.qvalue_network_params.values(True, True)) + list(
         loss.value_network_params.values(True, True)
@@ -215,9 +240,10 @@ def make_iql_critic(
 
 
 def make_calql_critic(
-    cfg: DictConfig,
+    settings: CalQLCriticSettings,
     obs_dim: int,
     action_dim: int,
+    device: DEVICE_TYPING = "cpu",
     actor: ProbabilisticActor | None = None,
     temperature: float = 1.0,
 ) -> Critic:
@@ -227,8 +253,8 @@ def make_calql_critic(
     optimizer holds the Q networks only; the learner steps the actor and ``log_alpha``."""
     if actor is None:
         raise ValueError("critic=calql needs the actor it samples (a TanhNormal actor).")
-    c = cfg.critic
-    qvalue = q_network(cfg, obs_dim, action_dim)
+    c = settings
+    qvalue = q_network(c, obs_dim, action_dim)
     loss = CalQLLoss(
         actor,
         qvalue,
@@ -237,7 +263,7 @@ def make_calql_critic(
         num_random=c.num_random,
         temperature=c.temperature,
         action_spec=actor.spec,
-    ).to(cfg.device)
+    ).to(device)
     loss.make_value_estimator(gamma=c.discount)
     optimizer = torch.optim.Adam(loss.qvalue_network_params.values(True, True), lr=c.lr)
     saves_actor = not any(isinstance(m, _MeanAndStd) for m in actor.modules())  # policy_view
@@ -246,9 +272,10 @@ def make_calql_critic(
 
 
 def make_so2_critic(
-    cfg: DictConfig,
+    settings: SO2CriticSettings,
     obs_dim: int,
     action_dim: int,
+    device: DEVICE_TYPING = "cpu",
     actor: ProbabilisticActor | None = None,
     temperature: float = 1.0,
 ) -> Critic:
@@ -258,10 +285,10 @@ def make_so2_critic(
     offline (SAC-N) setting: :func:`so2_phase` switches to SO2's online one."""
     if actor is None:
         raise ValueError("critic=so2 needs the actor its targets sample.")
-    c = cfg.critic
+    c = settings
     loss = SO2QLoss(
         actor,
-        q_network(cfg, obs_dim, action_dim),
+        q_network(c, obs_dim, action_dim),
         action_spec=actor.spec,
         num_qvalue_nets=c.num_qvalue_nets,
         policy_noise=c.policy_noise,
@@ -269,26 +296,26 @@ def make_so2_critic(
         target_reduction=c.offline_target_reduction,
         entropy_coef=c.entropy_coef,
         gamma=c.discount,
-    ).to(cfg.device)
-    phases = partial(so2_phase, cfg=cfg)
+    ).to(device)
+    phases = partial(so2_phase, settings=c)
     phases(loss, online=False)
     optimizer = torch.optim.Adam(loss.qvalue_network_params.values(True, True), lr=c.lr)
     updater = SoftUpdate(loss, tau=c.target_update_tau)
     return Critic(loss, optimizer, updater, so2_terms, True, c.online_steps_per_update, phases)
 
 
-def so2_phase(loss: SO2QLoss, *, cfg: DictConfig, online: bool) -> None:
+def so2_phase(loss: SO2QLoss, *, settings: SO2CriticSettings, online: bool) -> None:
     """Offline: SAC-N's targets (``critic.offline_target_reduction``, no noise); online:
     SO2's (``critic.target_reduction`` at the action smoothed by ``critic.policy_noise``)."""
-    c = cfg.critic
+    c = settings
     loss.target_reduction = c.target_reduction if online else c.offline_target_reduction
     loss.policy_noise = c.policy_noise if online else 0.0
 
 
-def q_network(cfg: DictConfig, obs_dim: int, action_dim: int) -> ValueOperator:
+def q_network(settings: CriticSettings, obs_dim: int, action_dim: int) -> ValueOperator:
     """``Q(s, a)``: an MLP on the concatenated ``(s, a)``, ``critic.depth`` hidden layers of
     ``critic.hidden`` units (every critic's: IQL's twin, Cal-QL's twin, SO2's ensemble)."""
-    c = cfg.critic
+    c = settings
     mlp = MLP(
         in_features=obs_dim + action_dim,
         out_features=1,

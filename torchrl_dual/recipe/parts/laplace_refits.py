@@ -23,8 +23,11 @@ from tensordict import TensorDictBase
 from torch import nn
 
 from torchrl_dual.modules import LaplaceEnsembleActor, LastLayerActor
+from torchrl_dual.recipe.kits.build import env_kit
 from torchrl_dual.recipe.o2o.learner import RunContext
 from torchrl_dual.recipe.parts.networks import make_policy
+from torchrl_dual.recipe.settings.dual import EnsembleSettings
+from torchrl_dual.recipe.settings.rules import as_settings
 
 
 def ensemble_signals(batch: TensorDictBase) -> dict[str, float]:
@@ -113,7 +116,15 @@ class LaplaceRefits:
         ``λ = exploration.shift_weight`` (0 without a transition model:
         :func:`~torchrl_dual.recipe.settings.algo_common.check_no_shift_weight`) and the env kit's
         ``action_projection``. Sets ``policy``, ``ensemble`` and ``exploration_policy``."""
-        self.policy = make_policy(self.run.cfg, actor, self.run.env.action_spec)
+        cfg = self.run.cfg
+        self.policy = make_policy(
+            as_settings(EnsembleSettings, cfg.laplace),
+            actor,
+            self.run.env.action_spec,
+            shift_weight=cfg.exploration.shift_weight,
+            action_projection=env_kit(cfg).action_projection,
+            device=cfg.device,
+        )
         self.ensemble = self.policy[0]
         self.exploration_policy = self.policy  # Eq. 9 + Eq. 10
 

@@ -1,12 +1,13 @@
 """An entry of the recipe's algorithm table, and the settings several algorithms share.
 
-An :class:`Algorithm` names the config sections it reads with their schemas, the
-critics it works with, the checks across its keys, and (as a
-:class:`~torchrl_dual.recipe.settings.lazy.Ref`) the
-:class:`~torchrl_dual.recipe.o2o.learner.Learner` that runs it. DUAL's entry is in
+An :class:`Algorithm` pairs its :class:`AlgorithmSettings` (the config sections it reads
+with their schemas, the critics it works with, the checks across its keys) with the
+:class:`~torchrl_dual.recipe.o2o.learner.Learner` that runs it (a
+:class:`~torchrl_dual.recipe.settings.lazy.Ref`). DUAL's settings are in
 :mod:`~torchrl_dual.recipe.settings.dual`, the baselines' in
 :mod:`~torchrl_dual.recipe.settings.baselines`;
-:data:`~torchrl_dual.recipe.settings.algos.ALGORITHMS` lists them by ``algo`` name.
+:data:`~torchrl_dual.recipe.settings.algos.ALGORITHMS` pairs them with their learners by
+``algo`` name.
 """
 
 from __future__ import annotations
@@ -18,36 +19,39 @@ from typing import Any
 from omegaconf import DictConfig
 
 from torchrl_dual.recipe.settings.errors import ConfigError
-from torchrl_dual.recipe.settings.lazy import Ref
 from torchrl_dual.recipe.settings.rules import Integer, Real, key
 
 
 @dataclass(frozen=True)
-class Algorithm:
-    """One entry of :data:`~torchrl_dual.recipe.settings.algos.ALGORITHMS`.
+class AlgorithmSettings:
+    """What :func:`~torchrl_dual.recipe.validate_config` checks of one algorithm.
 
     Args:
         sections (dict): top-level config section -> schema dataclass of its keys.
         critics (tuple of str): the ``critic`` options it supports.
         check (callable): ``cfg -> None``, raises ``ConfigError`` on an impossible
             combination of keys (run after every key passed its own rule).
-        learner (callable): ``O2ORun -> Learner``, usually a :class:`Ref` to the learner
-            class; :meth:`run` runs it through :func:`~torchrl_dual.recipe.run_o2o`.
     """
 
     sections: dict[str, type]
     critics: tuple[str, ...]
     check: Callable[[DictConfig], None]
+
+
+@dataclass(frozen=True)
+class Algorithm:
+    """One entry of :data:`~torchrl_dual.recipe.settings.algos.ALGORITHMS`: its settings and
+    the learner :func:`~torchrl_dual.recipe.run_o2o` runs.
+
+    Args:
+        settings (AlgorithmSettings): its config sections, critics and checks.
+        learner (callable): ``O2ORun -> Learner``, usually a
+            :class:`~torchrl_dual.recipe.settings.lazy.Ref` to the learner
+            class (imported when a run starts, so the table stays torch-free).
+    """
+
+    settings: AlgorithmSettings
     learner: Callable[..., Any]
-
-    def run(self, cfg: DictConfig) -> Any:
-        """The whole run (or its resumption) for a validated ``cfg``: the finished
-        :class:`~torchrl_dual.recipe.O2ORun`."""
-        return RUN_O2O(cfg, self.learner)
-
-
-RUN_O2O = Ref("torchrl_dual.recipe.o2o.loop:run_o2o")
-"""Algorithm 1 for a learner (:func:`~torchrl_dual.recipe.o2o.loop.run_o2o`)."""
 
 
 @dataclass

@@ -1,11 +1,12 @@
 """The table of algorithms the recipe runs, selected by the ``algo`` config group.
 
-Each entry is an :class:`~torchrl_dual.recipe.settings.algo_common.Algorithm`: its config
-sections and their schemas, its critics, its checks across keys and a
-:class:`~torchrl_dual.recipe.settings.lazy.Ref` to its learner in
-:mod:`torchrl_dual.recipe.algos`. ``torchrl_dual/recipe/config/algo/<name>.yaml`` holds
-its settings. Adding an algorithm is adding a learner module, its settings, a config
-file and one line here.
+Each entry is an :class:`~torchrl_dual.recipe.settings.algo_common.Algorithm`: its
+settings (config sections and their schemas, critics, checks across keys; DUAL's in
+:mod:`~torchrl_dual.recipe.settings.dual`, the baselines' in
+:mod:`~torchrl_dual.recipe.settings.baselines`) and the learner that runs it, one module
+of :mod:`torchrl_dual.recipe.algos` per algorithm, imported when a run starts.
+``torchrl_dual/recipe/config/algo/<name>.yaml`` holds its settings' values. Adding an
+algorithm is adding a learner module, its settings, a config file and one line here.
 """
 
 from __future__ import annotations
@@ -23,17 +24,20 @@ from torchrl_dual.recipe.settings.baselines import (
     SO2,
 )
 from torchrl_dual.recipe.settings.dual import DUAL
+from torchrl_dual.recipe.settings.lazy import Ref
+
+_ALGOS = "torchrl_dual.recipe.algos"
 
 ALGORITHMS: dict[str, Algorithm] = {
-    "dual": DUAL,
-    "iql": IQL,
-    "iql_la": IQL_LA,
-    "diffql": DIFFQL,
-    "diffql_la": DIFFQL_LA,
-    "diffuser": DIFFUSER,
-    "dacer": DACER,
-    "edis": EDIS,
-    "calql": CALQL,
-    "so2": SO2,
+    "dual": Algorithm(DUAL, Ref(f"{_ALGOS}.dual:DualLearner")),
+    "iql": Algorithm(IQL, Ref(f"{_ALGOS}.iql:IQLLearner")),
+    "iql_la": Algorithm(IQL_LA, Ref(f"{_ALGOS}.iql_la:IQLLALearner")),
+    "diffql": Algorithm(DIFFQL, Ref(f"{_ALGOS}.diffql:DiffQLLearner")),
+    "diffql_la": Algorithm(DIFFQL_LA, Ref(f"{_ALGOS}.diffql:DiffQLLALearner")),
+    "diffuser": Algorithm(DIFFUSER, Ref(f"{_ALGOS}.diffuser:DiffuserLearner")),
+    "dacer": Algorithm(DACER, Ref(f"{_ALGOS}.dacer:DACERLearner")),
+    "edis": Algorithm(EDIS, Ref(f"{_ALGOS}.edis:EDISLearner")),
+    "calql": Algorithm(CALQL, Ref(f"{_ALGOS}.calql:CalQLLearner")),
+    "so2": Algorithm(SO2, Ref(f"{_ALGOS}.so2:SO2Learner")),
 }
 """``algo`` -> :class:`~torchrl_dual.recipe.settings.algo_common.Algorithm`."""

@@ -9,22 +9,20 @@ read DUAL's ``planner``, ``iql_la`` DUAL's ``laplace`` keys, ``dacer`` Diff-QL's
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
 from omegaconf import DictConfig
 
 from torchrl_dual.recipe.settings.algo_common import (
-    Algorithm,
+    AlgorithmSettings,
     NoShiftExplorationSettings,
     OnlineSettings,
     check_no_shift_weight,
     check_nothing,
 )
-from torchrl_dual.recipe.settings.dual import LaplaceSettings, PlannerSettings
+from torchrl_dual.recipe.settings.dual import EnsembleSettings, PlannerSettings
 from torchrl_dual.recipe.settings.errors import ConfigError
-from torchrl_dual.recipe.settings.lazy import Ref
 from torchrl_dual.recipe.settings.names import SAMPLERS
 from torchrl_dual.recipe.settings.parts import AugmentSettings, check_augment, check_planner_window
 from torchrl_dual.recipe.settings.rules import (
@@ -57,30 +55,18 @@ class IQLActorSettings:
     )
 
 
-IQL = Algorithm(
+IQL = AlgorithmSettings(
     sections={"actor": IQLActorSettings, "online": OnlineSettings},
     critics=("iql",),
     check=check_nothing,
-    learner=Ref("torchrl_dual.recipe.algos.iql:IQLLearner"),
 )
 
 
-_DUAL_LAPLACE = {f.name: f for f in dataclasses.fields(LaplaceSettings)}
-
-
-def _dual_laplace_key(name: str) -> Any:
-    """DUAL's ``laplace.<name>`` key: the same rule and meaning."""
-    return dataclasses.field(metadata=_DUAL_LAPLACE[name].metadata)
-
-
 @dataclass
-class IQLLALaplaceSettings:
+class IQLLALaplaceSettings(EnsembleSettings):
     """``algo/iql_la.yaml``'s ``laplace``: DUAL's keys of Eq. (8-9) that apply to a plain
-    actor (``M`` and the prior, with DUAL's rules) and where ``σ̄`` comes from."""
+    actor (``M``, the prior and ``T``, with DUAL's rules) and where ``σ̄`` comes from."""
 
-    num_samples: int = _dual_laplace_key("num_samples")
-    prior_precision: Any = _dual_laplace_key("prior_precision")
-    posterior_temperature: Any = _dual_laplace_key("posterior_temperature")
     noise_std: Any = key(
         Either(
             (Choice(("iql",)), Real(0, 2, low_open=True)), "must be 'iql' or a number in (0, 2]"
@@ -89,7 +75,7 @@ class IQLLALaplaceSettings:
     )
 
 
-IQL_LA = Algorithm(
+IQL_LA = AlgorithmSettings(
     sections={
         "actor": IQLActorSettings,
         "laplace": IQLLALaplaceSettings,
@@ -98,7 +84,6 @@ IQL_LA = Algorithm(
     },
     critics=("iql",),
     check=check_no_shift_weight,
-    learner=Ref("torchrl_dual.recipe.algos.iql_la:IQLLALearner"),
 )
 
 
@@ -123,26 +108,22 @@ class DiffQLActorSettings:
 
 
 @dataclass
-class DiffQLLaplaceSettings:
+class DiffQLLaplaceSettings(EnsembleSettings):
     """``algo/diffql_la.yaml``'s ``laplace``: Eq. (8-9) on the last DDPM step (DUAL's keys
     of Eq. 8-9, with DUAL's rules, and the weights of the fit)."""
 
-    num_samples: int = _dual_laplace_key("num_samples")
-    prior_precision: Any = _dual_laplace_key("prior_precision")
-    posterior_temperature: Any = _dual_laplace_key("posterior_temperature")
     temperature: float = key(Real(0), "β of the Laplace fit's weights exp(β (Q - V))")
     max_weight: float = key(Real(0, low_open=True), "clip of those weights")
 
 
-DIFFQL = Algorithm(
+DIFFQL = AlgorithmSettings(
     sections={"actor": DiffQLActorSettings, "online": OnlineSettings},
     critics=("iql",),
     check=check_nothing,
-    learner=Ref("torchrl_dual.recipe.algos.diffql:DiffQLLearner"),
 )
 
 
-DIFFQL_LA = Algorithm(
+DIFFQL_LA = AlgorithmSettings(
     sections={
         "actor": DiffQLActorSettings,
         "laplace": DiffQLLaplaceSettings,
@@ -151,7 +132,6 @@ DIFFQL_LA = Algorithm(
     },
     critics=("iql",),
     check=check_no_shift_weight,
-    learner=Ref("torchrl_dual.recipe.algos.diffql:DiffQLLALearner"),
 )
 
 
@@ -190,11 +170,10 @@ def check_dacer(cfg: DictConfig) -> None:
         )
 
 
-DACER = Algorithm(
+DACER = AlgorithmSettings(
     sections={"actor": DiffQLActorSettings, "dacer": DACERSettings, "online": OnlineSettings},
     critics=("iql",),
     check=check_dacer,
-    learner=Ref("torchrl_dual.recipe.algos.dacer:DACERLearner"),
 )
 
 
@@ -206,11 +185,10 @@ class DiffuserSettings:
     sampler: str = key(Choice(SAMPLERS), "sampler of the exploration plans (random latent)")
 
 
-DIFFUSER = Algorithm(
+DIFFUSER = AlgorithmSettings(
     sections={"planner": PlannerSettings, "diffuser": DiffuserSettings, "online": OnlineSettings},
     critics=("iql",),  # the critic section is not read: the Diffuser has no critic
     check=check_planner_window,
-    learner=Ref("torchrl_dual.recipe.algos.diffuser:DiffuserLearner"),
 )
 
 
@@ -228,7 +206,7 @@ def check_edis(cfg: DictConfig) -> None:
     check_augment(cfg)
 
 
-EDIS = Algorithm(
+EDIS = AlgorithmSettings(
     sections={
         "planner": PlannerSettings,
         "actor": IQLActorSettings,
@@ -237,7 +215,6 @@ EDIS = Algorithm(
     },
     critics=("iql",),
     check=check_edis,
-    learner=Ref("torchrl_dual.recipe.algos.edis:EDISLearner"),
 )
 
 
@@ -251,11 +228,10 @@ class CalQLActorSettings:
     lr: float = key(Real(0, low_open=True), "Adam learning rate of the actor and of log α")
 
 
-CALQL = Algorithm(
+CALQL = AlgorithmSettings(
     sections={"actor": CalQLActorSettings, "online": OnlineSettings},
     critics=("calql",),
     check=check_nothing,
-    learner=Ref("torchrl_dual.recipe.algos.calql:CalQLLearner"),
 )
 
 
@@ -269,9 +245,8 @@ class SO2ActorSettings:
     lr: float = key(Real(0, low_open=True), "Adam learning rate of the actor")
 
 
-SO2 = Algorithm(
+SO2 = AlgorithmSettings(
     sections={"actor": SO2ActorSettings, "online": OnlineSettings},
     critics=("so2",),
     check=check_nothing,
-    learner=Ref("torchrl_dual.recipe.algos.so2:SO2Learner"),
 )

@@ -5,17 +5,24 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 from omegaconf import DictConfig
 
-from torchrl_dual.recipe.settings.algo_common import Algorithm, OnlineSettings
+from torchrl_dual.recipe.settings.algo_common import AlgorithmSettings, OnlineSettings
 from torchrl_dual.recipe.settings.errors import ConfigError
-from torchrl_dual.recipe.settings.lazy import Ref
 from torchrl_dual.recipe.settings.names import LATENTS, SCHEDULES, UNCERTAINTIES, WEIGHTINGS
 from torchrl_dual.recipe.settings.parts import AugmentSettings, check_augment, check_planner_window
-from torchrl_dual.recipe.settings.rules import Choice, Either, Integer, PowerOfTwo, Real, key
+from torchrl_dual.recipe.settings.rules import (
+    Choice,
+    Either,
+    Integer,
+    PowerOfTwo,
+    Real,
+    as_settings,
+    key,
+)
 
 TRANSITION_MODELS = ("frozen", "shared")
 """Where Eq. (10)'s ``ŝ_t`` comes from (``exploration.transition_model``)."""
@@ -64,11 +71,12 @@ class ActorSettings:
 
 
 @dataclass
-class LaplaceSettings:
-    """Last-layer Laplace ensemble (Eq. 8-9)."""
+class EnsembleSettings:
+    """The Laplace ensemble's keys of Eq. (8-9) that every algorithm acting with it has
+    (``dual``, ``iql_la``, ``diffql_la``): what :func:`~torchrl_dual.recipe.parts.networks.make_policy`
+    reads."""
 
     num_samples: int = key(Integer(0), "M sub-policies; 0 = no epistemic UQ (MAP mean, σ̄)")
-    uq: str = key(Choice(UNCERTAINTIES), "laplace (Eq. 8) | latent (the 'w τ^N sampling' ablation)")
     prior_precision: Any = key(
         Either(
             (Choice(("evidence",)), Real(0, low_open=True)), "must be 'evidence' or a number > 0"
@@ -79,6 +87,13 @@ class LaplaceSettings:
         Either((Choice(("data",)), Real(0, low_open=True)), "must be 'data' or a number > 0"),
         "T: the posterior covariance × T (1: the summed loss); data: Eq. 7's mean loss",
     )
+
+
+@dataclass
+class LaplaceSettings(EnsembleSettings):
+    """Last-layer Laplace ensemble (Eq. 8-9), DUAL's."""
+
+    uq: str = key(Choice(UNCERTAINTIES), "laplace (Eq. 8) | latent (the 'w τ^N sampling' ablation)")
 
 
 @dataclass
@@ -181,7 +196,7 @@ def check_ablations(cfg: DictConfig) -> None:
             )
 
 
-DUAL = Algorithm(
+DUAL = AlgorithmSettings(
     sections={
         "planner": PlannerSettings,
         "distillation": DistillationSettings,
@@ -193,5 +208,31 @@ DUAL = Algorithm(
     },
     critics=("iql", "calql", "so2"),
     check=check_dual,
-    learner=Ref("torchrl_dual.recipe.algos.dual:DualLearner"),
 )
+
+
+@dataclass(frozen=True)
+class DualSections:
+    """DUAL's config sections, typed: what :class:`~torchrl_dual.recipe.algos.dual.DualLearner`
+    and its builders read (:meth:`of` a validated config).
+
+    Examples:
+        >>> from torchrl_dual.recipe import compose_checked, CONFIG_DIR
+        >>> cfg = compose_checked(CONFIG_DIR, ["budget=smoke"])
+        >>> sections = DualSections.of(cfg)
+        >>> sections.planner.num_steps, sections.distillation.final_steps
+        (32, 1)
+    """
+
+    planner: PlannerSettings
+    distillation: DistillationSettings
+    actor: ActorSettings
+    laplace: LaplaceSettings
+    exploration: ExplorationSettings
+    online: OnlineSettings
+    augment: AugmentSettings
+
+    @classmethod
+    def of(cls, cfg: DictConfig) -> DualSections:
+        """The sections of ``cfg`` (which passed ``validate_config``) as their schemas."""
+        return cls(**{f.name: as_settings(DUAL.sections[f.name], cfg[f.name]) for f in fields(cls)})

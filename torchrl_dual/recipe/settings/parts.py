@@ -82,8 +82,10 @@ class CriticKind(NamedTuple):
     settings: type
     """The dataclass of ``critic.*`` (checked by ``validate_config``)."""
     make: Callable[..., Any]
-    """``(cfg, obs_dim, action_dim, actor=None, temperature=1.0) ->``
-    :class:`~torchrl_dual.recipe.parts.critics.Critic`."""
+    """``(settings, obs_dim, action_dim, device="cpu", actor=None, temperature=1.0) ->``
+    :class:`~torchrl_dual.recipe.parts.critics.Critic`, ``settings`` an instance of
+    :attr:`settings` (:func:`~torchrl_dual.recipe.parts.critics.make_critic` builds it
+    from the config)."""
 
 
 _CRITICS = "torchrl_dual.recipe.parts.critics"

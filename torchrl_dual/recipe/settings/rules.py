@@ -23,12 +23,14 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Iterable, Sequence
-from typing import Any
+from typing import Any, TypeVar
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from torchrl_dual.recipe.settings.errors import ConfigError, unknown_key
+
+S = TypeVar("S")
 
 
 class Rule:
@@ -229,6 +231,24 @@ def key(rule: Rule, doc: str = "") -> Any:
 def dotted_keys(schema: type, prefix: str) -> list[str]:
     """Every key of ``schema`` as ``prefix.name``."""
     return [f"{prefix}.{f.name}" if prefix else f.name for f in dataclasses.fields(schema)]
+
+
+def as_settings(schema: type[S], node: DictConfig) -> S:
+    """The config group ``node``, which has passed :func:`check_section` against ``schema``
+    (``validate_config``), as an instance of ``schema``: plain Python values, interpolations
+    resolved, sub-groups left out. Builders take these typed sections, not the config.
+
+    Examples:
+        >>> from dataclasses import dataclass
+        >>> from omegaconf import OmegaConf
+        >>> @dataclass
+        ... class Critic:
+        ...     expectile: float = key(Real(0, 1, low_open=True, high_open=True), "IQL τ")
+        >>> as_settings(Critic, OmegaConf.create({"expectile": 0.7, "extra": {"a": 1}}))
+        Critic(expectile=0.7)
+    """
+    values = {f.name: read_value(node, f.name, f.name) for f in dataclasses.fields(schema)}
+    return schema(**values)
 
 
 def read_value(node: DictConfig, name: str, dotted: str) -> Any:

@@ -114,7 +114,7 @@ def validate_config(cfg: DictConfig) -> DictConfig:
 
     Returns ``cfg`` itself, for chaining.
     """
-    algorithm = _choice(cfg, "algo", ALGORITHMS, "the algorithm")
+    algorithm = _choice(cfg, "algo", ALGORITHMS, "the algorithm").settings
     kit = _choice(cfg, "env.kind", ENV_KITS, "which environment kit builds the env and data")
     critic_schema, _ = _choice(cfg, "critic.name", CRITICS, "the critic")
     replay_schema, _ = _choice(cfg, "replay.name", REPLAYS, "the online replay")
