@@ -54,6 +54,8 @@ from torchrl_dual.modules.exploration import EntropyRegulatedNoise, dacer_target
 from torchrl_dual.recipe import CONFIG_DIR as RECIPE_CONFIG_DIR
 from torchrl_dual.recipe.algos.diffql import ActionBox, make_diffusion_actor
 from torchrl_dual.recipe.algos.iql import make_iql_actor
+from torchrl_dual.recipe.settings.baselines import DiffQLActorSettings, MLPActorSettings
+from torchrl_dual.recipe.settings.rules import as_settings
 
 ALGO_CONFIGS = RECIPE_CONFIG_DIR / "algo"
 
@@ -194,10 +196,9 @@ def build_iql_actor(cfg: Config) -> TensorDictModuleBase:
 
 def _iql_actor(cfg: Config, algo: str) -> TensorDictModuleBase:
     """``make_iql_actor`` with ``algo``'s config, its ``actor.distribution`` included."""
-    algo_cfg = _algo_cfg(cfg, algo)
-    return make_iql_actor(
-        algo_cfg, cfg.obs_dim, _spec(cfg), distribution=algo_cfg.actor.distribution
-    )
+    actor = _algo_cfg(cfg, algo).actor  # its temperature reads the env: not needed here
+    settings = as_settings(MLPActorSettings, actor)
+    return make_iql_actor(settings, cfg.obs_dim, _spec(cfg), distribution=actor.distribution)
 
 
 def build_iql_la_m5(cfg: Config) -> TensorDictModuleBase:
@@ -211,7 +212,8 @@ def build_iql_la_m5(cfg: Config) -> TensorDictModuleBase:
 
 
 def _diffusion_actor(cfg: Config, algo: str) -> DiffusionActor:
-    return make_diffusion_actor(_algo_cfg(cfg, algo), cfg.obs_dim, cfg.action_dim)
+    actor = as_settings(DiffQLActorSettings, _algo_cfg(cfg, algo).actor)
+    return make_diffusion_actor(actor, cfg.obs_dim, cfg.action_dim)
 
 
 def _clamp(cfg: Config) -> TensorDictModule:

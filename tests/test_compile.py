@@ -134,9 +134,9 @@ def _policies() -> dict[str, torch.nn.Module]:
 
 
 def _cfg():
-    from omegaconf import OmegaConf
+    from torchrl_dual.recipe.settings.baselines import MLPActorSettings
 
-    return OmegaConf.create({"device": "cpu", "actor": {"hidden": 16, "depth": 2}})
+    return MLPActorSettings(hidden=16, depth=2, lr=3e-4)
 
 
 def _step() -> TensorDict:

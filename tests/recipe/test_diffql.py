@@ -25,6 +25,7 @@ from torchrl_dual.objectives.diffql_actor_loss import DiffQLActorLoss, min_q
 from torchrl_dual.recipe import CONFIG_DIR, O2ORun, check_command_line, compose_checked, run
 from torchrl_dual.recipe.algos.diffql import ActionBox, DiffQLLALearner, make_diffusion_actor
 from torchrl_dual.recipe.parts.critics import make_iql_critic
+from torchrl_dual.recipe.settings.baselines import DiffQLActorSettings
 from torchrl_dual.recipe.settings.parts import IQLCriticSettings
 from torchrl_dual.recipe.settings.rules import as_settings
 
@@ -184,7 +185,15 @@ def tiny_cfg(eta: float = 1.0):
     return OmegaConf.create(
         {
             "device": "cpu",
-            "actor": {"num_steps": 5, "hidden": 32, "depth": 2, "activation": "mish", "eta": eta},
+            "actor": {
+                "num_steps": 5,
+                "hidden": 32,
+                "depth": 2,
+                "activation": "mish",
+                "eta": eta,
+                "lr": 3e-4,
+                "max_grad_norm": 1.0,
+            },
             "critic": {
                 "name": "iql",
                 "actor_weighting": "advantage",
@@ -209,7 +218,7 @@ def toy_batch(n: int = 128, seed: int = 0) -> TensorDict:
 def pieces(eta: float = 1.0):
     torch.manual_seed(0)
     cfg = tiny_cfg(eta)
-    actor = make_diffusion_actor(cfg, OBS_DIM, ACTION_DIM)
+    actor = make_diffusion_actor(as_settings(DiffQLActorSettings, cfg.actor), OBS_DIM, ACTION_DIM)
     critic = make_iql_critic(as_settings(IQLCriticSettings, cfg.critic), OBS_DIM, ACTION_DIM)
     box = ActionBox(-torch.ones(ACTION_DIM), torch.ones(ACTION_DIM))
     return actor, critic, DiffQLActorLoss.from_iql(actor, critic.loss, box, eta=eta)

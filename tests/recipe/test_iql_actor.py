@@ -14,7 +14,6 @@ import math
 
 import pytest
 import torch
-from omegaconf import OmegaConf
 from recipe_runner import CONFIG_DIR
 from tensordict import TensorDict
 from torchrl.data import Bounded
@@ -22,13 +21,14 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchrl_dual.recipe import ConfigError, compose_checked
 from torchrl_dual.recipe.algos.iql import make_iql_actor
+from torchrl_dual.recipe.settings.baselines import MLPActorSettings
 
 
 def _actor(distribution: str, low: float = -1.0, high: float = 1.0):
     torch.manual_seed(0)
-    cfg = OmegaConf.create({"device": "cpu", "actor": {"hidden": 16, "depth": 1}})
+    settings = MLPActorSettings(hidden=16, depth=1, lr=3e-4)
     spec = Bounded(low, high, shape=(1,))
-    return make_iql_actor(cfg, 3, spec, distribution=distribution)
+    return make_iql_actor(settings, 3, spec, distribution=distribution)
 
 
 def _fit(actor, observation, actions, steps=600):

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import pytest
 import torch
-from omegaconf import OmegaConf
 from tensordict import TensorDict
 from torchrl.data import Bounded
 
@@ -13,6 +12,7 @@ from torchrl_dual.modules import LaplaceEnsembleActor, LinearHeadActor
 from torchrl_dual.modules.actors.last_layer_actor import TanhSquash
 from torchrl_dual.modules.laplace.last_layer_laplace import LastLayerLaplace
 from torchrl_dual.recipe.algos.iql import make_iql_actor
+from torchrl_dual.recipe.settings.baselines import MLPActorSettings
 
 F64 = torch.float64
 
@@ -113,9 +113,9 @@ def test_jacobian_argument_errors_name_the_fix() -> None:
 
 
 def _gaussian_iql_actor(obs_dim: int = 3):
-    cfg = OmegaConf.create({"device": "cpu", "actor": {"hidden": 16, "depth": 2}})
+    settings = MLPActorSettings(hidden=16, depth=2, lr=3e-4)
     spec = Bounded(torch.tensor([-1.0, 0.0]), torch.tensor([1.0, 2.0]), shape=(2,))
-    return make_iql_actor(cfg, obs_dim, spec, distribution="gaussian")
+    return make_iql_actor(settings, obs_dim, spec, distribution="gaussian")
 
 
 def test_from_gaussian_iql_actor_shares_the_mean_and_squash() -> None:

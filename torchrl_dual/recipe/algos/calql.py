@@ -24,6 +24,8 @@ from torchrl_dual.recipe.o2o.loop import run_o2o
 from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.parts.critics import make_critic
 from torchrl_dual.recipe.parts.mc_labels import MonteCarloLabels
+from torchrl_dual.recipe.settings.baselines import MLPActorSettings
+from torchrl_dual.recipe.settings.rules import as_settings
 
 
 class CalQLLearner(Learner):
@@ -35,12 +37,13 @@ class CalQLLearner(Learner):
     def __init__(self, run: RunContext) -> None:
         self.run = run
         cfg = run.cfg
-        self.actor = make_iql_actor(cfg, run.data.obs_dim, run.env.action_spec)
+        s = as_settings(MLPActorSettings, cfg.actor)
+        self.actor = make_iql_actor(s, run.data.obs_dim, run.env.action_spec, device=cfg.device)
         self.critic = make_critic(cfg, run.data.obs_dim, run.data.action_dim, actor=self.actor)
         self.labels = MonteCarloLabels(run)  # D_offline's bound; D_online's per episode
         loss = self.critic.loss
         self.actor_optimizer = torch.optim.Adam(
-            [*loss.actor_network_params.values(True, True), loss.log_alpha], lr=cfg.actor.lr
+            [*loss.actor_network_params.values(True, True), loss.log_alpha], lr=s.lr
         )
         self.evaluation_policy = self.actor
         self.exploration_policy = projected_policy(cfg, self.actor)

@@ -47,10 +47,10 @@ action (the MAP mean, deterministic) is ``diffql``'s: the same zero-latent chain
 from __future__ import annotations
 
 import torch
-from omegaconf import DictConfig
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
+from torchrl.data.utils import DEVICE_TYPING
 from torchrl.modules import DiffusionActor
 
 from torchrl_dual import DDPMLastStepActor, WeightedMAPActorLoss
@@ -59,6 +59,8 @@ from torchrl_dual.recipe.kits.build import projected_policy
 from torchrl_dual.recipe.o2o.learner import Learner, RunContext
 from torchrl_dual.recipe.parts.critics import make_critic
 from torchrl_dual.recipe.parts.laplace_refits import LaplaceRefits
+from torchrl_dual.recipe.settings.baselines import DiffQLActorSettings
+from torchrl_dual.recipe.settings.rules import as_settings
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {"silu": nn.SiLU, "mish": nn.Mish}
 """``actor.activation`` -> its module (the names are
@@ -81,11 +83,13 @@ def vp_betas(num_steps: int, beta_min: float = 0.1, beta_max: float = 10.0) -> t
     return (1.0 - log_alpha.exp()).float()
 
 
-def make_diffusion_actor(cfg: DictConfig, obs_dim: int, action_dim: int) -> DiffusionActor:
+def make_diffusion_actor(
+    settings: DiffQLActorSettings, obs_dim: int, action_dim: int, device: DEVICE_TYPING = "cpu"
+) -> DiffusionActor:
     """TorchRL's ``DiffusionActor`` with an MLP score network ``ε̂(x_t, s, t)`` (``depth``
-    hidden layers of ``actor.activation``) ending in ``nn.Linear``, and the VP schedule of
-    :func:`vp_betas`."""
-    a = cfg.actor
+    hidden layers of ``activation``) ending in ``nn.Linear``, and the VP schedule of
+    :func:`vp_betas`, on ``device``."""
+    a = settings
     layers: list[nn.Module] = []
     width = action_dim + obs_dim + 1
     for _ in range(a.depth):
@@ -99,7 +103,7 @@ def make_diffusion_actor(cfg: DictConfig, obs_dim: int, action_dim: int) -> Diff
         ddpm.betas.copy_(betas)
         ddpm.alphas.copy_(1.0 - betas)
         ddpm.alphas_cumprod.copy_(torch.cumprod(1.0 - betas, 0))
-    return actor.to(cfg.device)
+    return actor.to(device)
 
 
 class ActionBox(nn.Module):
@@ -126,13 +130,14 @@ class DiffQLLearner(Learner):
         cfg = self.cfg = run.cfg
         spec = run.env.action_spec
         obs_dim, action_dim = run.data.obs_dim, run.data.action_dim
-        self.actor = make_diffusion_actor(cfg, obs_dim, action_dim)
+        s = self.settings = as_settings(DiffQLActorSettings, cfg.actor)
+        self.actor = make_diffusion_actor(s, obs_dim, action_dim, cfg.device)
         self.critic = make_critic(cfg, obs_dim, action_dim)
         self.box = ActionBox(spec.space.low, spec.space.high).to(cfg.device)
         self.actor_loss = DiffQLActorLoss.from_iql(
-            self.actor, self.critic.loss, self.box, eta=cfg.actor.eta
+            self.actor, self.critic.loss, self.box, eta=s.eta
         )
-        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor.lr)
+        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=s.lr)
         self.clamp = TensorDictModule(self.box, in_keys=["action"], out_keys=["action"])
         self.evaluation_policy = TensorDictSequential(self.actor, self.clamp)
         self.exploration_policy = self.projected(self.evaluation_policy)
@@ -157,7 +162,7 @@ class DiffQLLearner(Learner):
         losses = self.actor_loss(batch)
         self.actor_optimizer.zero_grad(set_to_none=True)
         losses["loss_actor"].backward()
-        nn.utils.clip_grad_norm_(self.actor.parameters(), self.cfg.actor.max_grad_norm)
+        nn.utils.clip_grad_norm_(self.actor.parameters(), self.settings.max_grad_norm)
         self.actor_optimizer.step()
         return {k: v.detach() for k, v in {**critic, **losses}.items()}
 

@@ -26,6 +26,8 @@ from tensordict.nn import (
     TensorDictModule,
 )
 from torch import nn
+from torchrl.data import TensorSpec
+from torchrl.data.utils import DEVICE_TYPING
 from torchrl.envs.utils import ExplorationType
 from torchrl.modules import MLP, IndependentNormal, ProbabilisticActor, TanhNormal
 
@@ -35,19 +37,26 @@ from torchrl_dual.recipe.o2o.learner import Learner, RunContext
 from torchrl_dual.recipe.o2o.loop import run_o2o
 from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.parts.critics import make_critic
-from torchrl_dual.recipe.settings.baselines import ACTOR_DISTRIBUTIONS
+from torchrl_dual.recipe.settings.baselines import (
+    ACTOR_DISTRIBUTIONS,
+    IQLActorSettings,
+    MLPActorSettings,
+)
+from torchrl_dual.recipe.settings.rules import as_settings
 
 
 def make_iql_actor(
-    cfg: DictConfig,
+    settings: MLPActorSettings,
     obs_dim: int,
-    action_spec,
+    action_spec: TensorSpec,
     *,
     distribution: str = "tanh_normal",
     return_log_prob: bool = False,
+    device: DEVICE_TYPING = "cpu",
 ) -> ProbabilisticActor:
-    """The AWR baselines' MLP actor on the action box of ``action_spec`` (writing
-    ``"action_log_prob"`` too with ``return_log_prob``).
+    """The AWR baselines' MLP actor (``settings.depth`` hidden layers of
+    ``settings.hidden`` units) on the action box of ``action_spec`` (writing
+    ``"action_log_prob"`` too with ``return_log_prob``), on ``device``.
 
     ``distribution="gaussian"`` is CORL's and d3rlpy's IQL actor:
     ``π(a|s) = N(c + r ⊙ tanh(f(s)), diag σ²)`` with one learned ``σ = exp(log σ)`` per
@@ -60,10 +69,10 @@ def make_iql_actor(
     need its reparameterised, box-bounded draws and its log-density): on a face,
     ``atanh(±1)`` is clamped, and the AWR fit of such an action is dominated by the clamp.
     """
-    a = cfg.actor
+    a = settings
     action_dim = action_spec.shape[-1]
     space = action_spec.space
-    low, high = space.low.to(cfg.device), space.high.to(cfg.device)
+    low, high = space.low.to(device), space.high.to(device)
     mlp = MLP(
         in_features=obs_dim,
         out_features=(1 if distribution == "gaussian" else 2) * action_dim,
@@ -90,7 +99,7 @@ def make_iql_actor(
         distribution_kwargs=dist_kwargs,
         default_interaction_type=ExplorationType.RANDOM,
         return_log_prob=return_log_prob,
-    ).to(cfg.device)
+    ).to(device)
 
 
 class IQLLearner(Learner):
@@ -103,17 +112,18 @@ class IQLLearner(Learner):
         self.run = run
         cfg = run.cfg
         spec = run.env.action_spec
+        self.settings = s = as_settings(IQLActorSettings, cfg.actor)
         self.actor = make_iql_actor(
-            cfg, run.data.obs_dim, spec, distribution=cfg.actor.distribution
+            s, run.data.obs_dim, spec, distribution=s.distribution, device=cfg.device
         )
         self.critic = make_critic(
             cfg,
             run.data.obs_dim,
             run.data.action_dim,
             actor=self.actor,
-            temperature=cfg.actor.temperature,
+            temperature=s.temperature,
         )
-        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor.lr)
+        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=s.lr)
         self.evaluation_policy = self.actor
         self.exploration_policy = projected_policy(cfg, self.actor)
 

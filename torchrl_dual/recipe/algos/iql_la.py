@@ -73,14 +73,13 @@ class IQLLALearner(LaplaceRefits, IQLLearner):
 
     def __init__(self, run: RunContext) -> None:
         super().__init__(run)
-        cfg = run.cfg
         self.head_actor = LinearHeadActor.from_actor(self.actor)  # shared weights, tanh box
         # only its advantage weights are used (Eq. 8's Hessian); IQLLoss trains the actor
         self.laplace_weight_fn = WeightedMAPActorLoss.from_iql(
             self.head_actor,
             self.critic.loss,
             weighting="advantage",
-            temperature=cfg.actor.temperature,
+            temperature=self.settings.temperature,
             max_weight=IQL_MAX_WEIGHT,
         ).advantage_weights
         self.act_with_ensemble(self.head_actor)  # Eq. 9 + Eq. 10 with λ = 0

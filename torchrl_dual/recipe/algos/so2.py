@@ -28,6 +28,8 @@ from torchrl_dual.recipe.o2o.learner import Learner, RunContext
 from torchrl_dual.recipe.o2o.loop import run_o2o
 from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.parts.critics import make_critic
+from torchrl_dual.recipe.settings.baselines import MLPActorSettings
+from torchrl_dual.recipe.settings.rules import as_settings
 
 
 class SO2Learner(Learner):
@@ -40,12 +42,13 @@ class SO2Learner(Learner):
     def __init__(self, run: RunContext) -> None:
         self.run = run
         cfg = run.cfg
+        s = as_settings(MLPActorSettings, cfg.actor)
         self.actor = make_iql_actor(
-            cfg, run.data.obs_dim, run.env.action_spec, return_log_prob=True
+            s, run.data.obs_dim, run.env.action_spec, return_log_prob=True, device=cfg.device
         )
         self.critic = make_critic(cfg, run.data.obs_dim, run.data.action_dim, actor=self.actor)
         self.online_batches_per_update = self.critic.online_steps_per_update
-        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor.lr)
+        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=s.lr)
         self.alpha = cfg.critic.entropy_coef
         self.evaluation_policy = self.actor
         self.exploration_policy = projected_policy(cfg, self.actor)

@@ -41,12 +41,20 @@ the default) or ``tanh_normal`` (TorchRL's ``TanhNormal`` with a state-dependent
 
 
 @dataclass
-class IQLActorSettings:
-    """``algo/iql.yaml``'s ``actor``: the Gaussian MLP actor and its AWR loss."""
+class MLPActorSettings:
+    """``actor`` of the MLP-actor baselines: its width, depth and learning rate
+    (``algo/calql.yaml`` and ``algo/so2.yaml``: the tanh-Gaussian actor of a SAC actor loss;
+    Cal-QL's ``lr`` is also that of ``log α``)."""
 
     hidden: int = key(Integer(1), "MLP width of the actor")
     depth: int = key(Integer(1), "hidden layers of the actor")
-    lr: float = key(Real(0, low_open=True), "Adam learning rate")
+    lr: float = key(Real(0, low_open=True), "Adam learning rate of the actor (Cal-QL: and log α)")
+
+
+@dataclass
+class IQLActorSettings(MLPActorSettings):
+    """``algo/iql.yaml``'s ``actor``: the Gaussian MLP actor and its AWR loss."""
+
     temperature: float = key(Real(0), "β of exp(β (Q - V)), clipped at 100 by IQLLoss")
     distribution: str = key(
         Choice(ACTOR_DISTRIBUTIONS),
@@ -219,34 +227,16 @@ EDIS = AlgorithmSettings(
 
 
 # ----------------------------------------------------------------------------- Cal-QL
-@dataclass
-class CalQLActorSettings:
-    """``algo/calql.yaml``'s ``actor``: the tanh-Gaussian MLP actor (SAC actor loss)."""
-
-    hidden: int = key(Integer(1), "MLP width of the actor")
-    depth: int = key(Integer(1), "hidden layers of the actor")
-    lr: float = key(Real(0, low_open=True), "Adam learning rate of the actor and of log α")
-
-
 CALQL = AlgorithmSettings(
-    sections={"actor": CalQLActorSettings, "online": OnlineSettings},
+    sections={"actor": MLPActorSettings, "online": OnlineSettings},
     critics=("calql",),
     check=check_nothing,
 )
 
 
 # ----------------------------------------------------------------------------- SO2
-@dataclass
-class SO2ActorSettings:
-    """``algo/so2.yaml``'s ``actor``: the tanh-Gaussian MLP actor (SAC actor loss)."""
-
-    hidden: int = key(Integer(1), "MLP width of the actor")
-    depth: int = key(Integer(1), "hidden layers of the actor")
-    lr: float = key(Real(0, low_open=True), "Adam learning rate of the actor")
-
-
 SO2 = AlgorithmSettings(
-    sections={"actor": SO2ActorSettings, "online": OnlineSettings},
+    sections={"actor": MLPActorSettings, "online": OnlineSettings},
     critics=("so2",),
     check=check_nothing,
 )
