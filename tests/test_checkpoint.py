@@ -16,6 +16,7 @@ from torchrl_dual.checkpoint import (
     RunCheckpoint,
     rng_state,
     set_rng_state,
+    state_differences,
 )
 
 FINGERPRINT = {"env": {"name": "umaze", "seed": 0}, "lr": 1e-3}
@@ -106,3 +107,50 @@ def test_the_rng_state_round_trips_through_a_checkpoint(tmp_path):
     assert _draws() != expected  # the generators moved on
     set_rng_state(ckpt.load()["rng"])
     assert _draws() == expected
+
+
+# ----------------------------------------------------------------------------- state_differences
+def test_state_differences_finds_every_differing_leaf_by_its_path():
+    from tensordict import TensorDict
+
+    a = {
+        "net": {"w": torch.zeros(3), "b": torch.ones(1)},
+        "history": [{"frames": 100, "score": 1.5}],
+        "online_data": TensorDict(
+            obs=torch.arange(4.0), next=TensorDict(r=torch.zeros(4), batch_size=[4]), batch_size=[4]
+        ),
+        "rng": {"numpy": ("MT", np.arange(3))},
+        "seconds": 1.0,
+    }
+    b = {
+        "net": {"w": torch.zeros(3), "b": torch.ones(1, dtype=torch.float64)},  # dtype
+        "history": [{"frames": 100, "score": 1.25}],  # a value in a list
+        "online_data": TensorDict(
+            obs=torch.arange(4.0),
+            next=TensorDict(r=torch.tensor([0.0, 0, 0, 1e-30]), batch_size=[4]),
+            batch_size=[4],
+        ),
+        "rng": {"numpy": ("MT", np.arange(3))},
+        "seconds": 2.0,
+        "extra": 0,  # missing on one side
+    }
+    assert state_differences(a, a) == []
+    assert state_differences(a, b, ignore=["seconds"]) == [
+        "extra",
+        "history.0.score",
+        "net.b",
+        "online_data.next.r",
+    ]
+    assert "seconds" in state_differences(a, b)
+
+
+def test_state_differences_counts_nan_at_the_same_place_as_equal():
+    nan = float("nan")
+    assert state_differences({"x": torch.tensor([nan, 1.0])}, {"x": torch.tensor([nan, 1.0])}) == []
+    assert state_differences({"x": torch.tensor([nan, 1.0])}, {"x": torch.tensor([1.0, nan])}) == [
+        "x"
+    ]
+    assert state_differences({"x": np.array([nan])}, {"x": np.array([nan])}) == []
+    assert state_differences({"x": torch.zeros(2)}, {"x": torch.zeros(3)}) == ["x"]
+    assert state_differences({"x": [1, 2]}, {"x": [1, 2, 3]}) == ["x"]
+    assert state_differences({"x": torch.zeros(1)}, {"x": np.zeros(1)}) == ["x"]

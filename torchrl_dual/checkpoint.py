@@ -1,4 +1,4 @@
-"""Atomic, validated run checkpoints."""
+"""Atomic, validated run checkpoints, and :func:`state_differences` between two of them."""
 
 from __future__ import annotations
 
@@ -127,3 +127,68 @@ def _differences(saved: Any, now: Any, prefix: str = "") -> list[tuple[str, Any,
             out += _differences(saved.get(key, _MISSING), now.get(key, _MISSING), f"{prefix}{key}.")
         return out
     return [] if saved == now else [(prefix.rstrip("."), saved, now)]
+
+
+def state_differences(a: Any, b: Any, ignore: Sequence[str] = ()) -> list[str]:
+    """The dotted paths at which two checkpoint states differ, bitwise.
+
+    Walks nested dicts, lists, tuples and TensorDicts; tensors and NumPy arrays must agree
+    in dtype, shape and every element (``NaN`` equals ``NaN`` at the same place), other
+    leaves by ``==``. A key in ``ignore`` (e.g. ``stage_seconds``, ``logger``: wall times
+    and log paths) is skipped wherever it occurs. Used to check that a resumed run ends
+    exactly as an uninterrupted one (``benchmarks/resume_kill.py``).
+
+    Examples:
+        >>> import torch
+        >>> a = {"w": torch.zeros(2), "frames": 100, "seconds": 1.0}
+        >>> b = {"w": torch.tensor([0.0, 1e-9]), "frames": 100, "seconds": 2.0}
+        >>> state_differences(a, b, ignore=["seconds"])
+        ['w']
+    """
+    return _differing_paths(a, b, "", frozenset(ignore))
+
+
+def _differing_paths(a: Any, b: Any, path: str, ignore: frozenset[str]) -> list[str]:
+    if _is_mapping(a) and _is_mapping(b):
+        a, b = _as_dict(a), _as_dict(b)
+        out = []
+        for key in sorted(set(a) | set(b), key=str):
+            if str(key) in ignore:
+                continue
+            sub = f"{path}.{key}" if path else str(key)
+            both = key in a and key in b
+            out += _differing_paths(a[key], b[key], sub, ignore) if both else [sub]
+        return out
+    if isinstance(a, list | tuple) and isinstance(b, list | tuple):
+        if len(a) != len(b):
+            return [path]
+        pairs = enumerate(zip(a, b, strict=True))
+        return [d for i, (x, y) in pairs for d in _differing_paths(x, y, f"{path}.{i}", ignore)]
+    if isinstance(a, torch.Tensor | np.ndarray) or isinstance(b, torch.Tensor | np.ndarray):
+        return [] if _same_array(a, b) else [path]
+    return [] if a == b else [path]
+
+
+def _is_mapping(x: Any) -> bool:
+    return isinstance(x, dict) or hasattr(x, "batch_size") and hasattr(x, "items")
+
+
+def _as_dict(mapping: Any) -> dict:
+    """A dict, or a TensorDict's leaves by their nested keys joined with dots."""
+    if isinstance(mapping, dict):
+        return mapping
+    return {
+        ".".join(k) if isinstance(k, tuple) else k: v
+        for k, v in mapping.items(include_nested=True, leaves_only=True)
+    }
+
+
+def _same_array(a: Any, b: Any) -> bool:
+    """Same type, dtype, shape and elements (``NaN`` where the other has ``NaN``)."""
+    if type(a) is not type(b) or a.dtype != b.dtype or a.shape != b.shape:
+        return False
+    if isinstance(a, np.ndarray):
+        return bool(np.array_equal(a, b, equal_nan=a.dtype.kind in "fc"))
+    if a.is_floating_point() or a.is_complex():
+        return torch.equal(a.isnan(), b.isnan()) and torch.equal(a.nan_to_num(), b.nan_to_num())
+    return torch.equal(a, b)

@@ -4,7 +4,8 @@ Each algorithm, on Frozen-Lake at a cut-down smoke budget, in-process: it compos
 validates, builds its learner, runs its offline stages and its online updates, is
 interrupted (``interrupt_at_frames``) with a checkpoint, resumes from it to the end
 (skipping every finished stage, continuing the frame counter and the history), writes
-``summary.json``, and its checkpoint restores every module of its learner exactly.
+``summary.json``, and its checkpoint restores every module of its learner exactly; the
+interrupted and resumed run ends bitwise as the same run never interrupted.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from torchrl_dual.checkpoint import state_differences
 from torchrl_dual.recipe import ALGORITHMS, CONFIG_DIR, O2ORun, compose_checked, run_o2o
 
 TINY = (
@@ -35,6 +37,9 @@ TINY = (
     "progress=false",
     "num_threads=1",
 )
+
+WALL_CLOCK = ("stage_seconds", "stage_cpu_seconds", "logger")
+"""What two runs of the same seed may differ in: the stages' times and the logger's paths."""
 
 pytestmark = pytest.mark.long_running(seconds=60)  # starts first under xdist
 
@@ -65,10 +70,10 @@ def tensors(state) -> dict:
 
 @pytest.mark.parametrize("algo", sorted(ALGORITHMS))
 def test_every_algorithm_runs_checkpoints_resumes_and_restores(algo, cache_dir, tmp_path):
-    def cfg(*extra: str):
+    def cfg(*extra: str, output_dir: Path = tmp_path):
         return compose_checked(
             CONFIG_DIR,
-            [*TINY, f"algo={algo}", f"output_dir={tmp_path}", f"data_cache_dir={cache_dir}",
+            [*TINY, f"algo={algo}", f"output_dir={output_dir}", f"data_cache_dir={cache_dir}",
              *extra],
         )  # fmt: skip
 
@@ -96,3 +101,10 @@ def test_every_algorithm_runs_checkpoints_resumes_and_restores(algo, cache_dir, 
         assert want.keys() == got.keys(), name
         for key, value in want.items():
             assert torch.equal(got[key], value), f"{name}.{key}"
+
+    # ... and ends bitwise as the run never interrupted (issue 31): its interrupt came at a
+    # checkpoint, where both runs start a new collector (the online loop's cut point)
+    whole = run_o2o(cfg(output_dir=tmp_path / "whole"), entry.learner)
+    assert whole.frames == 100
+    differ = state_differences(whole.state(), second.state(), ignore=WALL_CLOCK)
+    assert differ == [], f"{algo}: the resumed run differs at {differ[:10]}"

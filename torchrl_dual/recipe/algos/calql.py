@@ -58,6 +58,9 @@ class CalQLLearner(Learner):
     def online_transitions(self, transitions: TensorDictBase) -> TensorDictBase:
         return self.labels.online_transitions(transitions)
 
+    def start_episodes(self) -> None:
+        self.labels.cut()
+
     def update(self, batch: TensorDictBase) -> dict:
         """Cal-QL's losses on one batch: the critics on TD + bounded penalty, the actor
         and ``log α`` on SAC's losses (which read the Q networks detached); one step of

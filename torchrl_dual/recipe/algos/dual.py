@@ -199,6 +199,11 @@ class DualLearner(Learner):
         """All of them; with ``critic=calql``, whole episodes with their bound."""
         return transitions if self.labels is None else self.labels.online_transitions(transitions)
 
+    def start_episodes(self) -> None:
+        """With ``critic=calql``: the held episode ends at the cut."""
+        if self.labels:
+            self.labels.cut()
+
     def offline_stages(self) -> list:
         return [
             ("planner", self.pretrain_planner),  # l.3-4: L_VLB (Eq. 3)

@@ -102,6 +102,15 @@ make_multi_async = make_multi(MultiAsyncCollector)
 """``collector=multi_async``: TorchRL's ``MultiAsyncCollector`` (first come)."""
 
 
+def stop_collecting(collector: BaseCollector) -> None:
+    """Ends ``collector`` at a cut point of the online loop: its workers stop; the run's own
+    env (``collector=single``) stays open for the next collector, which re-seeds it."""
+    if isinstance(collector, Collector):
+        collector.shutdown(close_env=False)
+    else:
+        collector.shutdown()
+
+
 def push_nothing(collector: BaseCollector, policy: nn.Module) -> None:
     """``collector=single`` acts with ``policy`` itself: nothing to push."""
 

@@ -113,6 +113,11 @@ class Learner(ABC):
     def after_updates(self) -> None:  # noqa: B027 - optional hook
         """Called after each block of online updates (DUAL refits its Laplace posterior)."""
 
+    def start_episodes(self) -> None:  # noqa: B027 - optional hook
+        """Called when a collector starts (the online phase's start, each checkpoint's cut
+        point, a resume): the episode in progress ends at its last transition (Cal-QL's
+        labels release it, truncated)."""
+
     def shared_modules(self) -> dict[str, Any]:
         """What a shared offline phase hands over (defaults to :meth:`modules`); leave out
         what depends on :attr:`online_keys` (e.g. DUAL's M posterior draws)."""

@@ -6,7 +6,9 @@ The offline stages of the :class:`~torchrl_dual.recipe.Learner` (shared through
 updates (each the learner's ``update`` on a sample of the offline and online replay,
 counted by :meth:`O2ORun.update`, compiled with ``compile.compile=true``), the learner's
 hook (DUAL's Laplace refits), the weight push to the collector's workers, log, evaluate,
-checkpoint; the collector is shut down however the loop ends.
+checkpoint; the collector is shut down however the loop ends. Every periodic checkpoint
+is a cut point: the next batch comes from a new collector, as after a resume
+(docs/recipe.md, "Checkpoint and resume").
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import torch
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
 
+from torchrl_dual.recipe.o2o.collectors import stop_collecting
 from torchrl_dual.recipe.o2o.learner import Learner
 from torchrl_dual.recipe.o2o.offline_cache import run_offline_stages
 from torchrl_dual.recipe.o2o.plots import online_signals
@@ -48,36 +51,47 @@ def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORu
     # ---- Online phase
     budget = cfg.budget
     next_eval = (run.frames // budget.eval_every + 1) * budget.eval_every
-    next_save = run.frames + budget.checkpoint_every
+    next_save = (run.frames // budget.checkpoint_every + 1) * budget.checkpoint_every
     clock = StageClock(run.stage_seconds, run.stage_cpu_seconds, "online")
-    collector = run.collector() if run.frames < budget.online_frames else None
     push = COLLECTORS[cfg.collector.name].push  # the weights' way to the collector
     device = torch.device(cfg.device)
+    collector = None
     try:
-        for batch in collector if collector is not None else ():
-            stats = run.store(batch)  # l. 11-13: acted with the exploration policy -> D_online
-            # l. 14-16: online.utd_ratio gradient updates per collected frame
-            run.update_credit += cfg.online.utd_ratio * batch.numel()
-            losses: dict = {}
-            while run.update_credit >= 1:
-                sample = online_batch(run.replay, run.learner.online_batches_per_update, device)
-                losses = run.update(sample)  # the learner's update (DUAL: IQL critic + Eq. 7)
-                losses.update(run.replay.after_update(sample))  # balanced replay's own step
-                run.update_credit -= 1
-            run.learner.after_updates()  # l. 17, DUAL: refit the Laplace posterior when due
-            push(collector, run.learner.exploration_policy)  # to the workers
-            run.log({**stats, **losses}, run.frames, "online/")
-            if (signals := online_signals(run.frames, stats)) is not None:
-                run.online_signals.append(signals)  # the plot's epistemic std and d_t
-            if run.frames >= next_eval:
-                run.evaluate("online")
-                next_eval += budget.eval_every
-            if run.frames >= next_save:
-                clock.tick()
-                run.save()
-                next_save += budget.checkpoint_every
-            if cfg.interrupt_at_frames is not None and run.frames >= cfg.interrupt_at_frames:
-                raise KeyboardInterrupt
+        while run.frames < budget.online_frames:
+            # A cut point (the start, each checkpoint, a resume): a new collector, its env
+            # seeded by seed + 1 + frames, a new episode. An uninterrupted run cuts where a
+            # run resumed from its checkpoint does, so the two continue bitwise alike.
+            collector = run.collector()
+            for batch in collector:
+                stats = run.store(batch)  # l. 11-13: acted with the exploration policy
+                # l. 14-16: online.utd_ratio gradient updates per collected frame
+                run.update_credit += cfg.online.utd_ratio * batch.numel()
+                losses: dict = {}
+                while run.update_credit >= 1:
+                    k = run.learner.online_batches_per_update
+                    sample = online_batch(run.replay, k, device)  # D_offline ∪ D_online
+                    losses = run.update(sample)  # the learner's (DUAL: IQL critic + Eq. 7)
+                    losses.update(run.replay.after_update(sample))  # balanced replay's step
+                    run.update_credit -= 1
+                run.learner.after_updates()  # l. 17, DUAL: refit the posterior when due
+                push(collector, run.learner.exploration_policy)  # to the workers
+                run.log({**stats, **losses}, run.frames, "online/")
+                if (signals := online_signals(run.frames, stats)) is not None:
+                    run.online_signals.append(signals)  # the plot's epistemic std and d_t
+                if run.frames >= next_eval:
+                    run.evaluate("online")
+                    next_eval += budget.eval_every
+                checkpoint = run.frames >= next_save
+                if checkpoint:
+                    clock.tick()
+                    run.save()
+                    next_save += budget.checkpoint_every
+                if cfg.interrupt_at_frames is not None and run.frames >= cfg.interrupt_at_frames:
+                    raise KeyboardInterrupt
+                if checkpoint:
+                    break
+            stop_collecting(collector)
+            collector = None
     except KeyboardInterrupt:
         clock.tick()
         run.save()

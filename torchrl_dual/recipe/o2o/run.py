@@ -288,6 +288,7 @@ class O2ORun:
         the ``collector.name`` entry of :data:`~torchrl_dual.recipe.settings.o2o.COLLECTORS`."""
         remaining = max(self.cfg.budget.online_frames - self.frames, 0)
         self.open_episodes = {}  # a new collector starts new trajectories
+        self.learner.start_episodes()  # and the learner's episode in progress ends here
         return COLLECTORS[self.cfg.collector.name].make(self, remaining)
 
     def store(self, batch: TensorDictBase) -> dict:

@@ -8,8 +8,8 @@ and rebuilds the run's offline buffer (the replay buffer that mixes it with ``D_
 is built after the learner); online, :meth:`MonteCarloLabels.online_transitions` holds
 the transitions of the episode in progress and releases each finished episode with its
 returns-to-go, as Cal-QL's code adds whole trajectories. An episode still running when
-the budget ends never reaches the buffer; one cut by an interruption ends at the cut
-when the run resumes (:meth:`MonteCarloLabels.load_state_dict`).
+the budget ends never reaches the buffer; one cut by a checkpoint's cut point or a resume
+ends at the cut (:meth:`MonteCarloLabels.cut`).
 """
 
 from __future__ import annotations
@@ -74,11 +74,13 @@ class MonteCarloLabels:
         return {"pending": self.pending}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        """Restores the held episode, cut: a resumed run's collector starts a new episode,
-        so the held one ends at its last transition (marked truncated and done, and
-        released with the next finished episode, under its own id: the run's episode
-        counter, checkpointed, is already past it)."""
         self.pending = state.get("pending")
+
+    def cut(self) -> None:
+        """Ends the held episode at its last transition (marked truncated and done; released
+        with the next finished episode, under its own id), as a new collector starts a new
+        episode (:meth:`~torchrl_dual.recipe.Learner.start_episodes`: each checkpoint's cut
+        point and a resume)."""
         if self.pending is not None:
             for flag in ("truncated", "done"):
                 self.pending["next", flag][-1] = True
