@@ -455,3 +455,32 @@ def test_mutation_testing_mutates_the_targets_only_and_counts_per_file(monkeypat
     counts = mutation_testing.results(REPO, {})
     assert counts["torchrl_dual/m/a.py"] == {"killed": 2, "survived": 1}
     assert counts["torchrl_dual/b.py"] == {"no tests": 1}
+
+
+# ---------------------------------------------------------------- kill -9 and resume
+def test_resume_kill_benchmark_kills_resumes_and_finds_the_runs_equal(tmp_path):
+    """``benchmarks/resume_kill.py`` on IQL / Frozen-Lake at a tiny budget: the run is
+    SIGKILLed after its online evaluation at 100 frames, resumed, and ends bitwise as the
+    uninterrupted run (issue 31; the contract test checks every algorithm in-process)."""
+    out = tmp_path / "resume_kill.json"
+    tiny = [
+        "env=frozenlake",
+        "budget.dataset_transitions=1000",
+        "budget.network_width=16",
+        "budget.offline_updates=4",
+        "budget.online_frames=300",
+        "budget.frames_per_batch=50",
+        "budget.eval_every=100",
+        "budget.eval_episodes=1",
+        "budget.checkpoint_every=50",
+    ]
+    proc = run_script(
+        "benchmarks/resume_kill.py",
+        *("--algo", "iql", "--kill-after", "100", "--kill-delay", "0"),
+        *("--out", str(tmp_path / "runs"), "--json", str(out), "--", *tiny),
+    )
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    result = json.loads(out.read_text())
+    assert result["differences"] == [] and result["entries_compared"] > 100
+    assert result["final_frames"] == [300, 300]
+    assert 50 <= result["checkpoint_frames_at_kill"] < 300
