@@ -106,7 +106,9 @@ def source_version(tree: Path) -> str:
     git = ["git", "-C", str(tree)]
     commit = subprocess.run([*git, "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
     dirty = subprocess.run(
-        [*git, "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True
+        [*git, "status", "--porcelain", "--untracked-files=no", "--", "torchrl_dual", "recipes"],
+        capture_output=True,
+        text=True,
     )
     return commit.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
 
