@@ -202,3 +202,7 @@ def test_bad_layout_and_bound_shape_are_rejected():
     batch.set("mc_return", torch.zeros(BATCH, 2))
     with pytest.raises(ValueError, match="one return per transition"):
         _mock_loss()(batch)
+
+
+def test_in_keys_list_cqlloss_s_then_the_bound_in_a_fixed_order():
+    assert _mock_loss().in_keys == [*_mock_loss(cls=CQLLoss).in_keys, "mc_return"]

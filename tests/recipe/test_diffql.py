@@ -281,7 +281,7 @@ def test_the_bc_term_alone_decreases_on_a_toy_batch():
     history = []
     torch.manual_seed(2)
     for _ in range(150):
-        bc = loss.bc_loss(batch)["loss_diffusion_bc"]
+        bc = loss(batch)["loss_actor"]  # eta = 0: L_bc alone
         optimizer.zero_grad()
         bc.backward()
         optimizer.step()

@@ -134,8 +134,9 @@ class CalQLLoss(CQLLoss):
         self.penalty_layout = penalty_layout
 
     @property
-    def in_keys(self):
-        return list({*super().in_keys, self.tensor_keys.mc_return})
+    def in_keys(self):  # CQLLoss's, then the bound (a list in a fixed order, not a set's)
+        keys = super().in_keys
+        return keys if self.tensor_keys.mc_return in keys else [*keys, self.tensor_keys.mc_return]
 
     @property
     def out_keys(self):

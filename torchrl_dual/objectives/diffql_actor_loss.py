@@ -13,6 +13,7 @@ detached weights (:meth:`DiffQLActorLoss.from_iql` reads TorchRL ``IQLLoss``'s).
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -20,7 +21,7 @@ from tensordict.nn import TensorDictModule
 from tensordict.utils import NestedKey
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import DiffusionActor
-from torchrl.objectives import DiffusionBCLoss
+from torchrl.objectives import DiffusionBCLoss, LossModule
 
 
 def min_q(
@@ -53,12 +54,12 @@ def min_q(
     td = TensorDict(observation=observation, action=action, batch_size=observation.shape[:-1])
     values = []
     for member in qvalue_params.detach().unbind(0):
-        with member.to_module(qvalue_network):
+        with member.to_module(qvalue_network, preserve_module_state=False):  # traceable
             values.append(qvalue_network(td.clone(False)).get(key))
     return torch.stack(values).min(0).values.squeeze(-1)
 
 
-class DiffQLActorLoss:
+class DiffQLActorLoss(LossModule):
     """Diff-QL's actor loss ``L_bc + η · (−mean Q(s, a_π) / mean |Q(s, a_π)|)``.
 
     ``L_bc`` is TorchRL's :class:`~torchrl.objectives.DiffusionBCLoss` on the batch
@@ -66,7 +67,8 @@ class DiffQLActorLoss:
     differentiable through all ``N`` steps and clamped by ``box``; ``Q`` is ``q_value``
     (:func:`min_q` with critic weights detached, from :meth:`from_iql`) and the
     normaliser ``mean |Q|`` is detached, so the Q-term is invariant to the critic's scale
-    and trains the actor only. Not an ``nn.Module``: it holds no weights of its own.
+    and trains the actor only. A TorchRL ``LossModule``: its keys are set with
+    :meth:`set_keys` (``observation``, ``action``), its output is a ``TensorDict``.
 
     Args:
         actor (DiffusionActor): TorchRL's DDPM actor.
@@ -76,6 +78,9 @@ class DiffQLActorLoss:
 
     Keyword Args:
         eta (float): ``η``, the weight of the normalised Q-term.
+        reduction (str): ``"mean"`` (default), ``"sum"`` or ``"none"``: per sample,
+            ``L_bc`` averaged over the action dimensions plus ``η · (−Q(s, a_π) / mean |Q|)``,
+            shaped like the batch (the normaliser stays the batch mean).
 
     Examples:
         >>> from torch import nn
@@ -89,12 +94,30 @@ class DiffQLActorLoss:
         >>> batch = TensorDict(observation=torch.randn(8, 3), action=torch.rand(8, 2),
         ...                    batch_size=[8])
         >>> out = loss(batch)
-        >>> sorted(out)
+        >>> sorted(out.keys())
         ['loss_actor', 'loss_bc', 'loss_q', 'q_pi']
         >>> out["loss_actor"].backward()
         >>> all(p.grad is not None for p in actor.parameters())
         True
+        >>> loss.reduction = "none"
+        >>> loss(batch)["loss_actor"].shape
+        torch.Size([8])
     """
+
+    @dataclass
+    class _AcceptedKeys:
+        """Configurable tensordict keys.
+
+        Attributes:
+            observation (NestedKey): the state ``s``. Defaults to ``"observation"``.
+            action (NestedKey): the data action of ``L_bc``. Defaults to ``"action"``.
+        """
+
+        observation: NestedKey = "observation"
+        action: NestedKey = "action"
+
+    default_keys = _AcceptedKeys
+    out_keys = ["loss_actor", "loss_bc", "loss_q", "q_pi"]
 
     def __init__(
         self,
@@ -103,9 +126,24 @@ class DiffQLActorLoss:
         box: Callable[[torch.Tensor], torch.Tensor],
         *,
         eta: float,
+        reduction: str = "mean",
     ) -> None:
+        if reduction not in ("mean", "sum", "none"):
+            raise ValueError(f"reduction must be 'mean', 'sum' or 'none', got {reduction!r}")
+        super().__init__()
         self.actor, self.q_value, self.box, self.eta = actor, q_value, box, eta
-        self.bc_loss = DiffusionBCLoss(actor)
+        self.bc_loss = DiffusionBCLoss(actor, reduction="none")  # reduced in forward
+        self.reduction = reduction
+
+    @property
+    def in_keys(self) -> list[NestedKey]:
+        return [self.tensor_keys.observation, self.tensor_keys.action]
+
+    def _forward_value_estimator_keys(self, **kwargs) -> None:
+        """``set_keys`` reaches ``L_bc``'s loss too."""
+        keys = {k: v for k, v in kwargs.items() if k in ("observation", "action")}
+        if keys:
+            self.bc_loss.set_keys(**keys)
 
     @classmethod
     def from_iql(
@@ -115,6 +153,7 @@ class DiffQLActorLoss:
         box: Callable[[torch.Tensor], torch.Tensor],
         *,
         eta: float,
+        reduction: str = "mean",
     ) -> DiffQLActorLoss:
         """The loss on the twin Q networks of a TorchRL ``IQLLoss`` (its current, not its
         target, weights; :func:`min_q`)."""
@@ -128,7 +167,7 @@ class DiffQLActorLoss:
                 key=iql_loss.tensor_keys.state_action_value,
             )
 
-        return cls(actor, q_value, box, eta=eta)
+        return cls(actor, q_value, box, eta=eta, reduction=reduction)
 
     def sample_actions(self, observation: torch.Tensor) -> torch.Tensor:
         """``a_π``, differentiable with respect to the actor's weights."""
@@ -138,14 +177,33 @@ class DiffQLActorLoss:
     def q_term(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``(−mean Q(s, a_π) / mean |Q(s, a_π)|, mean Q(s, a_π))``."""
         q = self.q_value(observation, self.sample_actions(observation))
-        return -q.mean() / q.abs().mean().detach().clamp_min(1e-6), q.mean().detach()
+        return -q.mean() / _scale(q), q.mean().detach()
 
-    def __call__(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
-        bc = self.bc_loss(batch)["loss_diffusion_bc"]
-        q_term, q_pi = self.q_term(batch["observation"])
-        return {
-            "loss_actor": bc + self.eta * q_term,
-            "loss_bc": bc.detach(),
-            "loss_q": q_term.detach(),
-            "q_pi": q_pi,
-        }
+    def forward(self, tensordict: TensorDictBase) -> TensorDict:
+        observation = tensordict.get(self.tensor_keys.observation)
+        bc = self.bc_loss(tensordict)["loss_diffusion_bc"]  # [*B, action dim]
+        if self.reduction == "mean":
+            bc = bc.mean()
+            q_term, q_pi = self.q_term(observation)
+        else:  # per sample: L_bc over the action dims, the Q-term over the batch's scale
+            q = self.q_value(observation, self.sample_actions(observation))
+            bc, q_term = (
+                _reduce(bc.mean(-1), self.reduction),
+                _reduce(-q / _scale(q), self.reduction),
+            )
+            q_pi = q.detach()
+        return TensorDict(
+            loss_actor=bc + self.eta * q_term,
+            loss_bc=bc.detach(),
+            loss_q=q_term.detach(),
+            q_pi=q_pi,
+        )
+
+
+def _scale(q: torch.Tensor) -> torch.Tensor:
+    """The Q-term's normaliser ``mean |Q|``, detached (Wang et al.'s)."""
+    return q.abs().mean().detach().clamp_min(1e-6)
+
+
+def _reduce(loss: torch.Tensor, reduction: str) -> torch.Tensor:
+    return loss.mean() if reduction == "mean" else loss.sum() if reduction == "sum" else loss

@@ -1,0 +1,159 @@
+"""``DiffQLActorLoss`` (Diff-QL's actor loss, Wang et al. 2023) as a TorchRL LossModule:
+its value against a hand computation, its reductions, its keys, its graph.
+
+The recipe-level tests (the critic's weights get no gradient, the Q-term's scale
+invariance, Diff-QL's runs) are in ``tests/recipe/test_diffql.py``.
+"""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from tensordict import TensorDict
+from tensordict.nn import TensorDictModule
+from torch import nn
+from torchrl.modules import DiffusionActor
+from torchrl.objectives import LossModule
+
+from torchrl_dual.objectives.diffql_actor_loss import DiffQLActorLoss
+
+OBS, ACT, B = 3, 2, 16
+
+
+def _actor(seed: int = 0) -> DiffusionActor:
+    torch.manual_seed(seed)
+    score = nn.Sequential(nn.Linear(ACT + OBS + 1, 16), nn.SiLU(), nn.Linear(16, ACT))
+    return DiffusionActor(ACT, score_network=score, num_steps=3)
+
+
+def _q_value(observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+    """A fixed critic: ``Q(s, a) = −‖a − 0.5‖² + s_0`` (negative and positive values)."""
+    return -(action - 0.5).square().sum(-1) + observation[..., 0]
+
+
+def _box(action: torch.Tensor) -> torch.Tensor:
+    return action.clamp(-1.0, 1.0)
+
+
+def _batch(seed: int = 1) -> TensorDict:
+    gen = torch.Generator().manual_seed(seed)
+    return TensorDict(
+        observation=torch.randn(B, OBS, generator=gen),
+        action=torch.rand(B, ACT, generator=gen) * 2 - 1,
+        batch_size=[B],
+    )
+
+
+def _by_hand(loss: DiffQLActorLoss, batch: TensorDict, seed: int) -> tuple[torch.Tensor, ...]:
+    """``L_bc`` (ε-prediction MSE at a random step, as TorchRL's DiffusionBCLoss draws it)
+    and ``Q(s, a_π)`` of the actor's chain, recomputed from the same random stream."""
+    torch.manual_seed(seed)
+    ddpm = loss.actor.module
+    t = torch.randint(0, ddpm.num_steps, (B,))
+    noisy, noise = ddpm.add_noise(batch["action"], t)
+    inputs = torch.cat([noisy, batch["observation"], t.float().unsqueeze(-1)], -1)
+    bc = (ddpm.score_network(inputs) - noise).square()  # [B, ACT]
+    q = _q_value(batch["observation"], loss.sample_actions(batch["observation"]))
+    return bc, q
+
+
+@pytest.mark.parametrize("eta", [0.0, 0.7, 2.5])
+def test_the_loss_is_bc_plus_eta_times_the_normalised_q_term_by_hand(eta):
+    loss = DiffQLActorLoss(_actor(), _q_value, _box, eta=eta)
+    batch = _batch()
+    torch.manual_seed(3)
+    out = loss(batch)
+    bc, q = _by_hand(loss, batch, seed=3)
+    q_term = -q.mean() / q.abs().mean()
+    torch.testing.assert_close(out["loss_bc"], bc.mean())
+    torch.testing.assert_close(out["loss_q"], q_term)
+    torch.testing.assert_close(out["q_pi"], q.mean())
+    torch.testing.assert_close(out["loss_actor"], bc.mean() + eta * q_term)
+    assert not out["loss_bc"].requires_grad and not out["loss_q"].requires_grad
+    assert out["loss_actor"].requires_grad
+
+
+def test_the_q_normaliser_is_detached_and_never_divides_by_zero():
+    actor = _actor()
+    zero = DiffQLActorLoss(actor, lambda s, a: 0.0 * a.sum(-1), _box, eta=1.0)
+    out = zero(_batch())
+    assert torch.isfinite(out["loss_actor"]) and out["loss_q"] == 0  # |Q| clamped at 1e-6
+    # detached normaliser: d(−mean Q / c)/dQ = −1 / (B c), c = mean |Q| held fixed
+    q = torch.tensor([-2.0, 1.0, 3.0], requires_grad=True)
+    loss = DiffQLActorLoss(actor, lambda s, a: q, _box, eta=1.0)
+    q_term, _ = loss.q_term(torch.zeros(3, OBS))
+    q_term.backward()
+    torch.testing.assert_close(q.grad, torch.full((3,), -1.0 / (3 * 2.0)))
+
+
+def test_reduction_none_is_per_sample_and_its_mean_and_sum_match_the_reduced_losses():
+    loss = DiffQLActorLoss(_actor(), _q_value, _box, eta=1.3)
+    batch = _batch()
+    torch.manual_seed(4)
+    mean = loss(batch)
+    outs = {}
+    for reduction in ("none", "sum"):
+        loss.reduction = reduction
+        torch.manual_seed(4)
+        outs[reduction] = loss(batch)
+    none, total = outs["none"], outs["sum"]
+    for key in ("loss_actor", "loss_bc", "loss_q"):
+        assert none[key].shape == (B,), key
+        torch.testing.assert_close(none[key].mean(), mean[key])
+        torch.testing.assert_close(total[key], none[key].sum())
+    assert none["q_pi"].shape == (B,)
+    torch.testing.assert_close(none["q_pi"].mean(), mean["q_pi"])
+
+
+def test_it_is_a_torchrl_loss_module_with_settable_keys():
+    loss = DiffQLActorLoss(_actor(), _q_value, _box, eta=1.0)
+    assert isinstance(loss, LossModule)
+    assert loss.in_keys == ["observation", "action"]
+    assert loss.out_keys == ["loss_actor", "loss_bc", "loss_q", "q_pi"]
+    torch.manual_seed(5)
+    expected = loss(_batch())
+    loss.set_keys(observation="obs", action=("data", "act"))
+    assert loss.in_keys == ["obs", ("data", "act")]
+    assert loss.bc_loss.tensor_keys.observation == "obs"
+    renamed = _batch().rename_key_("observation", "obs")
+    renamed["data", "act"] = renamed.pop("action")
+    torch.manual_seed(5)
+    got = loss(renamed)
+    for key in expected.keys():
+        torch.testing.assert_close(got[key], expected[key])
+    with pytest.raises(KeyError):
+        loss(_batch())  # the old names are not read any more
+
+
+def test_gradients_reach_every_actor_weight_and_a_bad_reduction_is_refused():
+    actor = _actor()
+    DiffQLActorLoss(actor, _q_value, _box, eta=1.0)(_batch())["loss_actor"].backward()
+    assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in actor.parameters())
+    with pytest.raises(ValueError, match="reduction must be 'mean', 'sum' or 'none'"):
+        DiffQLActorLoss(actor, _q_value, _box, eta=1.0, reduction="max")
+
+
+def test_the_loss_on_iql_critics_compiles_without_a_graph_break():
+    """``torch.compile(fullgraph=True)`` of the loss built by ``from_iql`` (issue 30): the
+    DDPM chain, the twin critics' minimum (one ``to_module`` per member) and ``L_bc``."""
+    from torchrl.modules import MLP, ProbabilisticActor, ValueOperator
+    from torchrl.objectives import IQLLoss
+
+    torch.manual_seed(0)
+    stand_in = ProbabilisticActor(
+        TensorDictModule(nn.Linear(OBS, 2 * ACT), in_keys=["observation"], out_keys=["p"]),
+        in_keys=["p"],
+        distribution_class=torch.distributions.Normal,
+    )
+    critic = IQLLoss(
+        stand_in,
+        ValueOperator(MLP(in_features=OBS + ACT, out_features=1, num_cells=[8]),
+                      in_keys=["observation", "action"]),
+        ValueOperator(MLP(in_features=OBS, out_features=1, num_cells=[8]),
+                      in_keys=["observation"]),
+        num_qvalue_nets=2,
+    )  # fmt: skip
+    loss = DiffQLActorLoss.from_iql(_actor(), critic, _box, eta=1.0)
+    torch._dynamo.reset()
+    out = torch.compile(loss, fullgraph=True, backend="eager")(_batch())
+    assert torch.isfinite(out["loss_actor"])
