@@ -85,7 +85,9 @@ def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORu
                 if checkpoint:
                     clock.tick()
                     run.save()
-                    next_save += budget.checkpoint_every
+                    next_save = (
+                        run.frames // budget.checkpoint_every + 1
+                    ) * budget.checkpoint_every
                 if cfg.interrupt_at_frames is not None and run.frames >= cfg.interrupt_at_frames:
                     raise KeyboardInterrupt
                 if checkpoint:
