@@ -460,7 +460,7 @@ def test_make_value_estimator_sets_gamma_as_torchrl_losses_do():
     assert not torch.allclose(loss(batch.clone())["loss_qvalue"], before)  # γ reached y
     with pytest.raises(
         NotImplementedError,
-        match=r"Call make_value_estimator\(\) or make_value_estimator\(ValueEstimators\.TD0\)\.",
+        match=r"Call make_value_estimator\(\) or make_value_estimator\(ValueEstimators\.TD0\)\.$",
     ):
         loss.make_value_estimator(ValueEstimators.TDLambda)
     with pytest.raises(TypeError, match="gamma only"):
