@@ -111,6 +111,98 @@ def test_a_batch_without_both_parts_names_the_fix():
         _constant_loss(1.0)(batch.exclude("online"))
 
 
+def test_an_all_online_batch_is_refused_too_and_the_messages_name_the_fix():
+    batch = TensorDict(
+        observation=torch.zeros(4, OBS),
+        action=torch.zeros(4, ACT),
+        online=torch.ones(4, dtype=torch.bool),
+        batch_size=[4],
+    )
+    with pytest.raises(
+        ValueError,
+        match=r"^DensityRatioLoss needs offline and online transitions in the batch; got 4 "
+        r"online of 4\. Use BalancedReplayBuffer\.ratio_batch\(\) once the online buffer "
+        r"holds data\.$",
+    ):
+        _constant_loss(1.0)(batch)
+    with pytest.raises(KeyError, match=r"loss's online entry.*set_keys\(online=\.\.\.\)"):
+        _constant_loss(1.0)(batch.exclude("online"))
+
+
+class _FirstCoordinate(nn.Module):
+    """A fake ratio network ``w(s, a) = s_0`` (the test chooses ``s_0 ≥ 0``)."""
+
+    def forward(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        return observation[..., :1]
+
+
+def test_per_sample_ratios_give_the_loss_and_the_mean_ratio_of_each_part():
+    net = TensorDictModule(
+        _FirstCoordinate(), in_keys=["observation", "action"], out_keys=["density_ratio"]
+    )
+    w = [1.0, 2.0, 3.0, 4.0, 5.0]
+    online = [True, False, True, False, False]
+    observation = torch.zeros(5, OBS)
+    observation[:, 0] = torch.tensor(w)
+    batch = TensorDict(
+        observation=observation,
+        action=torch.zeros(5, ACT),
+        online=torch.tensor(online),
+        batch_size=[5],
+    )
+    out = DensityRatioLoss(net)(batch)
+    off_w = [x for x, o in zip(w, online, strict=True) if not o]
+    on_w = [x for x, o in zip(w, online, strict=True) if o]
+    expected = sum(-math.log(2 / (x + 1)) for x in off_w) / len(off_w) - sum(
+        math.log(2 * x / (x + 1)) for x in on_w
+    ) / len(on_w)
+    torch.testing.assert_close(out["loss_density_ratio"], torch.tensor(expected))
+    torch.testing.assert_close(out["ratio_online"], torch.tensor(2.0))  # (1 + 3) / 2
+    torch.testing.assert_close(out["ratio_offline"], torch.tensor(11 / 3))  # (2 + 4 + 5) / 3
+    assert out.batch_size == torch.Size([])
+
+
+def test_the_log_guard_keeps_the_loss_finite_at_zero_and_huge_ratios():
+    """``_LOG_EPS = 1e-10`` is added inside both logarithms (the authors' guard): ``w = 0``
+    online gives ``log(1e-10)``, ``w = 1e11`` offline ``−log(2 / (1e11 + 1) + 1e-10)``."""
+    eps = 1e-10
+    online = torch.arange(6) < 3
+    batch = TensorDict(
+        observation=torch.zeros(6, OBS), action=torch.zeros(6, ACT), online=online, batch_size=[6]
+    )
+    expected = -math.log(2.0 + eps) - math.log(eps)
+    torch.testing.assert_close(
+        _constant_loss(0.0)(batch)["loss_density_ratio"], torch.tensor(expected)
+    )
+    big = 1e11
+    expected = -math.log(2 / (big + 1) + eps) - math.log(2 * big / (big + 1) + eps)
+    torch.testing.assert_close(
+        _constant_loss(big)(batch)["loss_density_ratio"], torch.tensor(expected)
+    )
+
+
+def test_the_network_is_an_mlp_on_the_concatenated_state_action_with_output_bias_one():
+    """``w = relu(W₂ relu(W₁ [s, a] + b₁) + b₂)`` with ``b₂ = 1`` at initialisation; it
+    evaluates any leading batch shape."""
+    torch.manual_seed(0)
+    net = make_density_ratio_network(OBS, ACT, num_cells=(8,))
+    mlp = net.module.mlp
+    assert sum(p.numel() for p in net.parameters()) == (OBS + ACT) * 8 + 8 + 8 + 1
+    torch.testing.assert_close(mlp[-1].bias, torch.ones(1))
+    s, a = torch.randn(2, 4, OBS), torch.randn(2, 4, ACT)
+    w = net(TensorDict(observation=s, action=a, batch_size=[2, 4]))["density_ratio"]
+    (w1, b1), (w2, b2) = (mlp[0].weight, mlp[0].bias), (mlp[-1].weight, mlp[-1].bias)
+    x = torch.cat([s, a], -1)
+    expected = torch.relu(torch.relu(x @ w1.T + b1) @ w2.T + b2)
+    assert w.shape == (2, 4, 1)
+    torch.testing.assert_close(w, expected)
+    # with the last layer's weights zeroed, w is the bias: 1 everywhere (no preference)
+    with torch.no_grad():
+        mlp[-1].weight.zero_()
+    w = net(TensorDict(observation=s, action=a, batch_size=[2, 4]))["density_ratio"]
+    torch.testing.assert_close(w, torch.ones(2, 4, 1))
+
+
 def test_the_loss_compiles_without_a_graph_break_and_keeps_its_value():
     """Masked sums instead of boolean indexing: no data-dependent shape (issue 30)."""
     from tensordict import TensorDict as _TD

@@ -7,7 +7,7 @@ import torch
 from tensordict import TensorDict
 from tensordict.nn import TensorDictModule
 from torch import nn
-from torchrl.data import Bounded, Unbounded
+from torchrl.data import Bounded, Composite, Unbounded
 from torchrl.modules import MLP, ProbabilisticActor, ValueOperator
 from torchrl.objectives import SoftUpdate
 from toy import tanh_normal_actor
@@ -257,6 +257,139 @@ def test_soft_update_moves_the_targets_toward_the_ensemble():
     assert ((loss.target_qvalue_network_params.data - expected).abs() < 1e-6).all()
 
 
+# ----------------------------------------------------------------------------- loss forms
+def _terminal_batch(batch: int = 16, *, scale: float = 1.0) -> TensorDict:
+    """Every transition terminal: the target is the reward itself, ``y = r``."""
+    td = _mock_batch(batch, terminal_every=1)
+    td["next", "reward"] = td["next", "reward"] * scale
+    return td
+
+
+def _members(loss: SO2QLoss, batch: TensorDict) -> torch.Tensor:
+    """``Q_k(s, a)`` for every member by a loop, ``[E, B]``."""
+    params = loss.qvalue_network_params
+    return torch.stack(
+        [
+            _member_q(loss, params, k, batch["observation"], batch["action"])
+            for k in range(loss.qvalue_network_params.shape[0])
+        ]
+    )
+
+
+def _smooth_l1(d: torch.Tensor) -> torch.Tensor:
+    """Huber with ``β = 1``: ``d²/2`` for ``|d| < 1``, else ``|d| − 1/2``."""
+    return torch.where(d.abs() < 1, 0.5 * d.square(), d.abs() - 0.5)
+
+
+@pytest.mark.parametrize("loss_function", ["l2", "l1", "smooth_l1"])
+def test_each_loss_function_is_averaged_over_members_and_batch(loss_function):
+    """``L = mean_k mean_b ℓ(Q_k(s, a) − y)`` with ``ℓ`` the squared, absolute or Huber
+    error (rewards scaled up so that Huber's two branches both occur)."""
+    loss = _mock_loss(loss_function=loss_function)
+    batch = _terminal_batch(scale=3.0)
+    diff = _members(loss, batch) - batch["next", "reward"].squeeze(-1)
+    assert bool((diff.abs() < 1).any()) and bool((diff.abs() > 1).any())
+    per_element = {"l2": diff.square(), "l1": diff.abs(), "smooth_l1": _smooth_l1(diff)}
+    torch.testing.assert_close(loss(batch)["loss_qvalue"], per_element[loss_function].mean())
+
+
+def test_reduction_none_and_sum_keep_the_per_transition_mean_over_members():
+    batch = _terminal_batch()
+    loss = _mock_loss(reduction="none")
+    per_sample = (_members(loss, batch) - batch["next", "reward"].squeeze(-1)).square().mean(0)
+    out = loss(batch)["loss_qvalue"]
+    assert out.shape == (16,)
+    torch.testing.assert_close(out, per_sample)
+    loss = _mock_loss(reduction="sum")
+    torch.testing.assert_close(loss(batch)["loss_qvalue"], per_sample.sum())
+
+
+def test_diagnostics_report_the_mean_q_and_the_mean_target():
+    loss, batch = _mock_loss(), _terminal_batch()
+    out = loss(batch)
+    assert sorted(out.keys()) == ["loss_qvalue", "state_action_value", "target_value"]
+    assert out.batch_size == torch.Size([])
+    torch.testing.assert_close(out["state_action_value"], _members(loss, batch).mean())
+    torch.testing.assert_close(out["target_value"], batch["next", "reward"].mean())
+
+
+def test_a_collector_mask_drops_padded_transitions_from_the_mean():
+    """TorchRL's ``("collector", "mask")`` marks padding: masked transitions do not count."""
+    loss, batch = _mock_loss(), _terminal_batch()
+    mask = torch.arange(16) % 3 != 0
+    batch["collector", "mask"] = mask
+    per_sample = (_members(loss, batch) - batch["next", "reward"].squeeze(-1)).square().mean(0)
+    torch.testing.assert_close(loss(batch)["loss_qvalue"], per_sample[mask].mean())
+
+
+def test_a_single_member_ensemble_regresses_on_its_own_target():
+    loss, batch = _mock_loss(num_qvalue_nets=1), _terminal_batch()
+    assert loss.num_qvalue_nets == 1 and loss.qvalue_network_params.shape[0] == 1
+    q = _members(loss, batch)
+    assert q.shape == (1, 16)
+    expected = (q[0] - batch["next", "reward"].squeeze(-1)).square().mean()
+    torch.testing.assert_close(loss(batch)["loss_qvalue"], expected)
+
+
+def test_zero_noise_clip_leaves_the_next_action_unperturbed():
+    a = torch.tensor([0.3, -0.4])
+    actor = TensorDictModule(_ConstantActor(a), in_keys=["observation"], out_keys=["action"])
+    loss = _mock_loss(actor, policy_noise=5.0, noise_clip=0.0)
+    smoothed, log_prob = loss.target_action(_mock_batch(32)["next"])
+    torch.testing.assert_close(smoothed, a.expand(32, ACT))
+    torch.testing.assert_close(log_prob, torch.zeros(32))  # entropy_coef = 0
+
+
+def test_a_composite_action_spec_gives_its_action_box():
+    """``ã'`` is clipped to the box of ``Composite(action=Bounded(low, high))``."""
+    low, high = torch.tensor([-1.0, 0.5]), torch.tensor([1.0, 2.0])
+    a = torch.tensor([3.0, -3.0])
+    actor = TensorDictModule(_ConstantActor(a), in_keys=["observation"], out_keys=["action"])
+    spec = Composite(action=Bounded(low, high, shape=(ACT,)))
+    loss = _mock_loss(actor, action_spec=spec, policy_noise=0.0)
+    smoothed, _ = loss.target_action(_mock_batch(8)["next"])
+    torch.testing.assert_close(smoothed, torch.tensor([1.0, 0.5]).expand(8, ACT))
+
+
+def test_q_value_of_one_unbatched_state_action_is_the_min_over_members():
+    loss, batch = _mock_loss(), _mock_batch()
+    obs, act = batch["observation"][0], batch["action"][0]
+    value = loss.q_value(obs, act)
+    assert value.shape == ()
+    torch.testing.assert_close(value, _members(loss, batch)[:, 0].min())
+
+
+def test_members_draw_their_own_dropout_masks():
+    """A Q network with dropout: in training mode each member samples its own mask, so
+    identical members disagree; in evaluation mode they agree."""
+    torch.manual_seed(0)
+    qvalue = ValueOperator(
+        MLP(in_features=OBS + ACT, out_features=1, num_cells=[64], dropout=0.5),
+        in_keys=["observation", "action"],
+    )
+    loss = SO2QLoss(
+        _mock_actor(), qvalue, action_spec=Bounded(-1.0, 1.0, shape=(ACT,)), num_qvalue_nets=E
+    )
+    params = loss.qvalue_network_params.data.clone()
+    params.apply_(lambda p: p.copy_(p[:1].expand_as(p)))  # every member = member 0
+    batch = _mock_batch()
+    values = loss.ensemble_values(batch, params)
+    assert values.shape == (E, 16)
+    assert not torch.allclose(values[0], values[1])
+    loss.qvalue_network.eval()
+    values = loss.ensemble_values(batch, params)
+    torch.testing.assert_close(values[1:], values[:1].expand(E - 1, 16))
+
+
+def test_documented_defaults():
+    loss = SO2QLoss(_mock_actor(), _mock_qvalue(), action_spec=Bounded(-1.0, 1.0, shape=(ACT,)))
+    assert loss.num_qvalue_nets == 10 and loss.qvalue_network_params.shape[0] == 10
+    assert (loss.policy_noise, loss.noise_clip) == (0.3, 0.6)
+    assert (loss.target_reduction, loss.next_action) == ("independent", "sample")
+    assert (loss.entropy_coef, loss.gamma) == (0.0, 0.99)
+    assert (loss.loss_function, loss.reduction) == ("l2", "mean")
+
+
 # ----------------------------------------------------------------------------- errors
 def test_in_keys_list_what_the_loss_reads():
     assert _mock_loss().in_keys == [
@@ -288,6 +421,31 @@ def test_bad_settings_and_missing_entries_name_the_fix():
         _mock_loss(no_log_prob, entropy_coef=0.2)(_mock_batch())
 
 
+@pytest.mark.parametrize(
+    ("name", "value"),
+    [("target_reduction", "max"), ("next_action", "mode"), ("loss_function", "huber")],
+)
+def test_an_unknown_option_is_named_with_its_choices(name, value):
+    with pytest.raises(ValueError, match=f"^Unknown {name} '{value}'; choose one of"):
+        _mock_loss(**{name: value})
+
+
+def test_out_of_range_settings_are_refused_by_name():
+    with pytest.raises(ValueError, match="num_qvalue_nets must be >= 1, got 0"):
+        _mock_loss(num_qvalue_nets=0)
+    for noise, clip in ((-0.1, 0.5), (0.3, -0.1)):
+        with pytest.raises(ValueError, match="policy_noise and noise_clip must be >= 0"):
+            _mock_loss(policy_noise=noise, noise_clip=clip)
+    with pytest.raises(
+        ValueError,
+        match=r"^SO2QLoss clips the smoothed action to the action box and needs a bounded "
+        r"action_spec \(torchrl\.data\.Bounded\); got UnboundedContinuous\.$",
+    ):
+        _mock_loss(action_spec=Unbounded(shape=(ACT,)))
+    with pytest.raises(ValueError, match="^Unknown reduction 'max'; choose one of"):
+        _mock_loss().q_value(torch.zeros(2, OBS), torch.zeros(2, ACT), reduction="max")
+
+
 def test_make_value_estimator_sets_gamma_as_torchrl_losses_do():
     """Generic TorchRL loops call ``loss.make_value_estimator(gamma=...)``: SO2's TD(0)
     target takes it (and refuses other estimators or hyperparameters by name)."""
@@ -300,7 +458,10 @@ def test_make_value_estimator_sets_gamma_as_torchrl_losses_do():
     assert loss.gamma == 0.0
     torch.manual_seed(0)
     assert not torch.allclose(loss(batch.clone())["loss_qvalue"], before)  # γ reached y
-    with pytest.raises(NotImplementedError, match="TD0"):
+    with pytest.raises(
+        NotImplementedError,
+        match=r"Call make_value_estimator\(\) or make_value_estimator\(ValueEstimators\.TD0\)\.$",
+    ):
         loss.make_value_estimator(ValueEstimators.TDLambda)
     with pytest.raises(TypeError, match="gamma only"):
         loss.make_value_estimator(lmbda=0.9)
