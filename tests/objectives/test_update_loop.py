@@ -53,6 +53,32 @@ def test_each_update_is_one_gradient_step_on_the_sum_of_the_loss_entries_only():
     torch.testing.assert_close(module.w.detach(), torch.full((2,), 0.9**3))
 
 
+class _Target(nn.Module):
+    """``loss_fit = ½ Σ (w − batch["target"])²``: one SGD step with lr 1 lands on the target."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.w = nn.Parameter(torch.zeros(2))
+
+    def forward(self, batch) -> TensorDict:
+        return TensorDict(loss_fit=0.5 * (self.w - batch["target"]).square().sum(), batch_size=[])
+
+
+def test_each_update_trains_on_a_fresh_batch_from_sample():
+    targets = iter([3.0, 5.0])
+    drawn = []
+
+    def sample():
+        drawn.append(next(targets))
+        return TensorDict(target=torch.full((2,), drawn[-1]), batch_size=[])
+
+    module = _Target()
+    optimizer = torch.optim.SGD(module.parameters(), lr=1.0)
+    run_updates(module, sample, 2, optimizer, grad_clip=None, progress=False)
+    assert drawn == [3.0, 5.0]
+    torch.testing.assert_close(module.w.detach(), torch.full((2,), 5.0))  # 0 → 3 → 5
+
+
 def test_scalar_entries_are_averaged_per_logging_window_and_the_last_window_returned():
     module = _Quadratic()
     logger = _Logger()
