@@ -64,8 +64,9 @@ def _q_by_hand(params: TensorDict, obs: torch.Tensor, action: torch.Tensor) -> t
     return mlp_by_hand(params, torch.cat([obs, action], -1))
 
 
-def _penalty_by_hand(loss: CalQLLoss, batch: TensorDict, bound: torch.Tensor, seed: int = 1):
-    """Cal-QL's penalty written out: the policy draws are spied, every Q is recomputed."""
+def _spied_penalty(loss: CalQLLoss, batch: TensorDict, seed: int = 1):
+    """``cql_loss`` after ``q_loss`` on a copy of ``batch`` with the policy draws spied:
+    the input as ``cql_loss`` left it, its two outputs and the two draws."""
     draws = []
     original = loss._get_policy_actions
 
@@ -75,28 +76,53 @@ def _penalty_by_hand(loss: CalQLLoss, batch: TensorDict, bound: torch.Tensor, se
         return out
 
     loss._get_policy_actions = spy
-    value = _penalty(loss, batch, seed)
-    del loss._get_policy_actions
+    td = batch.clone()
+    loss.q_loss(td)
     torch.manual_seed(seed)
-    uniform = torch.empty(BATCH * NUM, ACT).uniform_(-1, 1)  # CQL's first draw
+    value, metadata = loss.cql_loss(td)
+    del loss._get_policy_actions
+    return td, value, metadata, draws
+
+
+def _by_hand(loss: CalQLLoss, batch: TensorDict, bound: torch.Tensor, draws, seed: int = 1):
+    """Cal-QL's penalty written out (the ``"calql"`` layout) on the flattened batch, every Q
+    recomputed: the per-network, per-transition penalties ``[2, N]`` and the fraction of the
+    ``2 kinds x 2 networks x NUM`` policy Q-values of each transition below its bound."""
+    n = batch.numel()
+    torch.manual_seed(seed)
+    uniform = torch.empty(n * NUM, ACT).uniform_(-1, 1)  # CQL's first draw
     (curr, curr_log_pi), (nxt, next_log_pi) = draws
-    obs = batch["observation"].repeat_interleave(NUM, 0)
-    g = bound.repeat_interleave(NUM)
+    curr_action, next_action = curr["action"].reshape(-1, ACT), nxt["action"].reshape(-1, ACT)
+    curr_log_pi, next_log_pi = curr_log_pi.reshape(-1), next_log_pi.reshape(-1)
+    obs = batch["observation"].reshape(n, OBS)
+    obs_rep = obs.repeat_interleave(NUM, 0)
+    g = bound.reshape(n).repeat_interleave(NUM)
     w, temp = loss.min_q_weight, loss.temperature
-    total = torch.zeros(())
+    per_net, raised = [], []
     for net in range(2):
         params = loss.qvalue_network_params[net]
+        q_curr = _q_by_hand(params, obs_rep, curr_action)
+        q_next = _q_by_hand(params, obs_rep, next_action)
+        raised += [q_curr < g, q_next < g]
         terms = torch.stack(
             [
-                _q_by_hand(params, obs, uniform) - ACT * math.log(0.5),
-                torch.maximum(_q_by_hand(params, obs, curr["action"]), g) - curr_log_pi,
-                torch.maximum(_q_by_hand(params, obs, nxt["action"]), g) - next_log_pi,
+                _q_by_hand(params, obs_rep, uniform) - ACT * math.log(0.5),
+                torch.maximum(q_curr, g) - curr_log_pi,
+                torch.maximum(q_next, g) - next_log_pi,
             ],
             -1,
-        ).reshape(BATCH, 3 * NUM)  # the 3·NUM actions of each state
-        pred = _q_by_hand(params, batch["observation"], batch["action"])
-        total = total + (w * (temp * torch.logsumexp(terms / temp, -1) - pred)).mean()
-    return value, total
+        ).reshape(n, 3 * NUM)  # the 3·NUM actions of each state
+        pred = _q_by_hand(params, obs, batch["action"].reshape(n, ACT))
+        per_net.append(w * (temp * torch.logsumexp(terms / temp, -1) - pred))
+    rate = torch.stack(raised).float().reshape(4, n, NUM).mean((0, 2))
+    return torch.stack(per_net), rate
+
+
+def _penalty_by_hand(loss: CalQLLoss, batch: TensorDict, bound: torch.Tensor, seed: int = 1):
+    """``loss_cql`` (mean reduction) and Cal-QL's penalty written out."""
+    _, value, _, draws = _spied_penalty(loss, batch, seed)
+    per_net, _ = _by_hand(loss, batch, bound, draws, seed)
+    return value, per_net.sum(0).mean()
 
 
 # ----------------------------------------------------------------------------- the penalty
@@ -111,8 +137,13 @@ def test_the_penalty_equals_the_logsumexp_of_clipped_policy_q_computed_by_hand(b
     torch.testing.assert_close(value, expected, rtol=1e-5, atol=1e-5)
 
 
-def test_with_the_bound_at_minus_inf_the_torchrl_layout_gives_cqllosss_outputs_exactly():
-    cal, cql = _mock_loss(penalty_layout="torchrl"), _mock_loss(CQLLoss)
+@pytest.mark.parametrize("weight, temperature", [(1.0, 1.0), (3.0, 2.0)])
+def test_with_the_bound_at_minus_inf_the_torchrl_layout_gives_cqllosss_outputs_exactly(
+    weight, temperature
+):
+    kwargs = {"min_q_weight": weight, "temperature": temperature}
+    cal = _mock_loss(penalty_layout="torchrl", **kwargs)
+    cql = _mock_loss(CQLLoss, **kwargs)
     batch = _mock_batch(-math.inf)
     torch.manual_seed(3)
     out_cal = cal(batch.clone())
@@ -196,7 +227,11 @@ def test_set_keys_renames_the_bound_and_a_missing_bound_names_the_fix():
 
 
 def test_bad_layout_and_bound_shape_are_rejected():
-    with pytest.raises(ValueError, match="penalty_layout='cql' is not one of"):
+    with pytest.raises(
+        ValueError,
+        match=r"penalty_layout='cql' is not one of \('calql', 'torchrl'\): 'calql' follows the "
+        r"Cal-QL reference code, 'torchrl' reproduces CQLLoss's grouping\.",
+    ):
         _mock_loss(penalty_layout="cql")
     batch = _mock_batch(0.0)
     batch.set("mc_return", torch.zeros(BATCH, 2))
@@ -206,3 +241,114 @@ def test_bad_layout_and_bound_shape_are_rejected():
 
 def test_in_keys_list_cqlloss_s_then_the_bound_in_a_fixed_order():
     assert _mock_loss().in_keys == [*_mock_loss(cls=CQLLoss).in_keys, "mc_return"]
+
+
+# ----------------------------------------------------------------------------- per-sample outputs
+def test_the_per_network_penalties_bound_rate_and_metadata_match_a_hand_computation():
+    """``cql_q1_loss`` / ``cql_q2_loss`` are the two networks' per-transition penalties,
+    ``bound_rate`` the per-transition fraction of raised policy Q-values, and the metadata
+    its mean."""
+    loss = _mock_loss(min_q_weight=3.0, temperature=2.0)
+    # bounds inside the Q-values' range for states 1, 2 and 4: some of their policy Qs raised
+    bound = torch.tensor([5.0, -0.3, -0.3, -math.inf, -0.2, -1.0])
+    batch = _mock_batch(bound.unsqueeze(-1))
+    td, value, metadata, draws = _spied_penalty(loss, batch)
+    per_net, rate = _by_hand(loss, batch, bound, draws)
+    torch.testing.assert_close(td["cql_q1_loss"], per_net[0], rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(td["cql_q2_loss"], per_net[1], rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(td["bound_rate"], rate)
+    assert ((rate > 0) & (rate < 1)).any()  # a real mix, not only 0 and 1
+    assert list(metadata) == ["bound_rate"]
+    torch.testing.assert_close(metadata["bound_rate"], rate.mean())
+    assert not metadata["bound_rate"].requires_grad
+
+
+@pytest.mark.parametrize("layout", PENALTY_LAYOUTS)
+def test_a_two_dimensional_batch_gives_the_hand_penalties_of_its_transitions(layout):
+    """A ``[2, 3]`` batch: one penalty and one ``bound_rate`` per transition, each that of
+    the hand computation on the flattened batch (``"calql"``; for ``"torchrl"`` the shape
+    and the bound rate)."""
+    loss = _mock_loss(penalty_layout=layout, reduction="none", scalar_output_mode="exclude")
+    bound = torch.tensor([5.0, -5.0, 0.2, -math.inf, 1.0, -1.0])
+    flat = _mock_batch(bound.unsqueeze(-1))
+    batch = flat.reshape(2, 3)
+    td, value, _, draws = _spied_penalty(loss, batch)
+    per_net, rate = _by_hand(loss, flat, bound, draws)
+    assert value.shape == (2, 3)
+    torch.testing.assert_close(td["bound_rate"], rate.reshape(2, 3))
+    if layout == "calql":
+        torch.testing.assert_close(value, per_net.sum(0).reshape(2, 3), rtol=1e-5, atol=1e-5)
+        torch.testing.assert_close(
+            td["cql_q1_loss"], per_net[0].reshape(2, 3), rtol=1e-5, atol=1e-5
+        )
+
+
+def test_a_policy_q_equal_to_the_bound_is_not_counted_as_raised():
+    """With a constant critic ``Q ≡ 0.25`` every policy Q-value equals a bound of 0.25: none
+    lies below it (``bound_rate`` 0); a bound of 0.5 raises all of them (1)."""
+    for bound, expected in ((0.25, 0.0), (0.5, 1.0)):
+        loss = _mock_loss()
+        with torch.no_grad():
+            loss.qvalue_network_params["module", "2", "weight"].zero_()
+            loss.qvalue_network_params["module", "2", "bias"].fill_(0.25)
+        td, _, metadata, _ = _spied_penalty(loss, _mock_batch(bound))
+        assert torch.equal(td["bound_rate"], torch.full((BATCH,), expected)), bound
+        assert float(metadata["bound_rate"]) == expected
+
+
+def test_a_float64_bound_gives_the_penalty_in_the_critic_s_float32():
+    loss = _mock_loss(min_q_weight=2.0)
+    bound = torch.tensor([5.0, -5.0, 0.2, -math.inf, 1.0, -1.0], dtype=torch.float64)
+    batch = _mock_batch(bound.float().unsqueeze(-1)).set("mc_return", bound.unsqueeze(-1))
+    _, value, _, draws = _spied_penalty(loss, batch)
+    per_net, _ = _by_hand(loss, batch, bound.float(), draws)
+    assert value.dtype == torch.float32
+    torch.testing.assert_close(value, per_net.sum(0).mean(), rtol=1e-5, atol=1e-5)
+
+
+def test_the_mean_penalty_skips_transitions_masked_out_by_the_collector_mask():
+    """``("collector", "mask")`` (TorchRL's padding mask) drops its ``False`` transitions
+    from the mean of ``loss_cql``."""
+    loss = _mock_loss()
+    bound = torch.full((BATCH,), 0.3)
+    mask = torch.tensor([True, True, False, True, False, True])
+    batch = _mock_batch(bound.unsqueeze(-1)).set(("collector", "mask"), mask)
+    _, value, _, draws = _spied_penalty(loss, batch)
+    per_net, _ = _by_hand(loss, batch, bound, draws)
+    torch.testing.assert_close(value, per_net.sum(0)[mask].mean(), rtol=1e-5, atol=1e-5)
+
+
+def test_under_compile_cql_loss_clears_the_weakrefs_that_cqlloss_clears(monkeypatch):
+    """Inside ``torch.compile`` (``is_compiling`` forced true) ``cql_loss`` releases the
+    compile references of its input and of the four parameter sets, as
+    ``CQLLoss.cql_loss`` does."""
+    import torchrl.objectives.common as common
+
+    def cleared_by(loss):
+        td = _mock_batch(0.3)
+        loss.q_loss(td)
+        seen = []
+        real = common.is_tensor_collection
+
+        def spy(obj):
+            seen.append(obj)
+            return real(obj)
+
+        monkeypatch.setattr(common, "is_compiling", lambda: True)
+        monkeypatch.setattr(common, "is_tensor_collection", spy)
+        loss.cql_loss(td)
+        monkeypatch.undo()
+        assert len(seen) == 5, [type(x) for x in seen]
+        assert seen[0] is td
+        assert seen[1] is loss.actor_network_params
+        assert seen[2] is loss.qvalue_network_params
+        assert (seen[3] == loss.actor_network_params.data).all()  # no target actor: its data
+        assert seen[4] is loss.target_qvalue_network_params
+
+    cleared_by(_mock_loss(CQLLoss))  # the reference
+    cleared_by(_mock_loss())
+
+
+def test_cql_loss_before_q_loss_names_the_fix():
+    with pytest.raises(KeyError, match=r"which q_loss writes: call q_loss\(tensordict\) first"):
+        _mock_loss().cql_loss(_mock_batch(0.0))
