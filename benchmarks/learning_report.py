@@ -164,6 +164,18 @@ def _offline_unshifted(result: dict) -> float:
     return float(offline.get("normalized_score_unshifted", math.nan))
 
 
+def epistemic_share(result: dict) -> float | None:
+    """The run's mean over its collected batches of the epistemic share of the executed
+    variance (``online/epistemic_share``: Eq. 9's ``Var_m`` over ``σ̄² + Var_m + v_c + λ d``);
+    ``None`` for a run without an ensemble or from before the share was logged."""
+    values = [
+        s["epistemic_share"]
+        for s in result.get("online_signals") or []
+        if s.get("epistemic_share") is not None
+    ]
+    return statistics.fmean(values) if values else None
+
+
 def cell_table(variants: dict[str, list[dict]], order: Sequence[str]) -> str:
     """Markdown table of one cell: mean ± 95 % t half-width per variant, and which
     variants separate from ``dual`` (final score / AUC). Under an online shift it adds
@@ -172,8 +184,8 @@ def cell_table(variants: dict[str, list[dict]], order: Sequence[str]) -> str:
     extra = " offline, no shift |" if shifted else ""
     lines = [
         f"| variant | n | offline score |{extra} final online score | AUC (online) | wall min "
-        "| CPU min | vs dual: final / AUC |",
-        "|---|---:|---|" + ("---|" if shifted else "") + "---|---|---:|---:|---|",
+        "| CPU min | epistemic share | vs dual: final / AUC |",
+        "|---|---:|---|" + ("---|" if shifted else "") + "---|---|---:|---:|---|---|",
     ]
     stats = {
         v: {k: t_interval([r[k] for r in rs]) for k in ("offline_score", "final_score", "auc")}
@@ -195,9 +207,11 @@ def cell_table(variants: dict[str, list[dict]], order: Sequence[str]) -> str:
         if shifted:
             values = [_offline_unshifted(r) for r in rs]
             unshifted = " — |" if any(map(math.isnan, values)) else f" {fmt(t_interval(values))} |"
+        shares = [epistemic_share(r) for r in rs]
+        share = "—" if None in shares else f"{fmt(t_interval([100 * x for x in shares]))} %"
         lines.append(
             f"| `{v}` | {len(rs)} | {fmt(s['offline_score'])} |{unshifted} {fmt(s['final_score'])} "
-            f"| {fmt(s['auc'])} | {wall:.1f} | {cpu} | {marker} |"
+            f"| {fmt(s['auc'])} | {wall:.1f} | {cpu} | {share} | {marker} |"
         )
     return "\n".join(lines)
 
@@ -284,7 +298,10 @@ def render_section(
         "(n − 1 degrees of freedom). *Offline score*: after the offline phase (0 online "
         "frames); *final*: at the last online evaluation; *AUC*: the trapezoid mean of the "
         "normalized score over online frames, from the offline point to the end; *wall min*: "
-        "mean minutes of offline + online phase (a shared offline phase counts in full). "
+        "mean minutes of offline + online phase (a shared offline phase counts in full); "
+        "*epistemic share*: the epistemic variance of Eq. 9 as a share of the executed "
+        "variance, averaged over the online batches of each run (— without an ensemble, or "
+        "for runs from before 2026-12-04, which did not log it). "
         "*vs dual*: ▲ / ▼ when the variant's interval lies entirely above / below DUAL's, "
         "≈ when they overlap, ? with fewer than 2 seeds. Non-overlap of two 95 % intervals "
         "is a conservative test: for two intervals of equal width it needs a difference of "

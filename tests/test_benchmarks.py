@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import statistics
 import sys
 from pathlib import Path
 
@@ -178,7 +179,7 @@ def test_report_keeps_hand_written_text_and_is_idempotent(tmp_path, capsys):
     assert first.startswith("# Learning results\n\n" + begin)
     assert first.endswith(end + "\n\nIntro written by hand.\n\n## Older runs\n\nkept as is.\n")
     assert (
-        "| `iql` | 3 | 0.0 ± 0.0 | 5.0 ± 2.5 | 2.5 ± 1.2 | 5.0 | — | ▼ / ▼ |" in first
+        "| `iql` | 3 | 0.0 ± 0.0 | 5.0 ± 2.5 | 2.5 ± 1.2 | 5.0 | — | — | ▼ / ▼ |" in first
     )  # t(2)=4.3027
     assert "### DUAL vs IQL at equal steps and at equal wall time" in first
     # the cost paragraph: the finished runs' total and the rest of the grid (6 done)
@@ -484,3 +485,31 @@ def test_resume_kill_benchmark_kills_resumes_and_finds_the_runs_equal(tmp_path):
     assert result["differences"] == [] and result["entries_compared"] > 100
     assert result["final_frames"] == [300, 300]
     assert 50 <= result["checkpoint_frames_at_kill"] < 300
+
+
+def test_the_cell_table_reports_each_variant_s_epistemic_share():
+    """The share of Eq. 9's epistemic variance in the executed one (issue 29): each run's
+    mean over its batches, then mean ± t half-width over seeds, in percent; "—" when a run
+    did not log it."""
+
+    def run(seed: int, shares: list[float] | None) -> dict:
+        signals = [
+            {"frames": 100 * (i + 1), "epistemic_share": x} for i, x in enumerate(shares or [])
+        ]
+        return {
+            "seed": seed, "offline_score": 0.0, "final_score": 1.0, "auc": 1.0,
+            "wall_seconds": 60.0, "online_signals": signals,
+        }  # fmt: skip
+
+    assert lr.epistemic_share(run(0, [0.1, 0.3])) == pytest.approx(0.2)
+    assert lr.epistemic_share(run(0, None)) is None
+    table = lr.cell_table(
+        {
+            "dual": [run(0, [0.1, 0.3]), run(1, [0.4]), run(2, [0.2, 0.2])],  # 20, 40, 20 %
+            "iql": [run(0, None), run(1, None)],
+        },
+        ["dual", "iql"],
+    )
+    half = 4.3027 * statistics.stdev([20.0, 40.0, 20.0]) / math.sqrt(3)
+    assert f"| 26.7 ± {half:.1f} % |" in table.splitlines()[2]
+    assert "| — |" in table.splitlines()[3]
