@@ -225,3 +225,22 @@ def test_rejections_name_the_offending_module_and_the_fix():
         r"DiffusionActor, or run it once on an observation before wrapping it\.$",
     ):
         DDPMLastStepActor(lazy)
+
+
+def test_the_readout_scale_is_in_the_head_dtype_and_device_whatever_the_schedule():
+    """``β_0 / (√α_0 √(1 − ᾱ_0))`` (hand computation from ``betas``), cast to the head's dtype
+    with a float64 schedule and moved to the head's device."""
+    diffusion = _diffusion()
+    betas = diffusion.module.betas
+    # ᾱ_0 = α_0 = 1 − β_0, so 1 − ᾱ_0 = β_0
+    expected = betas[0] / (torch.sqrt(1 - betas[0]) * torch.sqrt(betas[0]))
+    sampler = diffusion.module
+    for name in ("betas", "alphas", "alphas_cumprod"):
+        setattr(sampler, name, getattr(sampler, name).double())
+    actor = DDPMLastStepActor(diffusion)
+    scale = actor.readout_scale()
+    assert scale.dtype == torch.float32
+    torch.testing.assert_close(scale, expected.expand(ACT))
+    assert actor.mean_jacobian(torch.zeros(4, ACT), torch.zeros(4, ACT)).dtype == torch.float32
+    sampler.score_network.to("meta")  # the schedule stays on the CPU
+    assert actor.readout_scale().device.type == "meta"

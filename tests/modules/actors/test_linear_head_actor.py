@@ -255,3 +255,18 @@ def test_a_tanh_loc_tanh_normal_is_rejected_with_the_fix():
         r"twice; build the actor with tanh_loc=False \(the default\)\.$",
     ):
         LinearHeadActor.from_actor(_iql_actor(tanh_loc=True))
+
+
+def test_a_probabilistic_sequential_without_a_distribution_module_gets_no_squash():
+    """The last module has no ``distribution_class``: nothing to squash to, the mean stays
+    the affine read-out."""
+    torch.manual_seed(0)
+    mlp = MLP(in_features=3, out_features=2, num_cells=[8])
+    actor = ProbabilisticTensorDictSequential(
+        TensorDictModule(mlp, in_keys=["observation"], out_keys=["loc"]),
+        TensorDictModule(nn.Identity(), in_keys=["loc"], out_keys=["action"]),
+    )
+    wrapped = LinearHeadActor.from_actor(actor)
+    assert wrapped.squash is None and wrapped.head is mlp[-1]
+    observation = torch.randn(4, 3)
+    torch.testing.assert_close(wrapped(observation), mlp(observation))
