@@ -89,3 +89,67 @@ def test_policy_view_gives_critics_the_executed_action():
             out = view(td.clone())
         assert bool((out["action"] <= HIGH).all() and (out["action"] >= LOW).all())
         assert out["action_log_prob"].shape == (64,)
+
+
+def test_action_box_distribution_is_the_clipped_normal_on_the_spec_box():
+    box = ActionBox(Bounded(LOW, HIGH, shape=(2,)))
+    loc, scale = torch.tensor([0.5, 3.0]), torch.tensor([0.5, 2.0])
+    dist = box.distribution(loc, scale)
+    assert isinstance(dist, ClippedNormal)
+    torch.testing.assert_close(dist.mean, loc)
+    torch.testing.assert_close(dist.stddev, scale)
+    torch.testing.assert_close(dist.deterministic_sample, torch.tensor([0.5, 2.0]))
+    # by hand: the density at 0 in dimension 0, the mass below the face 0 in dimension 1
+    normal = torch.distributions.Normal(loc, scale)
+    expected = normal.log_prob(torch.tensor(0.0))[0] + normal.cdf(torch.tensor(0.0))[1].log()
+    torch.testing.assert_close(dist.log_prob(torch.tensor([0.0, 0.0])), expected)
+    far = box.distribution(torch.tensor([-5.0, -5.0]), torch.ones(2))
+    torch.testing.assert_close(far.deterministic_sample, LOW)
+
+
+def test_clipped_normal_defaults_to_the_unit_box():
+    dist = ClippedNormal(torch.tensor([3.0, -3.0, 0.25]), torch.ones(3))
+    torch.testing.assert_close(dist.deterministic_sample, torch.tensor([1.0, -1.0, 0.25]))
+    # the face at +1 carries P(X ≥ 1) = Φ(-2) in dimension 0
+    value = torch.tensor([1.0, -1.0, 0.25])
+    normal = torch.distributions.Normal(dist.mean, torch.ones(3))
+    expected = (
+        (1 - normal.cdf(torch.tensor(1.0))[0]).log()
+        + normal.cdf(torch.tensor(-1.0))[1].log()
+        + normal.log_prob(value)[2]
+    )
+    torch.testing.assert_close(dist.log_prob(value), expected)
+
+
+def test_clipped_normal_passes_its_options_to_the_independent_normal():
+    loc = torch.zeros(4, 3, 2)
+    assert ClippedNormal(loc, torch.ones(4, 3, 2)).event_shape == (2,)  # IndependentNormal's
+    dist = ClippedNormal(loc, torch.ones(4, 3, 2), event_dim=2)
+    assert dist.event_shape == (3, 2) and dist.batch_shape == (4,)
+
+
+def test_clipped_normal_box_takes_the_dtype_and_device_of_loc():
+    dist = ClippedNormal(
+        torch.tensor([5.0, -5.0], dtype=torch.float64),
+        torch.ones(2, dtype=torch.float64),
+        low=-1 / 3,
+        high=1 / 3,
+    )
+    assert dist.low.dtype == dist.high.dtype == torch.float64
+    # the clamp lands exactly on the float64 faces (a float32 box would round them)
+    assert torch.equal(
+        dist.deterministic_sample, torch.tensor([1 / 3, -1 / 3], dtype=torch.float64)
+    )
+    meta = ClippedNormal(torch.zeros(2, device="meta"), torch.ones(2, device="meta"))
+    assert meta.low.device.type == meta.high.device.type == "meta"
+
+
+def test_clipped_normal_log_prob_sums_over_the_last_dimension_only():
+    loc = torch.zeros(4, 3, 2)
+    dist = ClippedNormal(loc, torch.ones(4, 3, 2), low=-1.0, high=1.0)
+    value = torch.tensor([0.5, 1.0]).expand(4, 3, 2)
+    log_prob = dist.log_prob(value)
+    assert log_prob.shape == (4, 3)
+    normal = torch.distributions.Normal(0.0, 1.0)
+    expected = normal.log_prob(torch.tensor(0.5)) + (1 - normal.cdf(torch.tensor(1.0))).log()
+    torch.testing.assert_close(log_prob, expected.expand(4, 3))

@@ -109,3 +109,82 @@ def test_act_is_the_readout_then_the_squash_and_forward_uses_it():
     torch.testing.assert_close(actor.act(head, observation), expected)
     torch.testing.assert_close(actor(observation), expected)
     torch.testing.assert_close(actor.readout_scale(), torch.full((2,), 2.0))  # pre-squash
+
+
+def test_tanh_squash_defaults_to_the_unit_box():
+    squash = TanhSquash()
+    torch.testing.assert_close(squash.center, torch.tensor(0.0))
+    torch.testing.assert_close(squash.half_range, torch.tensor(1.0))
+    u = torch.tensor([-0.5, 0.0, 2.0])
+    torch.testing.assert_close(squash(u), torch.tanh(u))
+
+
+def test_tanh_squash_stores_its_box_in_the_default_dtype():
+    squash = TanhSquash(
+        torch.tensor([0.0, -1.0], dtype=torch.float64),
+        torch.tensor([1.0, 3.0], dtype=torch.float64),
+    )
+    assert squash.center.dtype == squash.half_range.dtype == torch.get_default_dtype()
+    torch.testing.assert_close(squash.center, torch.tensor([0.5, 1.0]))
+    torch.testing.assert_close(squash.half_range, torch.tensor([0.5, 2.0]))
+
+
+def test_tanh_squash_derivative_is_half_range_times_one_minus_tanh_squared():
+    squash = TanhSquash(torch.tensor([0.0, -3.0]), torch.tensor([1.0, 1.0]))
+    u = torch.tensor([[0.0, 0.0], [0.7, -1.3]], requires_grad=True)
+    # by hand: r (1 - tanh²(u)), r = (0.5, 2)
+    expected = torch.tensor([0.5, 2.0]) * (1 - torch.tanh(u.detach()) ** 2)
+    torch.testing.assert_close(squash.derivative(u), expected)
+    torch.testing.assert_close(squash.derivative(u)[0], torch.tensor([0.5, 2.0]))
+    (grad,) = torch.autograd.grad(squash(u).sum(), u)  # the Jacobian's diagonal
+    torch.testing.assert_close(squash.derivative(u.detach()), grad)
+
+
+def test_mean_jacobian_is_the_readout_scale_without_a_squash():
+    actor = _Affine()
+    head = torch.randn(4, 2)
+    context = torch.randn(4, 3)
+    torch.testing.assert_close(actor.mean_jacobian(head, context), torch.full((4, 2), 2.0))
+
+
+def test_mean_jacobian_with_a_squash_is_the_chain_rule_at_the_readout():
+    actor = _Affine()
+    actor.squash = TanhSquash(-2.0, 2.0)
+    head = torch.tensor([[0.1, -0.4], [0.3, 0.2]])
+    context = torch.tensor([[0.5, -1.0, 9.0], [0.0, 0.25, 9.0]])
+    # by hand: u = 2 h + s[:2]; ∂μ/∂h = 2 · 2 (1 - tanh²(u))
+    u = 2.0 * head + context[:, :2]
+    expected = 4.0 * (1 - torch.tanh(u) ** 2)
+    torch.testing.assert_close(actor.mean_jacobian(head, context), expected)
+    h = head.clone().requires_grad_(True)
+    (grad,) = torch.autograd.grad(actor.act(h, context).sum(), h)
+    torch.testing.assert_close(actor.mean_jacobian(head, context), grad)
+
+
+def test_noise_after_squash_needs_a_squash_with_a_derivative():
+    with pytest.raises(
+        ValueError,
+        match=r"^noise_after_squash=True needs a squash with a derivative\(\) \(e\.g\. "
+        r"TanhSquash\), got NoneType\.$",
+    ):
+        LastLayerActor(2, noise_after_squash=True)
+    with pytest.raises(ValueError, match=r"got Tanh\.$"):
+        LastLayerActor(2, squash=nn.Tanh(), noise_after_squash=True)
+    squash = TanhSquash()
+    actor = LastLayerActor(2, squash=squash, noise_after_squash=True)
+    assert actor.noise_after_squash is True and actor.squash is squash
+    assert LastLayerActor(2, squash=squash).noise_after_squash is False
+
+
+def test_init_std_may_sit_on_either_bound():
+    torch.testing.assert_close(LastLayerActor(2, init_std=1e-3).std, torch.full((2,), 1e-3))
+    torch.testing.assert_close(LastLayerActor(2, init_std=2.0).std, torch.full((2,), 2.0))
+
+
+def test_features_default_to_the_first_output_of_encode():
+    class EncodeOnly(LastLayerActor):
+        def encode(self, observation):
+            return observation * 3.0, observation + 1.0
+
+    observation = torch.tensor([[1.0, -2.0]])
+    torch.testing.assert_close(EncodeOnly(2).features(observation), torch.tensor([[3.0, -6.0]]))

@@ -410,3 +410,36 @@ def test_laplace_members_of_an_n_step_actor_sample_the_last_step_head_only(make_
             expected = norm.denormalize_action(x_hat[:, 0, 3:])
             torch.testing.assert_close(members[m], expected, rtol=1e-5, atol=1e-5)
     assert (members.std(0) > 0).all()
+
+
+def test_a_sampled_latent_schedule_error_names_the_fix(make_layout):
+    linear = TrajectoryDiffusion(make_layout(), schedule="linear", num_steps=1, hidden=8, depth=1)
+    with pytest.raises(ValueError, match=r"; use the cosine schedule or latent='zero'\.$"):
+        PlannerActor(linear, latent="sample")
+
+
+def test_an_n_step_actor_with_a_sampled_latent_draws_the_chain_from_noise(make_model):
+    """N > 1 with ``latent="sample"``: the mean is the chain from a drawn ``z_1`` (the draw
+    ``sample_actions`` makes for one member), a new one at every call."""
+    actor = PlannerActor(make_model(num_steps=4), latent="sample")
+    observation = torch.randn(5, 3)
+    with torch.no_grad():
+        torch.manual_seed(3)
+        first = actor(observation)
+        second = actor(observation)
+        torch.manual_seed(3)
+        member = actor.sample_actions(observation, 1)[0]
+        zero = PlannerActor(actor.model)(observation)
+    torch.testing.assert_close(first, member)
+    assert not torch.allclose(first, second)
+    assert not torch.allclose(first, zero)
+
+
+def test_the_previous_action_is_cast_to_the_observation_dtype(make_model):
+    actor = PlannerActor(make_model(num_steps=1))
+    shared = TransitionModel(actor.model, frozen=False)
+    observation, previous_observation, previous_action = transition_inputs(4)
+    expected = _fast(actor, shared, observation, previous_observation, previous_action)
+    fast = _fast(actor, shared, observation, previous_observation, previous_action.double())
+    assert fast[2].dtype == torch.float32
+    assert_all_close(fast, expected)
