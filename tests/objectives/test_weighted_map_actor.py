@@ -469,3 +469,32 @@ def test_from_iql_reads_v_with_the_critic_loss_s_value_network_params():
     v = batch["observation"] @ torch.tensor([-0.5, 0.0, 1.0]) - 0.2
     expected = torch.exp(batch["action"].sum(-1) - v)
     torch.testing.assert_close(loss_fn.advantage_weights(batch), expected)
+
+
+def test_a_dropout_critic_ensemble_is_read_in_training_mode_and_its_eval_min_by_hand():
+    """TorchRL's rule: a critic holding dropout gets ``vmap_randomness = "different"``,
+    and the vmapped twin-Q read runs in training mode (the default ``"error"`` mode
+    would refuse the random op); in eval mode it is the min of the members by hand."""
+    from torchrl.modules import MLP, ValueOperator
+
+    torch.manual_seed(0)
+    qvalue = ValueOperator(
+        MLP(in_features=OBS + ACT, out_features=1, num_cells=[8], dropout=0.5),
+        in_keys=["observation", "action"],
+    )
+    members = [TensorDict.from_module(qvalue).clone()]
+    members.append(members[0].apply(lambda x: 0.5 * x))
+    params = torch.stack(members)
+    loss_fn = WeightedMAPActorLoss(
+        linear_head_actor(), qvalue_network=qvalue, qvalue_params=params, weighting="uniform"
+    )
+    assert loss_fn.vmap_randomness == "different"
+    batch = observation_action_batch(32)
+    q = loss_fn.q_value(batch)
+    assert q.shape == (32,) and torch.isfinite(q).all()
+    qvalue.eval()
+    expected = []
+    for member in members:
+        with member.to_module(qvalue):
+            expected.append(qvalue(batch.clone())["state_action_value"].squeeze(-1))
+    torch.testing.assert_close(loss_fn.q_value(batch), torch.stack(expected).min(0).values)
