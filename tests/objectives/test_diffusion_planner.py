@@ -348,3 +348,20 @@ def test_nan_input_error_tells_to_clean_the_data(key, make_model, make_windows):
         ValueError, match=rf"^{key} holds 1 NaN/inf entries; clean the data first\.$"
     ):
         DiffusionPlannerLoss(make_model())(windows)
+
+
+def test_random_draws_follow_the_data_device_not_torch_s_default_device(make_layout, make_windows):
+    """``t``, ``ε`` and the ``a_0``-known draw are made where the windows live: under a
+    ``torch.device`` default-device block (here ``meta``, standing in for an accelerator)
+    CPU windows give the same CPU loss as outside it."""
+    layout = make_layout()
+    loss_fn = DiffusionPlannerLoss(TrajectoryDiffusion(layout, _LinearV(0.6, 0.5)))
+    windows = make_windows(layout)
+    torch.manual_seed(4)
+    expected = loss_fn(windows)
+    torch.manual_seed(4)
+    with torch.device("meta"):
+        out = loss_fn(windows)
+    assert out["loss_diffusion"].device == torch.device("cpu")
+    torch.testing.assert_close(out["loss_diffusion"], expected["loss_diffusion"])
+    torch.testing.assert_close(out["x0_error"], expected["x0_error"])
