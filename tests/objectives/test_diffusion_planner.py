@@ -244,3 +244,124 @@ def test_train_planner_builds_its_loss_and_adam_from_its_arguments(make_model, m
     assert (seen["prob"], seen["lr"], seen["desc"]) == (0.5, 3e-4, "planner")
     module.train_planner(make_model(), lambda: None, 1, lr=1e-3, action_condition_prob=0.25)
     assert (seen["prob"], seen["lr"]) == (0.25, 1e-3)
+
+
+# ----------------------------------------------------------------------------- Eq. 3 by hand
+class _LinearV(nn.Module):
+    """``v̂ = c·z + d·t``: a denoiser whose output is known in closed form."""
+
+    def __init__(self, c: float, d: float) -> None:
+        super().__init__()
+        self.c = nn.Parameter(torch.tensor(c))
+        self.d = d
+
+    def forward(self, z, t, mask):
+        return self.c * z + self.d * t[..., None, None]
+
+
+def _model_with_known_statistics(layout) -> TrajectoryDiffusion:
+    model = TrajectoryDiffusion(layout, _LinearV(0.6, 0.5))
+    norm = model.normalizer
+    norm.obs_mean.copy_(torch.tensor([1.0, -2.0, 0.5]))
+    norm.obs_std.copy_(torch.tensor([2.0, 0.5, 1.0]))
+    norm.action_mean.copy_(torch.tensor([0.3, -0.1]))
+    norm.action_std.copy_(torch.tensor([0.5, 2.0]))
+    return model
+
+
+def _varied_masks(layout, batch: int) -> torch.Tensor:
+    """Random known entries (``s_0`` always), one window with a single free entry and
+    one with none, so the per-window free counts differ."""
+    gen = torch.Generator().manual_seed(9)
+    mask = torch.rand(batch, *layout.window_shape, generator=gen) < 0.4
+    mask |= layout.condition_mask("s0")
+    mask[0] = True
+    mask[0, 3, 1] = False
+    mask[1] = True
+    return mask
+
+
+def _masked_mean_by_hand(error, mask):
+    out = []
+    for e, m in zip(error, mask, strict=True):
+        free = e[~m]
+        out.append(free.mean() if free.numel() else torch.zeros((), dtype=e.dtype))
+    return torch.stack(out)
+
+
+def test_the_loss_is_eq_3_in_v_form_computed_by_hand(make_layout, make_windows):
+    """Per window: the mean over the free entries of ``(v̂ − (α_t·ε − σ_t·x_0))²`` with
+    ``x_0`` the normalized window, ``t ~ U(0, 1)`` per window, ``z_t = α_t·x_0 + σ_t·ε``
+    (known entries written back) and ``α_t = cos(πt/2)``, ``σ_t = sin(πt/2)``; ``x0_error``
+    is the batch mean of the free entries' ``(x̂ − x_0)²``, ``x̂ = α_t·z − σ_t·v̂``."""
+    layout = make_layout()
+    model = _model_with_known_statistics(layout)
+    windows = make_windows(layout, batch=6)
+    mask = _varied_masks(layout, 6)
+    windows["condition_mask"] = mask
+    norm = model.normalizer
+    x0 = torch.cat(
+        [
+            (windows["observation"] - norm.obs_mean) / norm.obs_std,
+            (windows["action"] - norm.action_mean) / norm.action_std,
+        ],
+        -1,
+    )
+    torch.manual_seed(21)
+    t = torch.rand(6)
+    eps = torch.randn(6, *layout.window_shape)
+    alpha = torch.cos(torch.pi / 2 * t)[:, None, None]
+    sigma = torch.sin(torch.pi / 2 * t)[:, None, None]
+    z = torch.where(mask, x0, alpha * x0 + sigma * eps)
+    v_hat = 0.6 * z + 0.5 * t[:, None, None]
+    v = alpha * eps - sigma * x0
+    x_hat = torch.where(mask, x0, alpha * z - sigma * v_hat)
+    expected = _masked_mean_by_hand((v_hat - v) ** 2, mask)
+    expected_x0_error = _masked_mean_by_hand((x_hat - x0) ** 2, mask).mean()
+
+    torch.manual_seed(21)
+    out = DiffusionPlannerLoss(model, reduction="none")(windows)
+    assert out["loss_diffusion"].shape == (6,)
+    torch.testing.assert_close(out["loss_diffusion"].detach(), expected)
+    torch.testing.assert_close(out["x0_error"], expected_x0_error)
+    assert expected[1] == 0 and expected[0] > 0  # nothing free, one entry free
+
+
+def test_double_precision_windows_are_read_in_the_default_dtype(make_model, make_windows):
+    """Windows stored in float64 give the float32 loss of the same windows."""
+    loss_fn = DiffusionPlannerLoss(make_model())
+    windows = make_windows()
+    torch.manual_seed(3)
+    expected = loss_fn(windows)
+    torch.manual_seed(3)
+    out = loss_fn(windows.double())
+    assert out["loss_diffusion"].dtype == torch.float32
+    torch.testing.assert_close(out["loss_diffusion"], expected["loss_diffusion"])
+    torch.testing.assert_close(out["x0_error"], expected["x0_error"])
+
+
+@pytest.mark.parametrize("key", ["observation", "action"])
+def test_nan_input_error_tells_to_clean_the_data(key, make_model, make_windows):
+    windows = make_windows()
+    windows[key][2, 0, 0] = float("nan")
+    with pytest.raises(
+        ValueError, match=rf"^{key} holds 1 NaN/inf entries; clean the data first\.$"
+    ):
+        DiffusionPlannerLoss(make_model())(windows)
+
+
+def test_random_draws_follow_the_data_device_not_torch_s_default_device(make_layout, make_windows):
+    """``t``, ``ε`` and the ``a_0``-known draw are made where the windows live: under a
+    ``torch.device`` default-device block (here ``meta``, standing in for an accelerator)
+    CPU windows give the same CPU loss as outside it."""
+    layout = make_layout()
+    loss_fn = DiffusionPlannerLoss(TrajectoryDiffusion(layout, _LinearV(0.6, 0.5)))
+    windows = make_windows(layout)
+    torch.manual_seed(4)
+    expected = loss_fn(windows)
+    torch.manual_seed(4)
+    with torch.device("meta"):
+        out = loss_fn(windows)
+    assert out["loss_diffusion"].device == torch.device("cpu")
+    torch.testing.assert_close(out["loss_diffusion"], expected["loss_diffusion"])
+    torch.testing.assert_close(out["x0_error"], expected["x0_error"])

@@ -8,7 +8,9 @@ import statistics
 
 import pytest
 import torch
+from tensordict import TensorDict
 
+from torchrl_dual.diffusion import TrajectoryDiffusion
 from torchrl_dual.objectives import DistillationLoss, progressive_distillation
 from torchrl_dual.objectives import distillation as distillation_module
 
@@ -399,3 +401,126 @@ def test_progressive_distillation_to_the_teacher_s_own_steps_runs_no_round(make_
     teacher = make_model(num_steps=8)
     student = progressive_distillation(teacher, lambda: None, [], final_steps=8)
     assert student.num_steps == 8
+
+
+# ----------------------------------------------------------------------------- loss by hand
+class _LinearV(torch.nn.Module):
+    """``v̂ = c·z + d·t``: a denoiser whose output is known in closed form."""
+
+    def __init__(self, c: float, d: float) -> None:
+        super().__init__()
+        self.c = torch.nn.Parameter(torch.tensor(c))
+        self.d = d
+
+    def forward(self, z, t, mask):
+        return self.c * z + self.d * t[..., None, None]
+
+
+def _scales_by_hand(t):
+    """The cosine schedule ``(α_t, σ_t) = (cos(πt/2), sin(πt/2))``, per window."""
+    return torch.cos(torch.pi / 2 * t)[:, None, None], torch.sin(torch.pi / 2 * t)[:, None, None]
+
+
+def _masked_mean_by_hand(error, mask):
+    out = []
+    for e, m in zip(error, mask, strict=True):
+        free = e[~m]
+        out.append(free.mean() if free.numel() else torch.zeros((), dtype=e.dtype))
+    return torch.stack(out)
+
+
+def _distillation_by_hand(x0, mask, i, eps, k, teacher_cd, student_cd):
+    """Section 3.1's round: ``z_t``, two teacher DDIM steps to ``z_s``, the one-step
+    target ``x̃ = (z_s − (σ_s/σ_t)·z_t) / (α_s − (σ_s/σ_t)·α_t)`` and the per-window
+    ``max(SNR(t), 1)``-weighted (capped at 1e4) free-entry mean of ``(x̂ − x̃)²``."""
+
+    def v_hat(cd, z, t):
+        return cd[0] * z + cd[1] * t[:, None, None]
+
+    def ddim(z, t, s):
+        a_t, s_t = _scales_by_hand(t)
+        a_s, s_s = _scales_by_hand(s)
+        z = torch.where(mask, x0, z)
+        v = v_hat(teacher_cd, z, t)
+        x_hat = torch.where(mask, x0, a_t * z - s_t * v)
+        eps_hat = s_t * z + a_t * v
+        return torch.where(mask, x0, a_s * x_hat + s_s * eps_hat)
+
+    t, mid, s = i / k, (i - 0.5) / k, (i - 1) / k
+    alpha_t, sigma_t = _scales_by_hand(t)
+    alpha_s, sigma_s = _scales_by_hand(s)
+    z = torch.where(mask, x0, alpha_t * x0 + sigma_t * eps)
+    z_s = ddim(ddim(z, t, mid), mid, s)
+    ratio = sigma_s / sigma_t
+    target = torch.where(mask, x0, (z_s - ratio * z) / (alpha_s - ratio * alpha_t))
+    x_hat = torch.where(mask, x0, alpha_t * z - sigma_t * v_hat(student_cd, z, t))
+    weight = (alpha_t**2 / sigma_t**2).clamp(1.0, 1e4)
+    loss = _masked_mean_by_hand(weight * (x_hat - target) ** 2, mask)
+    gap = _masked_mean_by_hand((x_hat - target) ** 2, mask).mean()
+    return loss, gap
+
+
+@pytest.fixture
+def float64_default():
+    """Double precision throughout (the 1e4 cap is checked to 1e-4 relative)."""
+    previous = torch.get_default_dtype()
+    torch.set_default_dtype(torch.float64)
+    yield
+    torch.set_default_dtype(previous)
+
+
+@pytest.mark.parametrize(("student_steps", "batch"), [(1, 6), (2, 8), (256, 1024)])
+def test_the_loss_is_the_truncated_snr_weighted_error_to_the_two_step_target_by_hand(
+    student_steps, batch, make_layout, float64_default
+):
+    """``i ~ U{1..K}`` and ``ε`` per window, both known entries and free-entry counts
+    varied (one window with a single free entry, one with none). ``K = 256`` reaches
+    ``SNR(1/256) ≈ 2.7e4``, above the 1e4 cap; ``t = 1`` has ``SNR = 0``, below the floor 1."""
+    layout = make_layout()
+    teacher = TrajectoryDiffusion(layout, _LinearV(0.8, -0.3), num_steps=2 * student_steps)
+    student = TrajectoryDiffusion(layout, _LinearV(0.2, 0.4), num_steps=student_steps)
+    gen = torch.Generator().manual_seed(4)
+    observation = torch.randn(batch, layout.length, layout.obs_dim, generator=gen)
+    action = torch.randn(batch, layout.length, layout.action_dim, generator=gen)
+    mask = torch.rand(batch, *layout.window_shape, generator=gen) < 0.4
+    mask |= layout.condition_mask("s0")
+    mask[0] = True
+    mask[0, 2, 4] = False
+    mask[1] = True
+    windows = TensorDict(
+        {"observation": observation, "action": action, "condition_mask": mask},
+        [batch, layout.length],
+    )
+    x0 = torch.cat([observation, action], -1)  # unfitted normalizers: identity
+    torch.manual_seed(8)
+    i = torch.randint(1, student_steps + 1, (batch,)).double()
+    eps = torch.randn(batch, *layout.window_shape)
+    expected, gap = _distillation_by_hand(x0, mask, i, eps, student_steps, (0.8, -0.3), (0.2, 0.4))
+    assert (i == student_steps).any()  # t = 1 drawn
+    if student_steps == 256:
+        assert (i == 1).any()  # the capped SNR drawn
+
+    torch.manual_seed(8)
+    out = DistillationLoss(student, teacher, reduction="none")(windows)
+    assert out["loss_distillation"].shape == (batch,)
+    torch.testing.assert_close(out["loss_distillation"].detach(), expected, rtol=1e-9, atol=1e-12)
+    torch.testing.assert_close(out["target_gap"], gap, rtol=1e-9, atol=1e-12)
+
+
+def test_random_draws_follow_the_data_device_not_torch_s_default_device(make_layout, make_windows):
+    """The grid index ``i``, ``ε`` and the ``a_0``-known draw are made where the windows
+    live: under a ``torch.device`` default-device block (``meta``, standing in for an
+    accelerator) CPU windows give the same CPU loss as outside it."""
+    layout = make_layout()
+    teacher = TrajectoryDiffusion(layout, _LinearV(0.8, -0.3), num_steps=4)
+    student = TrajectoryDiffusion(layout, _LinearV(0.2, 0.4), num_steps=2)
+    loss_fn = DistillationLoss(student, teacher)
+    windows = make_windows(layout)
+    torch.manual_seed(4)
+    expected = loss_fn(windows)
+    torch.manual_seed(4)
+    with torch.device("meta"):
+        out = loss_fn(windows)
+    assert out["loss_distillation"].device == torch.device("cpu")
+    torch.testing.assert_close(out["loss_distillation"], expected["loss_distillation"])
+    torch.testing.assert_close(out["target_gap"], expected["target_gap"])

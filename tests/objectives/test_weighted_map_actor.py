@@ -251,3 +251,250 @@ def test_wrong_action_dim_is_rejected_with_the_shape():
     batch = observation_action_batch(action_dim=ACT + 1)
     with pytest.raises(ValueError, match=r"action must end with dim 2, got shape \(16, 3\)"):
         WeightedMAPActorLoss(linear_head_actor(), weighting="uniform")(batch)
+
+
+# ----------------------------------------------------------------------------- defaults
+def test_documented_defaults_advantage_beta_3_w_max_100_alpha_0_2_mean():
+    """The docstring's defaults, and the default advantage weights by hand:
+    ``min(exp(3·(Q − V)), 100)`` with ``Q = Σ a`` and ``V = 0`` (an action summing to
+    2 gives ``e^6 ≈ 403``: clipped to 100)."""
+    loss_fn = WeightedMAPActorLoss(linear_head_actor(), **_fake_critics())
+    assert loss_fn.weighting == "advantage"
+    assert (loss_fn.temperature, loss_fn.max_weight, loss_fn.entropy_coef) == (3.0, 100.0, 0.2)
+    assert loss_fn.reduction == "mean"
+    action = torch.tensor([[-0.5, 0.2], [0.5, 0.5], [1.0, 1.0], [0.0, 0.0]])
+    batch = TensorDict({"observation": torch.zeros(4, OBS), "action": action}, [4])
+    expected = torch.tensor([math.exp(-0.9), math.exp(3.0), 100.0, 1.0])
+    torch.testing.assert_close(loss_fn.advantage_weights(batch), expected)
+
+
+# ----------------------------------------------------------------------------- errors (text)
+def test_missing_value_network_error_says_it_is_iql_s_v():
+    critics = _fake_critics()
+    with pytest.raises(
+        ValueError, match=r"^weighting='advantage' needs a value_network \(V\(s\) of IQL\)\.$"
+    ):
+        WeightedMAPActorLoss(linear_head_actor(), qvalue_network=critics["qvalue_network"])
+
+
+def test_missing_action_spec_error_for_sac_explains_the_clamp_and_the_unbounded_opt_in():
+    critics = _fake_critics()
+    with pytest.raises(ValueError) as info:
+        WeightedMAPActorLoss(
+            linear_head_actor(), qvalue_network=critics["qvalue_network"], weighting="sac"
+        )
+    assert str(info.value) == (
+        "weighting='sac' reads Q at samples of the unbounded Gaussian N(mu, sigma^2): "
+        "pass action_spec=env.action_spec so they are clamped to the executed action "
+        "(torchrl.data.Unbounded(...) for an action space without bounds)."
+    )
+
+
+@pytest.mark.parametrize("role", ["observation", "action"])
+def test_nan_input_error_tells_to_clean_the_batch(role):
+    batch = observation_action_batch()
+    batch[role][2, 0] = float("nan")
+    with pytest.raises(
+        ValueError, match=rf"^{role} holds 1 NaN/inf entries; clean the batch first\.$"
+    ):
+        WeightedMAPActorLoss(linear_head_actor(), weighting="uniform")(batch)
+
+
+# ----------------------------------------------------------------------------- batch shapes
+def _gaussian_log_prob_by_hand(action, loc, std):
+    """``Σ_j log N(a_j; μ_j, σ_j²)`` written out."""
+    z = (action - loc) / std
+    return (-0.5 * z**2 - torch.log(std) - 0.5 * math.log(2 * math.pi)).sum(-1)
+
+
+def test_a_two_dimensional_batch_gives_per_sample_losses_weights_and_q_by_hand():
+    """A ``[4, 3]`` batch (e.g. a batch of sub-trajectories): ``Q``, the weights and
+    ``−w·log π`` keep the ``[4, 3]`` batch shape, the log-likelihood sums over the
+    action dimension only."""
+    gen = torch.Generator().manual_seed(3)
+    observation = torch.randn(4, 3, OBS, generator=gen)
+    action = torch.rand(4, 3, ACT, generator=gen) * 2 - 1
+    batch = TensorDict({"observation": observation, "action": action}, [4, 3])
+    actor = linear_head_actor()
+    loss_fn = WeightedMAPActorLoss(
+        actor, temperature=0.7, max_weight=1.5, reduction="none", **_fake_critics()
+    )
+    q = action.sum(-1)
+    weight = torch.exp(0.7 * q).clamp_max(1.5)
+    with torch.no_grad():
+        log_prob = _gaussian_log_prob_by_hand(action, actor(observation), actor.std)
+    torch.testing.assert_close(loss_fn.q_value(batch), q)
+    out = loss_fn(batch)
+    assert out["loss_actor"].shape == (4, 3)
+    torch.testing.assert_close(out["loss_actor"].detach(), -weight * log_prob)
+    torch.testing.assert_close(batch["actor_weight"], weight)
+    torch.testing.assert_close(out["log_prob"], log_prob.mean())
+    torch.testing.assert_close(out["weight_mean"], weight.mean())
+
+
+def test_torchrl_s_collector_mask_drops_padded_samples_from_the_mean():
+    """``("collector", "mask")`` (TorchRL's padding mask) is honoured by the mean: the
+    loss is the average of ``−log π`` over the valid samples only."""
+    batch = observation_action_batch(6)
+    valid = torch.tensor([True, False, True, True, False, True])
+    batch.set(("collector", "mask"), valid)
+    actor = linear_head_actor()
+    with torch.no_grad():
+        log_prob = _gaussian_log_prob_by_hand(
+            batch["action"], actor(batch["observation"]), actor.std
+        )
+    out = WeightedMAPActorLoss(actor, weighting="uniform")(batch)
+    torch.testing.assert_close(out["loss_actor"].detach(), -log_prob[valid].mean())
+
+
+# ----------------------------------------------------------------------------- critic reads
+class _OptionalBonusCritic(nn.Module):
+    """``Q(s, a) = Σ a (+ bonus)``: its third input is optional (``None`` when absent)."""
+
+    def forward(self, observation, action, bonus=None):
+        q = action.sum(-1, keepdim=True)
+        return q if bonus is None else q + bonus
+
+
+def test_a_critic_input_missing_from_the_batch_reaches_it_as_none():
+    """The critic is fed the batch entries it names that exist; an optional input the
+    batch lacks is left to the module (``TensorDictModule`` passes ``None``), in the
+    advantage weights and in the ``sac`` loss alike."""
+    qvalue = TensorDictModule(
+        _OptionalBonusCritic(),
+        in_keys=["observation", "action", "bonus"],
+        out_keys=["state_action_value"],
+    )
+    batch = observation_action_batch(5)
+    critics = _fake_critics()
+    advantage = WeightedMAPActorLoss(
+        linear_head_actor(),
+        qvalue_network=qvalue,
+        value_network=critics["value_network"],
+        temperature=1.0,
+    )
+    torch.testing.assert_close(advantage.q_value(batch), batch["action"].sum(-1))
+    torch.testing.assert_close(
+        advantage.advantage_weights(batch), torch.exp(batch["action"].sum(-1))
+    )
+    sac = WeightedMAPActorLoss(
+        linear_head_actor(),
+        qvalue_network=qvalue,
+        weighting="sac",
+        entropy_coef=0.0,
+        action_spec=BOX,
+    )
+    torch.manual_seed(0)
+    loss = sac(batch.clone(False))["loss_actor"]
+    assert -2.0 <= float(loss.detach()) <= 2.0  # minus a sum of two clamped actions
+    batch.set("bonus", torch.full((5, 1), 10.0))
+    torch.testing.assert_close(advantage.q_value(batch), batch["action"].sum(-1) + 10.0)
+
+
+def test_critic_weights_are_read_detached_and_without_deprecated_calls():
+    """``Q`` of a batch that carries no gradient carries none either: the critic's own
+    weights enter detached (no graph is built through them), and reading them raises
+    no (deprecation) warning."""
+    import warnings
+
+    from torchrl.modules import MLP, ValueOperator
+
+    qvalue = ValueOperator(
+        MLP(in_features=OBS + ACT, out_features=1, num_cells=[8]), in_keys=["observation", "action"]
+    )
+    value = ValueOperator(
+        MLP(in_features=OBS, out_features=1, num_cells=[8]), in_keys=["observation"]
+    )
+    loss_fn = WeightedMAPActorLoss(linear_head_actor(), qvalue_network=qvalue, value_network=value)
+    batch = observation_action_batch()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        q = loss_fn.q_value(batch)
+        weights = loss_fn.advantage_weights(batch)
+    assert not q.requires_grad and q.grad_fn is None
+    assert weights.shape == (16,) and torch.isfinite(weights).all()
+    assert all(p.requires_grad and type(p) is nn.Parameter for p in qvalue.parameters())
+
+
+# ----------------------------------------------------------------------------- value params
+def _linear_value(weight: list[float], bias: float) -> tuple[TensorDictModule, TensorDict]:
+    """A ``V(s) = w·s + b`` network whose own weights are zero, and separate parameters
+    ``(w, b)`` for it (as a critic loss holds them)."""
+    linear = nn.Linear(OBS, 1)
+    nn.init.zeros_(linear.weight)
+    nn.init.zeros_(linear.bias)
+    network = TensorDictModule(linear, in_keys=["observation"], out_keys=["state_value"])
+    params = TensorDict.from_module(network).clone()
+    params["module", "weight"] = torch.tensor([weight])
+    params["module", "bias"] = torch.tensor([bias])
+    return network, params
+
+
+def test_value_params_are_the_weights_v_is_read_with():
+    """``value_params`` replace the value network's own weights: with ``Q = Σ a`` and
+    ``V(s) = w·s + b`` the weight is ``exp(β·(Σ a − w·s − b))`` (the module's own
+    weights, all zero, would give ``exp(β·Σ a)``)."""
+    network, params = _linear_value([0.5, -1.0, 0.25], 0.3)
+    batch = observation_action_batch(8)
+    loss_fn = WeightedMAPActorLoss(
+        linear_head_actor(),
+        qvalue_network=_fake_critics()["qvalue_network"],
+        value_network=network,
+        value_params=params,
+        temperature=0.5,
+        max_weight=1e6,
+    )
+    v = batch["observation"] @ torch.tensor([0.5, -1.0, 0.25]) + 0.3
+    expected = torch.exp(0.5 * (batch["action"].sum(-1) - v))
+    torch.testing.assert_close(loss_fn.advantage_weights(batch), expected)
+
+
+def test_from_iql_reads_v_with_the_critic_loss_s_value_network_params():
+    """``from_iql`` takes V's weights from the critic loss's ``value_network_params``
+    (the parameters an IQL-style loss trains), not from the module it wraps."""
+    from types import SimpleNamespace
+
+    network, params = _linear_value([-0.5, 0.0, 1.0], -0.2)
+    critic_loss = SimpleNamespace(
+        qvalue_network=_fake_critics()["qvalue_network"],
+        target_qvalue_network_params=None,
+        value_network=network,
+        value_network_params=params,
+        tensor_keys=SimpleNamespace(state_action_value="state_action_value", value="state_value"),
+    )
+    loss_fn = WeightedMAPActorLoss.from_iql(
+        linear_head_actor(), critic_loss, temperature=1.0, max_weight=1e6
+    )
+    batch = observation_action_batch(8)
+    v = batch["observation"] @ torch.tensor([-0.5, 0.0, 1.0]) - 0.2
+    expected = torch.exp(batch["action"].sum(-1) - v)
+    torch.testing.assert_close(loss_fn.advantage_weights(batch), expected)
+
+
+def test_a_dropout_critic_ensemble_is_read_in_training_mode_and_its_eval_min_by_hand():
+    """TorchRL's rule: a critic holding dropout gets ``vmap_randomness = "different"``,
+    and the vmapped twin-Q read runs in training mode (the default ``"error"`` mode
+    would refuse the random op); in eval mode it is the min of the members by hand."""
+    from torchrl.modules import MLP, ValueOperator
+
+    torch.manual_seed(0)
+    qvalue = ValueOperator(
+        MLP(in_features=OBS + ACT, out_features=1, num_cells=[8], dropout=0.5),
+        in_keys=["observation", "action"],
+    )
+    members = [TensorDict.from_module(qvalue).clone()]
+    members.append(members[0].apply(lambda x: 0.5 * x))
+    params = torch.stack(members)
+    loss_fn = WeightedMAPActorLoss(
+        linear_head_actor(), qvalue_network=qvalue, qvalue_params=params, weighting="uniform"
+    )
+    assert loss_fn.vmap_randomness == "different"
+    batch = observation_action_batch(32)
+    q = loss_fn.q_value(batch)
+    assert q.shape == (32,) and torch.isfinite(q).all()
+    qvalue.eval()
+    expected = []
+    for member in members:
+        with member.to_module(qvalue):
+            expected.append(qvalue(batch.clone())["state_action_value"].squeeze(-1))
+    torch.testing.assert_close(loss_fn.q_value(batch), torch.stack(expected).min(0).values)

@@ -171,3 +171,29 @@ def test_the_action_box_follows_the_loss_to_its_device_and_dtype():
     loss, _ = _sac_on_slope(BOX, bias=0.0)
     loss.double()  # as .to(device): the bounds are a submodule's buffers
     assert loss.action_box.low.dtype == loss.action_box.high.dtype == torch.float64
+
+
+# ----------------------------------------------------------------------------- Cal-QL critic
+def test_from_iql_on_a_calql_loss_without_v_builds_the_sac_loss_on_its_target_twin_q():
+    """A Cal-QL critic loss has no V: ``from_iql`` builds the ``sac`` loss on its target
+    twin Q, ``Q(s, a) = min_k Q_k(s, a)`` by hand, and leaves the value key alone."""
+    from toy import tanh_normal_actor
+
+    from torchrl_dual.objectives import CalQLLoss
+
+    torch.manual_seed(0)
+    qvalue = ValueOperator(
+        MLP(in_features=OBS + ACT, out_features=1, num_cells=[8]), in_keys=["observation", "action"]
+    )
+    calql = CalQLLoss(tanh_normal_actor(OBS, ACT, BOX), qvalue, num_random=4)
+    assert not hasattr(calql, "value_network")
+    loss_fn = WeightedMAPActorLoss.from_iql(
+        linear_head_actor(), calql, weighting="sac", action_spec=BOX
+    )
+    assert loss_fn.tensor_keys.value == "state_value"
+    batch = observation_action_batch(8)
+    sa = torch.cat([batch["observation"], batch["action"]], -1)
+    target = calql.target_qvalue_network_params
+    expected = torch.stack([mlp_by_hand(target[k], sa) for k in range(2)]).min(0).values
+    torch.testing.assert_close(loss_fn.q_value(batch), expected.detach())
+    loss_fn(batch)["loss_actor"].backward()
