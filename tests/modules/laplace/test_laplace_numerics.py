@@ -82,3 +82,44 @@ def test_the_evidence_maximiser_stops_at_its_bounds():
     lam = evidence_maximiser(h, torch.tensor(1.0, dtype=F64), (1e-3, 1e3))
     assert 1e-3 < lam < 1e3
     assert math.log(lam) == pytest.approx(math.log(float((h / (h + lam)).sum())), abs=1e-9)
+
+
+def test_psd_eigh_scales_the_jitter_per_matrix_and_never_below_one(monkeypatch):
+    """One failure: the retry adds ``1e-12 · max(max |diag G_k|, 1)`` to each ``G_k``."""
+    seen: list = []
+    monkeypatch.setattr(_numerics.torch.linalg, "eigh", _failing_eigh(1, seen))
+    G = torch.stack(
+        [
+            torch.diag(torch.tensor([0.5, 0.25], dtype=F64)),  # max |diag| < 1: scale 1
+            torch.diag(torch.tensor([1e4, 3.0], dtype=F64)),  # scale 1e4
+        ]
+    )
+    psd_eigh(G)
+    jitter = (seen[1] - G).diagonal(dim1=-2, dim2=-1)
+    torch.testing.assert_close(
+        jitter, torch.tensor([[1e-12, 1e-12], [1e-8, 1e-8]], dtype=F64), rtol=1e-3, atol=0
+    )
+
+
+def test_psd_eigh_judges_round_off_per_matrix_of_a_batch():
+    """The threshold ``p·eps·max|g|`` is each matrix's own: a huge ``G_0`` does not zero
+    the eigenvalues of a unit ``G_1``."""
+    G = torch.stack([torch.diag(torch.tensor([1e16, 1.0], dtype=F64)), torch.eye(2, dtype=F64)])
+    g, _ = psd_eigh(G)
+    torch.testing.assert_close(g[1], torch.ones(2, dtype=F64))
+    assert g[0].tolist() == [0.0, 1e16]  # 1 is round-off next to 1e16
+
+
+def test_the_evidence_maximiser_returns_a_bound_exactly_when_clamped():
+    h = torch.tensor([1.0, 4.0], dtype=F64)
+    # slope(λ_max) = γ(1e3) − 1e3·1e-12 ∈ (0, 1): still clamped to the bound itself
+    lam = evidence_maximiser(h, torch.tensor(1e-12, dtype=F64), (1e-3, 1e3))
+    assert lam == pytest.approx(1e3, rel=1e-14, abs=0)
+
+
+def test_the_evidence_maximiser_finds_a_fixed_point_below_one():
+    h = torch.tensor([0.1, 0.3], dtype=F64)
+    sq = torch.tensor(50.0, dtype=F64)
+    lam = evidence_maximiser(h, sq, (1e-8, 1e8))
+    assert lam < 1.0
+    assert float((h / (h + lam)).sum()) == pytest.approx(lam * 50.0, rel=1e-9)
