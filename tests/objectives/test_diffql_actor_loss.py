@@ -15,7 +15,7 @@ from torch import nn
 from torchrl.modules import DiffusionActor
 from torchrl.objectives import LossModule
 
-from torchrl_dual.objectives.diffql_actor_loss import DiffQLActorLoss
+from torchrl_dual.objectives.diffql_actor_loss import DiffQLActorLoss, min_q
 
 OBS, ACT, B = 3, 2, 16
 
@@ -84,18 +84,23 @@ def test_the_q_normaliser_is_detached_and_never_divides_by_zero():
     q_term, _ = loss.q_term(torch.zeros(3, OBS))
     q_term.backward()
     torch.testing.assert_close(q.grad, torch.full((3,), -1.0 / (3 * 2.0)))
+    # below 1 too: mean |Q| = 0.2 divides as it is (only a vanishing scale is clamped)
+    small = torch.tensor([-0.2, 0.1, 0.3], requires_grad=True)
+    loss = DiffQLActorLoss(actor, lambda s, a: small, _box, eta=1.0)
+    q_term, _ = loss.q_term(torch.zeros(3, OBS))
+    torch.testing.assert_close(q_term, torch.tensor(-0.2 / (3 * 0.2)))
+    q_term.backward()
+    torch.testing.assert_close(small.grad, torch.full((3,), -1.0 / (3 * 0.2)))
 
 
 def test_reduction_none_is_per_sample_and_its_mean_and_sum_match_the_reduced_losses():
-    loss = DiffQLActorLoss(_actor(), _q_value, _box, eta=1.3)
     batch = _batch()
-    torch.manual_seed(4)
-    mean = loss(batch)
     outs = {}
-    for reduction in ("none", "sum"):
-        loss.reduction = reduction
+    for reduction in ("mean", "none", "sum"):  # each accepted at construction
+        loss = DiffQLActorLoss(_actor(), _q_value, _box, eta=1.3, reduction=reduction)
         torch.manual_seed(4)
         outs[reduction] = loss(batch)
+    mean = outs["mean"]
     none, total = outs["none"], outs["sum"]
     for key in ("loss_actor", "loss_bc", "loss_q"):
         assert none[key].shape == (B,), key
@@ -157,3 +162,73 @@ def test_the_loss_on_iql_critics_compiles_without_a_graph_break():
     torch._dynamo.reset()
     out = torch.compile(loss, fullgraph=True, backend="eager")(_batch())
     assert torch.isfinite(out["loss_actor"])
+
+
+def test_reduction_none_keeps_a_two_dimensional_batch():
+    """``[2, 8]`` transitions: ``L_bc`` averaged over the action dimension only."""
+    loss = DiffQLActorLoss(_actor(), _q_value, _box, eta=0.5, reduction="none")
+    batch = _batch().reshape(2, B // 2)
+    torch.manual_seed(6)
+    out = loss(batch)
+    assert out["loss_actor"].shape == out["loss_bc"].shape == (2, B // 2)
+    torch.manual_seed(6)
+    flat = loss(_batch())
+    torch.testing.assert_close(out["loss_bc"].reshape(-1), flat["loss_bc"])
+
+
+def _iql_critic(seed: int = 0):
+    """A TorchRL ``IQLLoss`` with twin ``Q(s, a)`` MLPs (its actor is a stand-in)."""
+    from torchrl.modules import MLP, ProbabilisticActor, ValueOperator
+    from torchrl.objectives import IQLLoss
+
+    torch.manual_seed(seed)
+    stand_in = ProbabilisticActor(
+        TensorDictModule(nn.Linear(OBS, 2 * ACT), in_keys=["observation"], out_keys=["p"]),
+        in_keys=["p"],
+        distribution_class=torch.distributions.Normal,
+    )
+    qvalue = ValueOperator(
+        MLP(in_features=OBS + ACT, out_features=1, num_cells=[8]),
+        in_keys=["observation", "action"],
+    )
+    value = ValueOperator(MLP(in_features=OBS, out_features=1, num_cells=[8]), ["observation"])
+    return IQLLoss(stand_in, qvalue, value, num_qvalue_nets=2)
+
+
+def _q_by_hand(params, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+    """One member's MLP written out: ``W_1 tanh(W_0 [s, a] + b_0) + b_1`` (TorchRL MLP's Tanh)."""
+    x = torch.cat([observation, action], -1)
+    first, last = params["module", "0"], params["module", "2"]
+    hidden = torch.tanh(x @ first["weight"].T + first["bias"])
+    return (hidden @ last["weight"].T + last["bias"]).squeeze(-1)
+
+
+def test_min_q_is_the_twin_minimum_with_gradients_to_the_action_only():
+    critic = _iql_critic()
+    params = critic.qvalue_network_params
+    s, a = torch.randn(6, OBS), torch.rand(6, ACT, requires_grad=True)
+    q = min_q(critic.qvalue_network, params, s, a)
+    by_hand = torch.minimum(_q_by_hand(params[0], s, a), _q_by_hand(params[1], s, a))
+    torch.testing.assert_close(q, by_hand)
+    assert q.shape == (6,)
+    q.sum().backward()
+    assert a.grad is not None and a.grad.abs().sum() > 0
+    assert all(p.grad is None for p in params.values(True, True))  # the critic's detached
+    renamed = TensorDictModule(
+        critic.qvalue_network.module, ["observation", "action"], ["my_q"]
+    )  # the Q under another output key
+    torch.testing.assert_close(min_q(renamed, params, s, a, key="my_q"), by_hand)
+
+
+def test_from_iql_reads_the_current_twin_critics_minimum():
+    critic = _iql_critic()
+    with torch.no_grad():  # the target copies differ from the current weights
+        for p in critic.target_qvalue_network_params.values(True, True):
+            p.add_(1.0)
+    q_value = DiffQLActorLoss.from_iql(_actor(), critic, _box, eta=1.0).q_value
+    s, a = torch.randn(5, OBS), torch.rand(5, ACT)
+    params = critic.qvalue_network_params
+    by_hand = torch.minimum(_q_by_hand(params[0], s, a), _q_by_hand(params[1], s, a))
+    torch.testing.assert_close(q_value(s, a), by_hand)
+    loss = DiffQLActorLoss.from_iql(_actor(), critic, _box, eta=0.25, reduction="none")
+    assert loss.eta == 0.25 and loss.reduction == "none"

@@ -206,4 +206,5 @@ def _scale(q: torch.Tensor) -> torch.Tensor:
 
 
 def _reduce(loss: torch.Tensor, reduction: str) -> torch.Tensor:
-    return loss.mean() if reduction == "mean" else loss.sum() if reduction == "sum" else loss
+    """``sum`` or ``none`` (the mean is taken in :meth:`DiffQLActorLoss.forward` itself)."""
+    return loss.sum() if reduction == "sum" else loss
