@@ -130,16 +130,26 @@ class CalQLLoss(CQLLoss):
                 f"penalty_layout={penalty_layout!r} is not one of {PENALTY_LAYOUTS}: 'calql' "
                 "follows the Cal-QL reference code, 'torchrl' reproduces CQLLoss's grouping."
             )
+        self._calql_in_keys = None
         super().__init__(actor_network, qvalue_network, **kwargs)
         self.penalty_layout = penalty_layout
+        self.in_keys, self.out_keys  # noqa: B018 (cached now: compiled calls only read them)
 
     @property
-    def in_keys(self):  # CQLLoss's, then the bound (a list in a fixed order, not a set's)
-        keys = super().in_keys
-        return keys if self.tensor_keys.mc_return in keys else [*keys, self.tensor_keys.mc_return]
+    def in_keys(self) -> list[NestedKey]:
+        """CQLLoss's keys, then the bound, in a fixed order (CQLLoss's come from a set).
+
+        Computed eagerly (here and in :meth:`set_keys`) and read back as a plain list, so
+        that ``@dispatch`` reading them inside ``torch.compile(fullgraph=True)`` never
+        traces a ``super()`` property, which Dynamo cannot."""
+        if self._calql_in_keys is None:
+            keys = CQLLoss.in_keys.fget(self)
+            bound = self.tensor_keys.mc_return
+            self._calql_in_keys = keys if bound in keys else [*keys, bound]
+        return self._calql_in_keys
 
     @property
-    def out_keys(self):
+    def out_keys(self) -> list[str]:
         if self._out_keys is None:
             self._out_keys = [*CQLLoss.out_keys.fget(self), "bound_rate"]
         return self._out_keys
@@ -147,6 +157,10 @@ class CalQLLoss(CQLLoss):
     @out_keys.setter
     def out_keys(self, values):
         self._out_keys = values
+
+    def _forward_value_estimator_keys(self, **kwargs) -> None:
+        super()._forward_value_estimator_keys(**kwargs)
+        self._calql_in_keys = None  # renamed keys: recomputed on the next read
 
     @dispatch
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
