@@ -1,4 +1,5 @@
-"""One update of every algorithm reads nothing back to the host (issue 30 item 2).
+"""One update and one acting step of every algorithm read nothing back to the host, and
+every acting policy compiles whole (issue 30 items 1-2).
 
 Each ``ALGORITHMS`` entry's learner, on Frozen-Lake at tiny sizes, runs one update under a
 ``TorchDispatchMode`` that counts ``aten._local_scalar_dense`` (``.item()``, ``float(t)``,
@@ -18,6 +19,8 @@ import pytest
 import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
 import torchrl_dual._utils as utils
 from torchrl_dual.recipe import ALGORITHMS, CONFIG_DIR, O2ORun, compose_checked
 
@@ -33,6 +36,9 @@ TORCHRL_READS = {
     # inside its update), not the update
     "torchrl/data/replay_buffers/samplers/slice.py:1035",
     "torchrl/data/replay_buffers/samplers/slice.py:1038",
+    # a safe actor's spec.project (its is_in check): TorchRL skips it while compiling
+    "torchrl/data/tensor_specs.py:2648",
+    "torchrl/data/tensor_specs.py:1100",
 }
 """The host reads that TorchRL's code makes, by the frame that makes them."""
 HOST_READS = {torch.ops.aten._local_scalar_dense.default, torch.ops.aten.nonzero.default}
@@ -102,3 +108,35 @@ def test_one_update_reads_nothing_back_to_the_host(algo, cache_dir, tmp_path, mo
     assert not ours, ours  # TorchRL's own (TanhNormal's box check, skipped under compile)
     assert set(reads.count) - set(ours) <= TORCHRL_READS, reads.count
     assert all(isinstance(v, torch.Tensor) for v in metrics.values()), metrics
+
+
+@pytest.mark.long_running(seconds=40)
+@pytest.mark.parametrize("algo", sorted(ALGORITHMS))
+def test_the_acting_policy_reads_nothing_back_and_compiles_whole(
+    algo, cache_dir, tmp_path, monkeypatch
+):
+    """After the offline phase, one acting step (RANDOM, as the collector acts) reads nothing
+    back to the host once the eager input checks are off, and the policy compiles with
+    ``fullgraph=True`` to the eager actions (DETERMINISTIC, as the evaluation acts)."""
+    cfg = compose_checked(
+        CONFIG_DIR,
+        [*TINY, f"algo={algo}", f"output_dir={tmp_path}", f"data_cache_dir={cache_dir}"],
+    )
+    run = O2ORun(cfg, ALGORITHMS[algo].learner)
+    for name, stage in run.learner.offline_stages():
+        run.stage(name, stage)
+    policy, state = run.learner.exploration_policy, run.env.reset()
+    with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
+        policy(state.clone())  # first call: caches and memos
+        monkeypatch.setattr(utils, "host_reads_allowed", lambda: False)
+        with HostReads(set()) as reads:
+            policy(state.clone())
+    ours = {where: n for where, n in reads.count.items() if "torchrl_dual/" in where}
+    assert not ours, ours
+    assert set(reads.count) - set(ours) <= TORCHRL_READS, reads.count
+    monkeypatch.undo()
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        eager = policy(state.clone())
+        torch._dynamo.reset()
+        compiled = torch.compile(policy, fullgraph=True, backend="eager")(state.clone())
+    torch.testing.assert_close(compiled["action"], eager["action"])

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from torchrl_dual._utils import is_deterministic
+from torchrl_dual._utils import check_finite, is_deterministic
 from torchrl_dual.diffusion.model import MeanShift, TrajectoryDiffusion
 
 
@@ -61,10 +61,7 @@ class PlannerSampler(nn.Module):
                 f"observation must end with dim {layout.obs_dim} (the planner's obs_dim), "
                 f"got shape {tuple(observation.shape)}."
             )
-        if not torch.isfinite(observation).all():
-            raise ValueError(
-                "observation holds NaN/inf entries; the planner cannot condition on it."
-            )
+        check_finite(observation, "observation", "the planner cannot condition on it.")
         action_norm = None if action is None else norm.normalize_action(action)
         cond, mask = layout.conditioned_window(norm.normalize_observation(observation), action_norm)
         if deterministic is None:

@@ -196,8 +196,9 @@ def frozenlake_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
 
 
 def one_hot_argmax(action: torch.Tensor) -> torch.Tensor:
-    """The executed discrete action as a one-hot vector (what the env receives)."""
-    return nn.functional.one_hot(action.argmax(-1), action.shape[-1]).to(action.dtype)
+    """The executed discrete action as a one-hot vector (what the env receives); a scatter,
+    not ``one_hot``, which reads the indices back to the host to check their range."""
+    return torch.zeros_like(action).scatter_(-1, action.argmax(-1, keepdim=True), 1.0)
 
 
 def env_kit(cfg: DictConfig) -> EnvKit:
