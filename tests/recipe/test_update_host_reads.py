@@ -18,7 +18,6 @@ from pathlib import Path
 import pytest
 import torch
 from torch.utils._python_dispatch import TorchDispatchMode
-
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 import torchrl_dual._utils as utils
