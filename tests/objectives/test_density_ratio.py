@@ -162,6 +162,33 @@ def test_per_sample_ratios_give_the_loss_and_the_mean_ratio_of_each_part():
     assert out.batch_size == torch.Size([])
 
 
+def test_reduction_none_gives_one_term_per_transition_whose_mean_is_the_loss():
+    """Per transition: ``(N / N_off) · (−log(2 / (w + 1)))`` offline and ``−(N / N_on) ·
+    log(2w / (w + 1))`` online, by hand on five ratios; mean = the default loss, sum = N ×."""
+    net = TensorDictModule(
+        _FirstCoordinate(), in_keys=["observation", "action"], out_keys=["density_ratio"]
+    )
+    w, online = [1.0, 2.0, 3.0, 4.0, 5.0], [True, False, True, False, False]
+    observation = torch.zeros(5, OBS)
+    observation[:, 0] = torch.tensor(w)
+    batch = TensorDict(
+        observation=observation, action=torch.zeros(5, ACT), online=torch.tensor(online),
+        batch_size=[5],
+    )  # fmt: skip
+    by_hand = torch.tensor(
+        [-5 / 2 * math.log(2 * x / (x + 1)) if o else -5 / 3 * math.log(2 / (x + 1))
+         for x, o in zip(w, online, strict=True)]
+    )  # fmt: skip
+    per_sample = DensityRatioLoss(net, reduction="none")(batch)["loss_density_ratio"]
+    torch.testing.assert_close(per_sample, by_hand)
+    mean = DensityRatioLoss(net)(batch)["loss_density_ratio"]
+    torch.testing.assert_close(per_sample.mean(), mean)
+    summed = DensityRatioLoss(net, reduction="sum")(batch)["loss_density_ratio"]
+    torch.testing.assert_close(summed, 5 * mean)
+    with pytest.raises(ValueError, match="reduction must be 'mean', 'sum' or 'none'"):
+        DensityRatioLoss(net, reduction="max")
+
+
 def test_the_log_guard_keeps_the_loss_finite_at_zero_and_huge_ratios():
     """``_LOG_EPS = 1e-10`` is added inside both logarithms (the authors' guard): ``w = 0``
     online gives ``log(1e-10)``, ``w = 1e11`` offline ``−log(2 / (1e11 + 1) + 1e-10)``."""

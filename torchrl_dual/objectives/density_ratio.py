@@ -89,6 +89,11 @@ class DensityRatioLoss(LossModule):
             must be ``≥ 0`` (end it with a ReLU or Softplus, e.g.
             :func:`make_density_ratio_network`).
 
+    Keyword Args:
+        reduction (str): ``"mean"`` (default: ``L(ψ)`` above), ``"sum"`` or ``"none"``:
+            one term per transition, shaped like the batch, each part's terms scaled by
+            ``N / N_part`` so that their mean is ``L(ψ)`` (``"sum"`` is ``N · L(ψ)``).
+
     Examples:
         >>> import torch
         >>> from tensordict import TensorDict
@@ -121,9 +126,12 @@ class DensityRatioLoss(LossModule):
     ratio_network_params: TensorDictParams
     target_ratio_network_params: TensorDictParams
 
-    def __init__(self, ratio_network: TensorDictModuleBase) -> None:
+    def __init__(self, ratio_network: TensorDictModuleBase, *, reduction: str = "mean") -> None:
+        if reduction not in ("mean", "sum", "none"):
+            raise ValueError(f"reduction must be 'mean', 'sum' or 'none', got {reduction!r}.")
         super().__init__()
         self.convert_to_functional(ratio_network, "ratio_network")
+        self.reduction = reduction
 
     def _forward_value_estimator_keys(self, **kwargs) -> None:
         pass
@@ -151,7 +159,12 @@ class DensityRatioLoss(LossModule):
         offline_term = -torch.log(2.0 / (w + 1.0) + _LOG_EPS)  # f*(T) on D_offline
         online_term = torch.log(2.0 * w / (w + 1.0) + _LOG_EPS)  # T on D_online
         n_off, n_on = off.sum(), on.sum()
-        loss = (offline_term * off).sum() / n_off - (online_term * on).sum() / n_on
+        if self.reduction == "mean":
+            loss = (offline_term * off).sum() / n_off - (online_term * on).sum() / n_on
+        else:  # per transition, each part's mean as a mean over the whole batch
+            n = w.numel()
+            loss = offline_term * off * (n / n_off) - online_term * on * (n / n_on)
+            loss = loss.sum() if self.reduction == "sum" else loss
         return TensorDict(
             {
                 "loss_density_ratio": loss,
