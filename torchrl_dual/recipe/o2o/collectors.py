@@ -28,6 +28,13 @@ the acting copy); ``multi_sync``'s next batch acts with them, ``multi_async``'s 
 flight switch over mid-batch. Ray's remote collectors hold their own copies and receive
 the same tensors (:func:`~torchrl_dual.recipe.o2o.ray_collector.push_to_actors`).
 
+``collector.device`` (null: the run's ``device``) is where the acting policy runs and the
+batches are gathered, apart from where the updates run: with ``device=cuda
+collector.device=cpu`` the envs and the policy step on the CPU, and the replay takes the
+batches as usual. ``single`` then acts with TorchRL's own copy of the policy on that
+device (``Collector`` makes it), refreshed by :func:`push_to_single` after every block of
+updates; on one device it acts with the learner's policy itself.
+
 Episode ids: :func:`~torchrl_dual.recipe.o2o.episodes.assign_episodes` maps the
 collectors' trajectory ids to the run's episode ids.
 
@@ -43,6 +50,8 @@ import copy
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
+import torch
+from omegaconf import DictConfig
 from tensordict import TensorDict
 from torch import nn
 from torchrl.collectors import Collector, MultiAsyncCollector, MultiSyncCollector
@@ -56,8 +65,14 @@ if TYPE_CHECKING:
     from torchrl_dual.recipe.o2o.run import O2ORun
 
 
+def collector_device(cfg: DictConfig) -> torch.device:
+    """``collector.device``, or the run's ``device`` where it is null."""
+    return torch.device(cfg.collector.device or cfg.device)
+
+
 def make_single(run: O2ORun, total_frames: int) -> BaseCollector:
-    """TorchRL's ``Collector`` on ``run.env`` (seeded ``seed + 1 + frames``)."""
+    """TorchRL's ``Collector`` on ``run.env`` (seeded ``seed + 1 + frames``), acting on
+    ``collector.device`` (a copy of the policy there if the learner's is elsewhere)."""
     cfg = run.cfg
     run.env.set_seed(cfg.seed + 1 + run.frames)
     return Collector(
@@ -66,7 +81,7 @@ def make_single(run: O2ORun, total_frames: int) -> BaseCollector:
         frames_per_batch=cfg.budget.frames_per_batch,
         total_frames=total_frames,
         exploration_type=ExplorationType.RANDOM,
-        device=cfg.device,
+        device=collector_device(cfg),
         auto_register_policy_transforms=False,
     )
 
@@ -82,7 +97,7 @@ def make_multi(collector_class: type) -> Callable[[O2ORun, int], BaseCollector]:
             frames_per_batch=cfg.budget.frames_per_batch,
             total_frames=total_frames,
             exploration_type=ExplorationType.RANDOM,
-            device=cfg.device,
+            device=collector_device(cfg),
             num_threads=cfg.num_threads,  # this process's threads (TorchRL would lower them)
             auto_register_policy_transforms=False,
         )
@@ -111,8 +126,12 @@ def stop_collecting(collector: BaseCollector) -> None:
         collector.shutdown()
 
 
-def push_nothing(collector: BaseCollector, policy: nn.Module) -> None:
-    """``collector=single`` acts with ``policy`` itself: nothing to push."""
+def push_to_single(collector: BaseCollector, policy: nn.Module) -> None:
+    """``collector=single``: nothing to push where it acts with ``policy`` itself (one
+    device); else TorchRL's ``update_policy_weights_`` copies ``policy``'s parameters and
+    buffers into the collector's copy on ``collector.device``."""
+    if collector.policy is not policy:
+        collector.update_policy_weights_(TensorDict.from_module(policy).data)
 
 
 def push_to_processes(collector: BaseCollector, policy: nn.Module) -> None:

@@ -61,9 +61,10 @@ REPLAYS: dict[str, ReplayKind] = {
 
 @dataclass
 class CollectorSettings:
-    """``collector/single.yaml``: the name only (one process, the run's own env)."""
+    """``collector/single.yaml`` (one process, the run's own env); every collector's keys."""
 
     name: str = key(Text(), "the COLLECTORS entry")
+    device: Any = key(Maybe(Text()), "device of the acting policy (null: the run's device)")
 
 
 @dataclass
@@ -137,7 +138,7 @@ _RAY = "torchrl_dual.recipe.o2o.ray_collector"
 
 COLLECTORS: dict[str, CollectorKind] = {
     "single": CollectorKind(
-        CollectorSettings, Ref(f"{_COLLECTORS}:make_single"), Ref(f"{_COLLECTORS}:push_nothing")
+        CollectorSettings, Ref(f"{_COLLECTORS}:make_single"), Ref(f"{_COLLECTORS}:push_to_single")
     ),
     "multi_sync": CollectorKind(
         MultiCollectorSettings,
@@ -175,6 +176,12 @@ def check_ray_collector(cfg: DictConfig) -> None:
             cfg.device,
             "collector=ray's remote collectors act on the CPUs of the Ray nodes: use "
             "device=cpu with it, or collector=multi_sync / multi_async on this machine",
+        )
+    if cfg.collector.device not in (None, "cpu"):
+        raise ConfigError(
+            "collector.device",
+            cfg.collector.device,
+            "collector=ray's remote collectors act on the CPUs of the Ray nodes: use null or cpu",
         )
 
 

@@ -153,24 +153,27 @@ def validate_config(cfg: DictConfig) -> DictConfig:
     return cfg
 
 
-def check_machine(cfg: DictConfig) -> None:
-    """What the config asks of the machine and the file system."""
-    import torch  # the device check needs it; every check above runs without it
+def check_device(path: str, value: str) -> None:
+    """``value`` names a torch device the recipe can use on this machine."""
+    import torch  # the device check needs it; every other check runs without it
 
     try:
-        device = torch.device(cfg.device)
+        device = torch.device(value)
     except (RuntimeError, ValueError) as err:
-        raise ConfigError(
-            "device", cfg.device, "not a torch device; use cpu, cuda or cuda:N"
-        ) from err
+        raise ConfigError(path, value, "not a torch device; use cpu, cuda or cuda:N") from err
     if device.type == "cuda" and not torch.cuda.is_available():
-        raise ConfigError("device", cfg.device, "CUDA is not available here; use device=cpu")
+        raise ConfigError(path, value, f"CUDA is not available here; use {path}=cpu")
     if device.type == "cuda" and (device.index or 0) >= torch.cuda.device_count():
-        raise ConfigError(
-            "device", cfg.device, f"this machine has {torch.cuda.device_count()} GPUs"
-        )
+        raise ConfigError(path, value, f"this machine has {torch.cuda.device_count()} GPUs")
     if device.type not in ("cpu", "cuda"):
-        raise ConfigError("device", cfg.device, "the recipe runs on cpu or cuda")
+        raise ConfigError(path, value, "the recipe runs on cpu or cuda")
+
+
+def check_machine(cfg: DictConfig) -> None:
+    """What the config asks of the machine and the file system."""
+    check_device("device", cfg.device)
+    if cfg.collector.device is not None:
+        check_device("collector.device", cfg.collector.device)
     check_logger(cfg)
     check_output_dir(cfg)
     for name in ("data_cache_dir", "offline_cache"):
