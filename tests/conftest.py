@@ -183,6 +183,20 @@ def train(loss_module: nn.Module, sample, num_updates: int, *, lr: float = 1e-3)
     return history
 
 
+def check_draws_follow_the_data(loss_fn, windows, keys: tuple[str, ...]) -> None:
+    """``loss_fn`` makes its random draws where ``windows`` live: under a ``torch.device``
+    default-device block (``meta``, standing in for an accelerator) CPU windows give the
+    same CPU outputs ``keys`` as outside it, with the same seed."""
+    torch.manual_seed(4)
+    expected = loss_fn(windows)
+    torch.manual_seed(4)
+    with torch.device("meta"):
+        out = loss_fn(windows)
+    for key in keys:
+        assert out[key].device == torch.device("cpu"), key
+        torch.testing.assert_close(out[key], expected[key], msg=key)
+
+
 # ----------------------------------------------------------------------------- fixtures
 @pytest.fixture
 def make_layout():
@@ -202,6 +216,11 @@ def make_windows():
 @pytest.fixture
 def make_toy_setup():
     return create_toy_setup
+
+
+@pytest.fixture
+def draws_follow_the_data():
+    return check_draws_follow_the_data
 
 
 @pytest.fixture

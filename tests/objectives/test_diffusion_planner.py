@@ -350,18 +350,10 @@ def test_nan_input_error_tells_to_clean_the_data(key, make_model, make_windows):
         DiffusionPlannerLoss(make_model())(windows)
 
 
-def test_random_draws_follow_the_data_device_not_torch_s_default_device(make_layout, make_windows):
-    """``t``, ``ε`` and the ``a_0``-known draw are made where the windows live: under a
-    ``torch.device`` default-device block (here ``meta``, standing in for an accelerator)
-    CPU windows give the same CPU loss as outside it."""
+def test_random_draws_follow_the_data_device_not_torch_s_default_device(
+    make_layout, make_windows, draws_follow_the_data
+):
+    """``t``, ``ε`` and the ``a_0``-known draw are made where the windows live."""
     layout = make_layout()
     loss_fn = DiffusionPlannerLoss(TrajectoryDiffusion(layout, _LinearV(0.6, 0.5)))
-    windows = make_windows(layout)
-    torch.manual_seed(4)
-    expected = loss_fn(windows)
-    torch.manual_seed(4)
-    with torch.device("meta"):
-        out = loss_fn(windows)
-    assert out["loss_diffusion"].device == torch.device("cpu")
-    torch.testing.assert_close(out["loss_diffusion"], expected["loss_diffusion"])
-    torch.testing.assert_close(out["x0_error"], expected["x0_error"])
+    draws_follow_the_data(loss_fn, make_windows(layout), ("loss_diffusion", "x0_error"))

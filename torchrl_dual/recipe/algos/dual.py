@@ -227,8 +227,11 @@ class DualLearner(Learner):
         self.actor_optimizer.zero_grad(set_to_none=True)
         out["loss_actor"].backward()
         self.actor_optimizer.step()
-        self.refits.count()
         return {k: v.detach() for k, v in {**critic, **out}.items()}
+
+    def after_update(self) -> None:
+        """One more update toward the next refit (Alg. 1 line 17)."""
+        self.refits.count()
 
     def after_updates(self) -> None:
         """Alg. 1 line 17: refit the posterior once ``budget.laplace_refit_every`` updates

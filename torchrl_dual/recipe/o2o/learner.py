@@ -110,6 +110,12 @@ class Learner(ABC):
         detached 0-dim tensors (left on the device: :meth:`O2ORun.log` reads them back
         only when it logs, every 100 updates, so an update never syncs the host)."""
 
+    def after_update(self) -> None:  # noqa: B027 - optional hook
+        """Called after each :meth:`update`, outside its compiled or CUDA-graph step: the
+        update's Python bookkeeping (DUAL counts the updates since its last refit). An
+        update whose algorithm allows ``compile.cudagraphs`` leaves every Python attribute
+        as it was, since a CUDA graph replays its kernels only."""
+
     def after_updates(self) -> None:  # noqa: B027 - optional hook
         """Called after each block of online updates (DUAL refits its Laplace posterior)."""
 

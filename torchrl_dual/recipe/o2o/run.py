@@ -34,6 +34,7 @@ from torchrl_dual.recipe.o2o.loggers import logs_text, make_logger
 from torchrl_dual.recipe.o2o.plots import plot_learning_curve
 from torchrl_dual.recipe.o2o.stage_clock import StageClock
 from torchrl_dual.recipe.o2o.summary import score_text, write_summary
+from torchrl_dual.recipe.o2o.update_step import make_update_step
 from torchrl_dual.recipe.settings.errors import UserError
 from torchrl_dual.recipe.settings.o2o import COLLECTORS, REPLAYS, check_output_dir
 
@@ -66,17 +67,6 @@ _COUNTERS = (
     "history",
     "online_signals",
 )
-
-
-def compiled_update(learner: Learner, settings: DictConfig | None) -> Callable:
-    """``learner.update``, or with ``compile.compile=true`` that method through
-    ``torch.compile`` (``compile.compile_mode``): the losses trace whole (no graph break,
-    ``tests/test_compile.py``), the backward passes and optimizer steps are their own
-    graphs. Dynamo replays the update's Python side effects (counters)."""
-    if settings is None or not settings.compile:
-        return learner.update
-    mode = settings.compile_mode
-    return torch.compile(learner.update, mode=None if mode in (None, "default") else mode)
 
 
 class O2ORun:
@@ -114,7 +104,7 @@ class O2ORun:
         self.offline_buffer = self._offline_buffer()
         # ---- the algorithm's networks, losses and policies
         self.learner = make_learner(self)
-        self._update = compiled_update(self.learner, cfg.get("compile"))
+        self._update = make_update_step(self.learner, cfg.get("compile"), lambda: self.frames > 0)
         self.replay = REPLAYS[cfg.replay.name][1](self)  # D_offline ∪ D_online (replays.py)
         # ---- counters
         self.stages_done: list[str] = []
@@ -248,6 +238,7 @@ class O2ORun:
     def update(self, batch: TensorDictBase) -> dict:
         """One learner update, counted."""
         metrics = self._update(batch)
+        self.learner.after_update()
         self.updates += 1
         return metrics
 

@@ -10,7 +10,7 @@ policy-smoothed targets; ``algo=so2`` and ``algo=dual``).
 from __future__ import annotations
 
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from functools import partial
 from typing import Any
@@ -60,6 +60,22 @@ class Critic:
 
     phases: Callable[..., None] | None = None
     """``(loss, online=bool) -> None``: sets the loss's offline or online settings (SO2)."""
+
+    @classmethod
+    def around(
+        cls,
+        loss: CriticLoss,
+        params: Iterable[torch.Tensor],
+        settings: CriticSettings,
+        terms: Callable[[Any, TensorDictBase], dict[str, torch.Tensor]],
+        **options: Any,
+    ) -> Critic:
+        """Every builder's tail: Adam over ``params`` at ``critic.lr`` and the soft target
+        update at ``critic.target_update_tau`` around ``loss`` (``options``: the fields
+        after :attr:`terms`)."""
+        optimizer = torch.optim.Adam(params, lr=settings.lr)
+        updater = SoftUpdate(loss, tau=settings.target_update_tau)
+        return cls(loss, optimizer, updater, terms, **options)
 
     def modules(self) -> dict[str, Any]:
         """What a learner's checkpoint holds of the critics (:meth:`Learner.modules`): the
@@ -235,8 +251,7 @@ def make_iql_critic(
     params = list(loss.qvalue_network_params.values(True, True)) + list(
         loss.value_network_params.values(True, True)
     )
-    optimizer = torch.optim.Adam(params, lr=c.lr)
-    return Critic(loss, optimizer, SoftUpdate(loss, tau=c.target_update_tau), iql_terms)
+    return Critic.around(loss, params, c, iql_terms)
 
 
 def make_calql_critic(
@@ -265,10 +280,9 @@ def make_calql_critic(
         action_spec=actor.spec,
     ).to(device)
     loss.make_value_estimator(gamma=c.discount)
-    optimizer = torch.optim.Adam(loss.qvalue_network_params.values(True, True), lr=c.lr)
     saves_actor = not any(isinstance(m, _MeanAndStd) for m in actor.modules())  # policy_view
-    updater = SoftUpdate(loss, tau=c.target_update_tau)
-    return Critic(loss, optimizer, updater, calql_terms, saves_actor)
+    params = loss.qvalue_network_params.values(True, True)
+    return Critic.around(loss, params, c, calql_terms, saves_actor=saves_actor)
 
 
 def make_so2_critic(
@@ -299,9 +313,10 @@ def make_so2_critic(
     ).to(device)
     phases = partial(so2_phase, settings=c)
     phases(loss, online=False)
-    optimizer = torch.optim.Adam(loss.qvalue_network_params.values(True, True), lr=c.lr)
-    updater = SoftUpdate(loss, tau=c.target_update_tau)
-    return Critic(loss, optimizer, updater, so2_terms, True, c.online_steps_per_update, phases)
+    params = loss.qvalue_network_params.values(True, True)
+    return Critic.around(
+        loss, params, c, so2_terms, online_steps_per_update=c.online_steps_per_update, phases=phases
+    )
 
 
 def so2_phase(loss: SO2QLoss, *, settings: SO2CriticSettings, online: bool) -> None:

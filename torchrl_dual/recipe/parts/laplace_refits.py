@@ -166,10 +166,9 @@ class LaplaceRefits:
     def offline_stages(self) -> list:
         return [*super().offline_stages(), ("laplace", self.refit)]
 
-    def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor | float]:
-        metrics = super().update(batch)
+    def after_update(self) -> None:
+        super().after_update()
         self.refits.count()
-        return metrics
 
     def after_updates(self) -> None:
         """Alg. 1 line 17: refit once ``budget.laplace_refit_every`` updates accumulated."""

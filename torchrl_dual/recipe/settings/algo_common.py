@@ -48,10 +48,14 @@ class Algorithm:
         learner (callable): ``O2ORun -> Learner``, usually a
             :class:`~torchrl_dual.recipe.settings.lazy.Ref` to the learner
             class (imported when a run starts, so the table stays torch-free).
+        no_cuda_graph (str, optional): why its update cannot be captured as a CUDA graph
+            (``compile.cudagraphs=true`` is then refused with this reason); ``None``: its
+            update is graph-safe (``tests/recipe/test_graph_safe_updates.py``).
     """
 
     settings: AlgorithmSettings
     learner: Callable[..., Any]
+    no_cuda_graph: str | None = None
 
 
 @dataclass

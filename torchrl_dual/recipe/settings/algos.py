@@ -34,8 +34,18 @@ ALGORITHMS: dict[str, Algorithm] = {
     "iql_la": Algorithm(IQL_LA, Ref(f"{_ALGOS}.iql_la:IQLLALearner")),
     "diffql": Algorithm(DIFFQL, Ref(f"{_ALGOS}.diffql:DiffQLLearner")),
     "diffql_la": Algorithm(DIFFQL_LA, Ref(f"{_ALGOS}.diffql:DiffQLLALearner")),
-    "diffuser": Algorithm(DIFFUSER, Ref(f"{_ALGOS}.diffuser:DiffuserLearner")),
-    "dacer": Algorithm(DACER, Ref(f"{_ALGOS}.dacer:DACERLearner")),
+    "diffuser": Algorithm(
+        DIFFUSER,
+        Ref(f"{_ALGOS}.diffuser:DiffuserLearner"),
+        no_cuda_graph="its update samples its own trajectory windows from the replay "
+        "buffer, which a CUDA graph would replay as the same windows every time",
+    ),
+    "dacer": Algorithm(
+        DACER,
+        Ref(f"{_ALGOS}.dacer:DACERLearner"),
+        no_cuda_graph="its online update steps the entropy regulator every "
+        "dacer.entropy_every updates, a Python schedule a CUDA graph would not follow",
+    ),
     "edis": Algorithm(EDIS, Ref(f"{_ALGOS}.edis:EDISLearner")),
     "calql": Algorithm(CALQL, Ref(f"{_ALGOS}.calql:CalQLLearner")),
     "so2": Algorithm(SO2, Ref(f"{_ALGOS}.so2:SO2Learner")),

@@ -239,13 +239,11 @@ def as_settings(schema: type[S], node: DictConfig) -> S:
     resolved, sub-groups left out. Builders take these typed sections, not the config.
 
     Examples:
-        >>> from dataclasses import dataclass
         >>> from omegaconf import OmegaConf
-        >>> @dataclass
-        ... class Critic:
-        ...     expectile: float = key(Real(0, 1, low_open=True, high_open=True), "IQL τ")
-        >>> as_settings(Critic, OmegaConf.create({"expectile": 0.7, "extra": {"a": 1}}))
-        Critic(expectile=0.7)
+        >>> from torchrl_dual.recipe.settings.schema import CompileSettings
+        >>> node = OmegaConf.create({"compile": True, "compile_mode": "${mode}", "mode": None})
+        >>> as_settings(CompileSettings, node)
+        CompileSettings(compile=True, compile_mode=None)
     """
     values = {f.name: read_value(node, f.name, f.name) for f in dataclasses.fields(schema)}
     return schema(**values)

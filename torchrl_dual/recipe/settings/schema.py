@@ -73,6 +73,7 @@ class CompileSettings:
 
     compile: bool = key(Flag(), "torch.compile each gradient update of the learner")
     compile_mode: Any = key(Maybe(Choice(COMPILE_MODES)), "torch.compile mode (null: default)")
+    cudagraphs: bool = key(Flag(), "capture each update as a CUDA graph (CudaGraphModule)")
 
 
 @dataclass
@@ -114,7 +115,8 @@ def validate_config(cfg: DictConfig) -> DictConfig:
 
     Returns ``cfg`` itself, for chaining.
     """
-    algorithm = _choice(cfg, "algo", ALGORITHMS, "the algorithm").settings
+    entry = _choice(cfg, "algo", ALGORITHMS, "the algorithm")
+    algorithm = entry.settings
     kit = _choice(cfg, "env.kind", ENV_KITS, "which environment kit builds the env and data")
     critic_schema, _ = _choice(cfg, "critic.name", CRITICS, "the critic")
     replay_schema, _ = _choice(cfg, "replay.name", REPLAYS, "the online replay")
@@ -145,6 +147,10 @@ def validate_config(cfg: DictConfig) -> DictConfig:
         )
     algorithm.check(cfg)
     check_collector(cfg)
+    if cfg.compile.cudagraphs and entry.no_cuda_graph is not None:
+        raise ConfigError(
+            "compile.cudagraphs", True, f"not for algo={cfg.algo}: {entry.no_cuda_graph}"
+        )
     # What the env and the machine must provide (the only checks that import the
     # library: a goal cell of the maze, a Minari data set on disk, the device).
     if kit.check is not None:
@@ -172,6 +178,13 @@ def check_device(path: str, value: str) -> None:
 def check_machine(cfg: DictConfig) -> None:
     """What the config asks of the machine and the file system."""
     check_device("device", cfg.device)
+    if cfg.compile.cudagraphs and not str(cfg.device).startswith("cuda"):
+        raise ConfigError(
+            "compile.cudagraphs",
+            True,
+            f"CUDA graphs replay CUDA kernels: needs device=cuda (device={cfg.device}); "
+            "compile.compile=true works on any device",
+        )
     if cfg.collector.device is not None:
         check_device("collector.device", cfg.collector.device)
     check_logger(cfg)
