@@ -43,6 +43,33 @@ def test_latency_benchmark_times_every_candidate_and_writes_json(tmp_path):
     assert "goal (restructuring issue #8)" in proc.stdout
 
 
+def test_every_benchmark_script_is_listed_in_the_benchmarks_readme():
+    readme = (REPO / "benchmarks" / "README.md").read_text()
+    scripts = [*(REPO / "benchmarks").glob("*.py"), *(REPO / "benchmarks").glob("*.sh")]
+    missing = [p.name for p in scripts if f"`{p.name}`" not in readme]
+    assert not missing, f"add a row to benchmarks/README.md for {missing}"
+
+
+def test_online_reward_counts_the_batches_with_reward_and_the_positive_evaluations(tmp_path):
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    import online_reward
+
+    summary = {"history": [
+        {"label": "offline", "return": 0.0}, {"label": "online", "return": 0.0},
+        {"label": "online", "return": 14.0}, {"label": "online", "return": 0.0},
+    ]}  # fmt: skip
+    (tmp_path / "results" / "cell" / "dual").mkdir(parents=True)
+    (tmp_path / "results" / "cell" / "dual" / "seed3.json").write_text(json.dumps(summary))
+    logs = tmp_path / "runs" / "cell" / "dual" / "seed3" / "logs" / "dual" / "scalars" / "online"
+    logs.mkdir(parents=True)
+    (logs / "reward_per_step.csv").write_text("500,0.0\n1000,0.002\n1500,0.0\n2000,0.01\n")
+    records = online_reward.cell_records(tmp_path / "results", tmp_path / "runs", "cell")
+    assert records == {"dual": {3: {
+        "batches": 4, "batches_with_reward": 2, "first_reward_frames": 1000,
+        "evaluations_with_return": 1, "evaluations": 3, "final_return": 0.0,
+    }}}  # fmt: skip
+
+
 # ---------------------------------------------------------------- learning suite
 # benchmarks/learning.py (grid, resume) and benchmarks/learning_report.py (statistics,
 # the generated section of docs/results.md); the scripts' directory is not a package.

@@ -241,9 +241,11 @@ def as_settings(schema: type[S], node: DictConfig) -> S:
     Examples:
         >>> from omegaconf import OmegaConf
         >>> from torchrl_dual.recipe.settings.schema import CompileSettings
-        >>> node = OmegaConf.create({"compile": True, "compile_mode": "${mode}", "mode": None})
+        >>> node = OmegaConf.create(
+        ...     {"compile": True, "compile_mode": "${mode}", "cudagraphs": False, "mode": None}
+        ... )
         >>> as_settings(CompileSettings, node)
-        CompileSettings(compile=True, compile_mode=None)
+        CompileSettings(compile=True, compile_mode=None, cudagraphs=False)
     """
     values = {f.name: read_value(node, f.name, f.name) for f in dataclasses.fields(schema)}
     return schema(**values)
