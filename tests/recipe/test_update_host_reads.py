@@ -22,6 +22,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 import torchrl_dual._utils as utils
 from torchrl_dual.recipe import ALGORITHMS, CONFIG_DIR, O2ORun, compose_checked
+from torchrl_dual.recipe.o2o.loop import online_batch
 
 TINY = (
     "budget=smoke", "env=frozenlake", "budget.dataset_transitions=1000",
@@ -40,6 +41,7 @@ TORCHRL_READS = {
     "torchrl/data/tensor_specs.py:1100",
 }
 """The host reads that TorchRL's code makes, by the frame that makes them."""
+ONLINE_EXTRA = {"dacer": ("dacer.entropy_every=1",)}  # its regulator in every update
 HOST_READS = {torch.ops.aten._local_scalar_dense.default, torch.ops.aten.nonzero.default}
 
 
@@ -91,18 +93,24 @@ def cache_dir(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("host_reads_data")
 
 
+@pytest.mark.parametrize("online", [False, True], ids=["offline", "online"])
 @pytest.mark.parametrize("algo", sorted(ALGORITHMS))
-def test_one_update_reads_nothing_back_to_the_host(algo, cache_dir, tmp_path, monkeypatch):
+def test_one_update_reads_nothing_back_to_the_host(algo, online, cache_dir, tmp_path, monkeypatch):
+    """Offline and online (the online critic settings, SO2's stacked batches, DACER's
+    entropy regulator at every update)."""
     cfg = compose_checked(
         CONFIG_DIR,
-        [*TINY, f"algo={algo}", f"output_dir={tmp_path}", f"data_cache_dir={cache_dir}"],
-    )
+        [*TINY, *ONLINE_EXTRA.get(algo, ()), f"algo={algo}", f"output_dir={tmp_path}",
+         f"data_cache_dir={cache_dir}"],
+    )  # fmt: skip
     run = O2ORun(cfg, ALGORITHMS[algo].learner)
-    batch = run.offline_buffer.sample()
-    run.learner.update(batch)  # optimizer state exists from here on
+    run.frames = 100 if online else 0
+    k = run.learner.online_batches_per_update if online else 1
+    run.learner.update(online_batch(run.offline_buffer, k, torch.device("cpu")))  # state
+    batch = online_batch(run.offline_buffer, k, torch.device("cpu"))
     monkeypatch.setattr(utils, "host_reads_allowed", lambda: False)
     with HostReads(optimizer_steps(run.learner)) as reads:
-        metrics = run.learner.update(run.offline_buffer.sample())
+        metrics = run.learner.update(batch)
     ours = {where: n for where, n in reads.count.items() if "torchrl_dual/" in where}
     assert not ours, ours  # TorchRL's own (TanhNormal's box check, skipped under compile)
     assert set(reads.count) - set(ours) <= TORCHRL_READS, reads.count

@@ -189,8 +189,9 @@ def fit_gaussian_mixture(
         centers = _farthest_point_centers(x, num_components)
         for _ in range(kmeans_iterations + 1):
             distance = (x.unsqueeze(-3) - centers.unsqueeze(-2)).square().sum(-1)  # [*B, C, K]
-            assignment = torch.nn.functional.one_hot(distance.argmin(-2), num_components)
-            responsibility = assignment.transpose(-1, -2).to(x.dtype)  # [*B, C, K]
+            nearest = distance.argmin(-2, keepdim=True)  # [*B, 1, K]
+            # one-hot by scatter: one_hot would read the indices back to check their range
+            responsibility = torch.zeros_like(distance).scatter_(-2, nearest, 1.0)  # [*B, C, K]
             count = responsibility.sum(-1, keepdim=True)
             moved = responsibility @ x / count.clamp_min(1)
             centers = torch.where(count > 0, moved, centers)  # an empty cluster keeps its center

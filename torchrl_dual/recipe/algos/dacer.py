@@ -94,7 +94,7 @@ class DACERLearner(DiffQLLearner):
         """Diff-QL's offline phase; ``log α`` starts online from ``dacer.init_alpha``."""
         return super().modules()
 
-    def regulate(self, observation: torch.Tensor) -> float:
+    def regulate(self, observation: torch.Tensor) -> torch.Tensor:
         """``Ĥ`` on ``observation`` ``[B, S]`` (:func:`sampled_entropy` of the noisy, clamped
         actor, averaged over the states), then one Adam step on ``−log α · (H̄ − Ĥ)``;
         returns ``Ĥ``."""
@@ -103,7 +103,7 @@ class DACERLearner(DiffQLLearner):
         self.alpha_optimizer.zero_grad(set_to_none=True)
         self.noise.alpha_loss(entropy).backward()
         self.alpha_optimizer.step()
-        self.entropy = float(entropy.mean())
+        self.entropy = entropy.mean().detach()  # on the device: read back when logged
         return self.entropy
 
     def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor | float]:
@@ -122,7 +122,7 @@ class DACERLearner(DiffQLLearner):
         return {
             **super().state_dict(),
             "online_updates": self.online_updates,
-            "entropy": self.entropy,
+            "entropy": float(self.entropy),
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
