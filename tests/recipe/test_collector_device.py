@@ -39,8 +39,14 @@ def _policy() -> TensorDictModule:
 
 
 def _collector(policy: nn.Module) -> Collector:
-    return Collector(GymEnv("Pendulum-v1"), policy, frames_per_batch=4, total_frames=-1, auto_register_policy_transforms=False,
-                     device="cpu")  # fmt: skip
+    return Collector(
+        GymEnv("Pendulum-v1"),
+        policy,
+        frames_per_batch=4,
+        total_frames=-1,
+        device="cpu",
+        auto_register_policy_transforms=False,
+    )
 
 
 def test_collector_device_defaults_to_the_run_device_and_is_checked(tmp_path):

@@ -10,10 +10,10 @@ CUDA graphs (the ``compile.*`` keys, as TorchRL's sota-implementations name them
   copied into the captured one: one graph per phase (offline, online) and batch shape,
   since the critic's settings and SO2's stacked ``[k, B]`` batches differ between them.
   The optimizers are made ``capturable`` (their step counters on the device) before the
-  first capture, after any checkpoint was loaded. A replay runs the captured kernels only, so an algorithm allows it when its
-  update reads nothing but its batch and the networks' and optimizers' tensors and leaves
-  every Python attribute as it was (its bookkeeping runs in
-  :meth:`~torchrl_dual.recipe.Learner.after_update`);
+  first capture, after any checkpoint was loaded. A replay runs the captured kernels
+  only, so an algorithm allows it when its update reads nothing but its batch and the
+  networks' and optimizers' tensors and leaves every Python attribute as it was (its
+  bookkeeping runs in :meth:`~torchrl_dual.recipe.Learner.after_update`);
   ``tests/recipe/test_graph_safe_updates.py`` checks this for every algorithm whose table
   entry does not say why it cannot (``Algorithm.no_cuda_graph``).
 """
