@@ -101,3 +101,16 @@ def test_a_collector_s_own_copy_gets_the_learner_s_weights_and_buffers_from_the_
         torch.testing.assert_close(batch["action"], expected)
     finally:
         collector.shutdown()
+
+
+def test_ray_s_remote_collectors_act_on_the_cpu_only(tmp_path):
+    pytest.importorskip("ray")
+    with pytest.raises(
+        ConfigError,
+        match="^collector.device=cuda: collector=ray's remote collectors act on the CPUs of "
+        "the Ray nodes: use null or cpu$",
+    ):
+        compose_checked(
+            CONFIG_DIR,
+            [*TINY, f"output_dir={tmp_path}", "collector=ray", "collector.device=cuda"],
+        )
