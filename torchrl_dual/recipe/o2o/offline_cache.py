@@ -74,19 +74,37 @@ ONLINE_KEYS: tuple[str, ...] = (
 """Dotted keys that no algorithm's offline stages read (the online phase, the offline
 evaluation, which runs after the snapshot on the possibly shifted env, and bookkeeping)."""
 
+LATER_KEYS: dict[str, object] = {
+    "compile.cudagraphs": False,  # 2026-12-05
+}
+"""Keys added to the config after offline caches were written, with the value that
+reproduces what ran before them: left out of the key at that value, so the caches of
+before stay valid (any other value is part of the key)."""
+
 
 def offline_key_config(cfg: DictConfig, extra_online_keys: tuple[str, ...] = ()) -> dict:
-    """The resolved config without the online-only keys: what a shared offline phase is
-    computed from."""
+    """The resolved config without the online-only keys (and the :data:`LATER_KEYS` at
+    their former value): what a shared offline phase is computed from."""
     container = OmegaConf.to_container(cfg, resolve=True)
     for dotted in (*ONLINE_KEYS, *extra_online_keys):
-        *parents, leaf = dotted.split(".")
-        node = container
-        for part in parents:
-            node = node.get(part) if isinstance(node, dict) else None
-        if isinstance(node, dict):
+        node, leaf = _parent(container, dotted)
+        if node is not None:
             node.pop(leaf, None)
+    for dotted, before in LATER_KEYS.items():
+        node, leaf = _parent(container, dotted)
+        if node is not None and leaf in node and node[leaf] == before:
+            node.pop(leaf)
     return container
+
+
+def _parent(container: dict, dotted: str) -> tuple[dict | None, str]:
+    """The dict holding ``dotted``'s last part (``None`` if a parent is missing), and
+    that part."""
+    *parents, leaf = dotted.split(".")
+    node = container
+    for part in parents:
+        node = node.get(part) if isinstance(node, dict) else None
+    return (node if isinstance(node, dict) else None), leaf
 
 
 class OfflinePhaseCache:
