@@ -50,6 +50,22 @@ def test_every_benchmark_script_is_listed_in_the_benchmarks_readme():
     assert not missing, f"add a row to benchmarks/README.md for {missing}"
 
 
+def test_the_gpu_check_script_parses_and_refuses_a_machine_without_cuda(tmp_path):
+    """``benchmarks/gpu_check.sh`` runs on a GPU machine only; here: its syntax, and that
+    it stops at once (exit 2) where there is no CUDA device."""
+    import os
+    import subprocess
+
+    import torch
+
+    script = REPO / "benchmarks" / "gpu_check.sh"
+    assert subprocess.run(["bash", "-n", str(script)]).returncode == 0
+    if not torch.cuda.is_available():
+        env = {**os.environ, "OUT": str(tmp_path / "out")}
+        proc = subprocess.run(["bash", str(script)], cwd=REPO, env=env, capture_output=True)
+        assert proc.returncode == 2, proc.stderr[-500:]
+
+
 def test_online_reward_counts_the_batches_with_reward_and_the_positive_evaluations(tmp_path):
     sys.path.insert(0, str(REPO / "benchmarks"))
     import online_reward
