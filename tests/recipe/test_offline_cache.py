@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import tempfile
 import threading
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -217,3 +218,54 @@ def test_an_augmenting_follower_loads_the_offline_phase_of_a_plain_one(shared_ru
     leader = summary(shared_runs["leader"])["history"][0]
     assert summary(out)["history"][0] == leader  # the same offline policy, evaluated
     assert scalars(out, "augment"), "no augmentation round ran online"
+
+
+# ------------------------------------------------------------------ what the key holds
+KEYED = Path(__file__).with_name("offline_cache_keys.txt")
+
+
+def _leaves(container: dict, prefix: str = "") -> Iterator[str]:
+    for name, value in container.items():
+        if isinstance(value, dict) and value:
+            yield from _leaves(value, f"{prefix}{name}.")
+        else:
+            yield f"{prefix}{name}"
+
+
+def test_every_config_key_is_classified_for_the_offline_cache(tmp_path, monkeypatch):
+    """The keys a cache entry is keyed by, over every algorithm, env and critic, are the
+    recorded ones: a key added to (or removed from) the config would otherwise change every
+    key and orphan every cache entry written before it (it happened with
+    ``compile.cudagraphs``)."""
+    from torchrl_dual.recipe.settings.algos import ALGORITHMS
+    from torchrl_dual.recipe.settings.envs import FAMILIES
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
+    envs = sorted(p.stem for p in (Path(RECIPE_CONFIG_DIR) / "env").glob("*.yaml"))
+    for env in envs:  # stand-ins for the Minari data sets: what the config check looks for
+        env_cfg = OmegaConf.create(
+            {"env": OmegaConf.load(Path(RECIPE_CONFIG_DIR) / "env" / f"{env}.yaml")}
+        )
+        if env_cfg.env.kind in FAMILIES:
+            from minari.storage import get_dataset_path
+
+            (get_dataset_path(FAMILIES[env_cfg.env.kind].dataset_id(env_cfg.env)) / "data").mkdir(
+                parents=True, exist_ok=True
+            )
+    runs = [(algo, ()) for algo in ALGORITHMS]
+    runs += [("dual", (f"env={env}",)) for env in envs]
+    runs += [("dual", (f"critic={critic}",)) for critic in ("calql", "so2")]
+    keyed: set[str] = set()
+    for algo, overrides in runs:
+        cfg = compose_checked(
+            RECIPE_CONFIG_DIR, [f"algo={algo}", *overrides, f"output_dir={tmp_path}"]
+        )
+        keyed |= set(_leaves(offline_key_config(cfg, ALGORITHMS[algo].learner.online_keys)))
+    recorded = set(KEYED.read_text().split())
+    assert keyed == recorded, (
+        f"config keys new to the offline-cache key: {sorted(keyed - recorded)}; gone from it: "
+        f"{sorted(recorded - keyed)}. A new key the offline stages do not read belongs in "
+        "offline_cache.ONLINE_KEYS (or the learner's online_keys); one they read but that "
+        "existed before at a fixed value, in offline_cache.LATER_KEYS with that value (so the "
+        f"entries of before stay valid); only a key meant to start new offline phases goes into {KEYED.name}"
+    )

@@ -79,7 +79,9 @@ LATER_KEYS: dict[str, object] = {
 }
 """Keys added to the config after offline caches were written, with the value that
 reproduces what ran before them: left out of the key at that value, so the caches of
-before stay valid (any other value is part of the key)."""
+before stay valid (any other value is part of the key). Every new config key goes here, in
+:data:`ONLINE_KEYS` or, when it is meant to start new offline phases, into the record of
+keyed names that ``tests/recipe/test_offline_cache.py`` checks the config against."""
 
 
 def offline_key_config(cfg: DictConfig, extra_online_keys: tuple[str, ...] = ()) -> dict:
