@@ -104,3 +104,18 @@ def is_deterministic() -> bool:
         False
     """
     return exploration_type() in DETERMINISTIC_MODES
+
+
+def one_hot_at(index: Tensor, like: Tensor, dim: int) -> Tensor:
+    """A one-hot tensor shaped and typed like ``like``: 1 where ``index`` (``like``'s shape
+    with size 1 at ``dim``) points along ``dim``. A scatter, not
+    :func:`torch.nn.functional.one_hot`, which reads the indices back to the host to check
+    their range (a device sync in every acting step or update).
+
+    Examples:
+        >>> scores = torch.tensor([[0.1, 0.7, 0.2], [0.5, 0.1, 0.4]])
+        >>> one_hot_at(scores.argmax(-1, keepdim=True), scores, -1)
+        tensor([[0., 1., 0.],
+                [1., 0., 0.]])
+    """
+    return torch.zeros_like(like).scatter_(dim, index, 1.0)

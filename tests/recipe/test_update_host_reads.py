@@ -23,6 +23,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 import torchrl_dual._utils as utils
 from torchrl_dual.recipe import ALGORITHMS, CONFIG_DIR, O2ORun, compose_checked
 from torchrl_dual.recipe.o2o.loop import online_batch
+from torchrl_dual.recipe.o2o.update_step import optimizers_of
 
 TINY = (
     "budget=smoke", "env=frozenlake", "budget.dataset_transitions=1000",
@@ -70,22 +71,9 @@ def _where() -> str:
 
 
 def optimizer_steps(learner) -> set[int]:
-    """``id`` of every optimizer ``step`` counter reachable from the learner."""
-    found, seen, todo = set(), set(), [learner]
-    while todo:
-        obj = todo.pop()
-        if id(obj) in seen:
-            continue
-        seen.add(id(obj))
-        if isinstance(obj, torch.optim.Optimizer):
-            found |= {id(s["step"]) for s in obj.state.values() if "step" in s}
-        elif isinstance(obj, (list, tuple)):
-            todo.extend(obj)
-        elif isinstance(obj, dict):
-            todo.extend(obj.values())
-        elif hasattr(obj, "__dict__") and not isinstance(obj, (torch.Tensor, torch.nn.Module)):
-            todo.extend(vars(obj).values())
-    return found
+    """``id`` of every optimizer ``step`` counter of the learner (Adam keeps it on the CPU
+    unless capturable: its reads are not the update's)."""
+    return {id(s["step"]) for o in optimizers_of(learner) for s in o.state.values() if "step" in s}
 
 
 @pytest.fixture(scope="module")

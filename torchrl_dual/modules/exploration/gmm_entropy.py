@@ -29,6 +29,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from torchrl_dual._utils import one_hot_at
+
 __all__ = ["COVARIANCE_TYPES", "GaussianMixtureFit", "fit_gaussian_mixture", "mixture_entropy"]
 
 COVARIANCE_TYPES = ("full", "diag")
@@ -190,8 +192,7 @@ def fit_gaussian_mixture(
         for _ in range(kmeans_iterations + 1):
             distance = (x.unsqueeze(-3) - centers.unsqueeze(-2)).square().sum(-1)  # [*B, C, K]
             nearest = distance.argmin(-2, keepdim=True)  # [*B, 1, K]
-            # one-hot by scatter: one_hot would read the indices back to check their range
-            responsibility = torch.zeros_like(distance).scatter_(-2, nearest, 1.0)  # [*B, C, K]
+            responsibility = one_hot_at(nearest, distance, -2)  # [*B, C, K]
             count = responsibility.sum(-1, keepdim=True)
             moved = responsibility @ x / count.clamp_min(1)
             centers = torch.where(count > 0, moved, centers)  # an empty cluster keeps its center

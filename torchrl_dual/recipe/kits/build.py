@@ -25,6 +25,7 @@ from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
 from torchrl.envs import EnvBase
 
+from torchrl_dual._utils import one_hot_at
 from torchrl_dual.data import (
     OfflineDataset,
     load_or_generate_frozenlake_dataset,
@@ -196,9 +197,9 @@ def frozenlake_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
 
 
 def one_hot_argmax(action: torch.Tensor) -> torch.Tensor:
-    """The executed discrete action as a one-hot vector (what the env receives); a scatter,
-    not ``one_hot``, which reads the indices back to the host to check their range."""
-    return torch.zeros_like(action).scatter_(-1, action.argmax(-1, keepdim=True), 1.0)
+    """The executed discrete action as a one-hot vector (what the env receives), without
+    a host read."""
+    return one_hot_at(action.argmax(-1, keepdim=True), action, -1)
 
 
 def env_kit(cfg: DictConfig) -> EnvKit:
