@@ -15,8 +15,8 @@ times:
   noise, Eq. 10, with the frozen transition model) on 1 and 64 states;
 * ``laplace``: the posterior fit (Eq. 8) per 1000 transitions.
 
-Each update and acting step runs ``eager``, ``compile`` (``torch.compile``, default mode;
-graph breaks allowed, their count reported) and ``cudagraphs`` (``compile`` then
+Each update and acting step runs ``eager``, ``compile`` (``torch.compile`` in
+``--compile-mode``, default: its default mode; graph breaks allowed, their count reported) and ``cudagraphs`` (``compile`` then
 tensordict's ``CudaGraphModule``, CUDA only). A mode that fails is reported with its
 error, not hidden. The figures are steps per second (the device synchronised before and
 after each timed block); the projection takes the fastest mode that ran.
@@ -33,6 +33,8 @@ Usage::
     python benchmarks/gpu_throughput.py --device cuda --json gpu.json
     python benchmarks/gpu_throughput.py --device cpu --quick --json cpu.json
     python benchmarks/gpu_throughput.py --device cpu --modes eager --tiny   # a smoke test
+    python benchmarks/gpu_throughput.py --device cpu --only actor_critic \
+        --compile-mode max-autotune-no-cudagraphs   # Inductor's own GEMMs tried too
 """
 
 from __future__ import annotations
@@ -269,12 +271,12 @@ def _graph_breaks() -> int:
     return sum(counters["graph_break"].values())
 
 
-def wrap(fn: Callable, mode: str, device: str) -> Callable:
-    """``fn`` as ``mode`` runs it (``compile``: ``torch.compile``; ``cudagraphs``: then
-    ``CudaGraphModule``)."""
+def wrap(fn: Callable, mode: str, device: str, compile_mode: str | None = None) -> Callable:
+    """``fn`` as ``mode`` runs it (``compile``: ``torch.compile`` in ``compile_mode``;
+    ``cudagraphs``: then ``CudaGraphModule``)."""
     if mode == "eager":
         return fn
-    compiled = torch.compile(fn)
+    compiled = torch.compile(fn, mode=compile_mode)
     if mode == "compile":
         return compiled
     if not device.startswith("cuda"):
@@ -292,6 +294,7 @@ def measure_all(
     warmup: int,
     on_result: Callable[[dict], None] = lambda results: None,
     only: tuple[str, ...] = (*UPDATES, *ACTING, "laplace"),
+    compile_mode: str | None = None,
 ) -> dict:
     """Every figure of ``only``, mode by mode (all of ``eager`` first), calling
     ``on_result`` with the results so far after each one (a run cut short keeps what it
@@ -310,7 +313,7 @@ def measure_all(
             try:
                 if name in builders:
                     update, batch = builders[name](s, device, capturable=mode == "cudagraphs")
-                    fn = wrap(update, mode, device)
+                    fn = wrap(update, mode, device, compile_mode)
                     call = lambda fn=fn, batch=batch: fn(batch)  # noqa: E731
                 else:
                     policy = build_policy(s, device)
@@ -322,7 +325,7 @@ def measure_all(
                             return policy(td)
 
                     act(step.clone())  # a collector's first step: caches built eagerly
-                    fn = wrap(act, mode, device)
+                    fn = wrap(act, mode, device, compile_mode)
                     call = lambda fn=fn, step=step: fn(step.clone())  # noqa: E731
                 per_second = rate(call, device, warmup=warmup, steps=steps)
                 results[name][mode] = {
@@ -409,6 +412,11 @@ def main(argv: list[str] | None = None) -> dict:
         default=None,
         help="these figures only",
     )
+    parser.add_argument(
+        "--compile-mode",
+        default=None,
+        help="torch.compile's mode (recipe: compile.compile_mode), e.g. max-autotune",
+    )
     parser.add_argument("--json", default=None)
     parser.add_argument(
         "--merge", nargs="+", default=None, help="merge these JSONs into --json (no measurement)"
@@ -434,6 +442,7 @@ def main(argv: list[str] | None = None) -> dict:
         "torch": torch.__version__,
         "sizes": asdict(sizes),
         "steps": steps,
+        "compile_mode": args.compile_mode,
         "results": results,
         "best_modes": {n: best(results, n)[0] for n in (*UPDATES, *ACTING)},
         "paper_hours": project_paper(results, args.env_step_ms, args.eval_hours)
@@ -450,7 +459,9 @@ def main(argv: list[str] | None = None) -> dict:
                 json.dump(report_of(results), f, indent=1)
 
     only = tuple(args.only or (*UPDATES, *ACTING, "laplace"))
-    report = report_of(measure_all(sizes, args.device, modes, steps, warmup, write, only))
+    report = report_of(
+        measure_all(sizes, args.device, modes, steps, warmup, write, only, args.compile_mode)
+    )
     write(report["results"])
     print(json.dumps({k: report[k] for k in ("best_modes", "paper_hours")}, indent=1))
     return report

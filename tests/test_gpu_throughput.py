@@ -53,3 +53,20 @@ def test_a_mode_that_cannot_run_is_reported_not_raised():
         None,
         pytest.approx(float("nan"), nan_ok=True),
     )
+
+
+def test_the_compile_mode_reaches_torch_compile_and_the_report(tmp_path, monkeypatch):
+    modes = []
+
+    def recording_compile(fn, mode=None):
+        modes.append(mode)
+        return fn
+
+    monkeypatch.setattr(gpu_throughput.torch, "compile", recording_compile)
+    out = tmp_path / "gpu.json"
+    gpu_throughput.main(
+        ["--device", "cpu", "--tiny", "--modes", "compile", "--only", "planner", "act_b1",
+         "--compile-mode", "max-autotune-no-cudagraphs", "--json", str(out)]
+    )  # fmt: skip
+    assert modes == ["max-autotune-no-cudagraphs"] * 2
+    assert json.loads(out.read_text())["compile_mode"] == "max-autotune-no-cudagraphs"
