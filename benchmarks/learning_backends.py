@@ -28,6 +28,7 @@ import platform
 import signal
 import subprocess
 import sys
+import threading
 import time
 import uuid
 from collections.abc import Callable, Iterator
@@ -167,9 +168,11 @@ def _wait(proc: subprocess.Popen) -> int:
 
 
 def _recipe_preexec() -> Callable[[], None]:
-    """For ``Popen(preexec_fn=)``: SIGINT reaches the recipe (a Ray worker blocks it, and
-    a child inherits the mask) and, on Linux, is sent to it when the thread that started
-    it dies (``prctl(PR_SET_PDEATHSIG)``)."""
+    """For ``Popen(preexec_fn=)``: SIGINT reaches the recipe and, on Linux, is sent to it
+    when the thread that started it dies (``prctl(PR_SET_PDEATHSIG)``). The child gets
+    SIGINT unblocked (a Ray worker blocks it, and a child inherits the mask) and not
+    ignored: a driver started in the background of a non-interactive shell (``learning.py
+    ... &``) ignores SIGINT, and an ignored signal stays ignored through ``exec``."""
     prctl, parent = None, os.getpid()
     if sys.platform == "linux":
         import ctypes
@@ -177,6 +180,7 @@ def _recipe_preexec() -> Callable[[], None]:
         prctl = ctypes.CDLL(None, use_errno=True).prctl
 
     def preexec() -> None:
+        signal.signal(signal.SIGINT, signal.SIG_DFL)  # the recipe's Python then handles it
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
         if prctl is not None:
             prctl(1, signal.SIGINT)  # PR_SET_PDEATHSIG
@@ -226,12 +230,27 @@ def connect_ray(address: str | None) -> Any:
     return ray
 
 
+def run_recipe_cancellably(*args: Any) -> Outcome:
+    """:func:`run_recipe` in a Ray worker, with ``ray.cancel`` able to stop it.
+
+    Ray cancels a running task with ``_thread.interrupt_main``, which does nothing where
+    SIGINT is ignored, and Ray's processes inherit an ignored SIGINT from the process that
+    started the runtime (a driver or ``ray start`` run in the background of a
+    non-interactive shell). The worker's default handler is put back first (tasks run in
+    its main thread).
+    """
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+    return run_recipe(*args)
+
+
 def ray_task(ray: Any, max_retries: int) -> Any:
-    """:func:`run_recipe` as a Ray task of one CPU, run again up to ``max_retries`` times
-    when its worker or node is lost."""
+    """:func:`run_recipe_cancellably` as a Ray task of one CPU, run again up to
+    ``max_retries`` times when its worker or node is lost."""
     # by value: the workers need not find benchmarks/ on their sys.path
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
-    return ray.remote(num_cpus=1, max_retries=max_retries)(run_recipe)
+    return ray.remote(num_cpus=1, max_retries=max_retries)(run_recipe_cancellably)
 
 
 def ray_backend(suite: Suite, runs: list[Run]) -> Iterator[tuple[Run, Outcome]]:

@@ -47,3 +47,23 @@ def test_a_running_recipe_s_output_reaches_stdout_txt_before_it_exits(tmp_path, 
     runner.join(timeout=60)
     assert seen == "stage: planner\n"
     assert outcome["error"].startswith("exit 0, no summary.json")
+
+
+def test_a_recipe_handles_sigint_when_the_driver_ignores_it():
+    """A driver run in the background of a non-interactive shell (``learning.py ... &``)
+    ignores SIGINT; its recipes must not inherit that, or Ctrl-C / ``ray.cancel`` could not
+    make them checkpoint."""
+    import signal
+    import subprocess
+
+    probe = [sys.executable, "-c", "import signal; print(repr(signal.getsignal(signal.SIGINT)))"]
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        plain = subprocess.run(probe, capture_output=True, text=True).stdout
+        recipe = subprocess.run(
+            probe, capture_output=True, text=True, preexec_fn=learning_backends._recipe_preexec()
+        ).stdout
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert "SIG_IGN" in plain  # what a child inherits without the reset
+    assert recipe.strip() == "<built-in function default_int_handler>"
