@@ -66,7 +66,7 @@ def build_queue(cells: list[str], variants: list[str] | None, seeds: list[int] |
             if algo not in ALGORITHMS:
                 notes.append(f"skipped {cell_name}/{variant}: algo={algo} is not in ALGORITHMS")
                 continue
-            for seed in range(cell.seeds):
+            for seed in range(cell.seeds_of(variant)):
                 if seeds is None or seed in seeds:
                     runs.append(Run(cell_name, variant, seed, cell.overrides + VARIANTS[variant]))
     return order_for_sharing(runs), notes
@@ -236,11 +236,22 @@ def report(args: argparse.Namespace, command: str) -> None:
     print(f"report: {args.docs} ({len(figures)} figures under {args.figures})")
 
 
+def seeds_text(cell: Cell) -> str:
+    """The seeds column: the cell's count, and the variants that run more.
+
+    Examples:
+        >>> seeds_text(Cell((), ("a", "b"), 5, "", more_seeds=(("b", 7),)))
+        '5 (`b`: 7)'
+    """
+    more = ", ".join(f"`{variant}`: {n}" for variant, n in cell.more_seeds)
+    return f"{cell.seeds} ({more})" if more else str(cell.seeds)
+
+
 def header_text(budget: str) -> str:
     rows = "\n".join(
         f"| {name} | {cell.about} | `{' '.join(cell.overrides)}` | "
         f"{', '.join(f'`{v}`' for v in cell.variants)} | "
-        f"{f'retired: {cell.retired}' if cell.retired else cell.seeds} |"
+        f"{f'retired: {cell.retired}' if cell.retired else seeds_text(cell)} |"
         for name, cell in CELLS.items()
     )
     variants = "; ".join(f"`{v}` = `{' '.join(o)}`" for v, o in VARIANTS.items())

@@ -129,6 +129,13 @@ class Cell:
     retired: str = ""
     """Why the cell is no longer run (empty: it is): its finished runs stay in the report,
     and the suite queues none of its runs unless ``--cells`` names it."""
+    more_seeds: tuple[tuple[str, int], ...] = ()
+    """``(variant, seeds)`` for variants run at more seeds than :attr:`seeds` (a pair
+    whose difference 5 seeds left undecided)."""
+
+    def seeds_of(self, variant: str) -> int:
+        """How many seeds (0, 1, ...) ``variant`` runs in this cell."""
+        return dict(self.more_seeds).get(variant, self.seeds)
 
 
 CELLS: dict[str, Cell] = {
@@ -162,7 +169,7 @@ CELLS: dict[str, Cell] = {
         "PointMaze U-maze: DUAL's posterior × 100 and the mean loss's (`data`)",
         reference="umaze",
     ),
-    # issue 29's exploration task: the goal in a dead end the data never enter (not run yet)
+    # issue 29's exploration task: the goal in a dead end the data never enter
     "medium_explore": Cell(
         (
             "env=pointmaze_medium", "env.goal_cell=[6,6]",
@@ -172,6 +179,7 @@ CELLS: dict[str, Cell] = {
         ("dual", "dual_no_uq", *TEMPERATURE_VARIANTS, "iql", "dual_lambda0"), 5,
         "PointMaze Medium, goal (6, 6) in the dead end the data never enter, 40000 offline "
         "updates, 32000 online frames",
+        more_seeds=(("dual_tdata", 7), ("dual_no_uq", 7)),  # T = data − no-UQ ≈ at 5 seeds
     ),
     "umaze_online": Cell(
         ("env=pointmaze_umaze",), ONLINE_TUNING_VARIANTS, 5,

@@ -113,3 +113,19 @@ def test_a_retired_cell_is_queued_only_when_named_and_stays_in_the_report(tmp_pa
     assert "/default/medium/dual/seed0" in capsys.readouterr().out
     header = learning.header_text("default")
     assert "| medium | PointMaze Medium |" in header and "| retired: a new goal cell" in header
+
+
+def test_variants_with_more_seeds_queue_them_and_the_header_says_so(monkeypatch):
+    """``Cell.more_seeds``: the named variants run at their own seed count, the others at
+    the cell's, and the header's seeds column names the exceptions."""
+    cell = learning.Cell(
+        ("env=frozenlake",), ("dual", "iql"), 2, "t", more_seeds=(("iql", 3),)
+    )
+    monkeypatch.setitem(learning.CELLS, "t", cell)
+    runs, _ = learning.build_queue(["t"], None, None)
+    assert sorted((r.variant, r.seed) for r in runs) == [
+        ("dual", 0), ("dual", 1), ("iql", 0), ("iql", 1), ("iql", 2)
+    ]  # fmt: skip
+    assert "| t | t | `env=frozenlake` | `dual`, `iql` | 2 (`iql`: 3) |" in learning.header_text(
+        "x"
+    )
