@@ -4,8 +4,10 @@ any reward, the first frame at which one did, and the evaluations with a positiv
 On a task whose reward lies where the offline data never go (``medium_explore``), whether
 the exploration reaches it at all is the first thing to know, before any score: the
 normalized score moves only once the policy has learnt to go there. The figures come from
-each run's own logs (``online/reward_per_step`` of the CSV logger, one value per collected
-batch) and its summary JSON (the evaluations).
+each run's JSON under ``benchmarks/results``: its evaluations, and the reward per step of
+each collected batch (``online_signals``, in runs started since 2026-12-05 06:40 UTC); for older
+runs the batch rewards are read from the run's own CSV log
+(``logs/*/scalars/online/reward_per_step.csv`` under ``--runs``, not committed).
 
     python benchmarks/online_reward.py --cell medium_explore
     python benchmarks/online_reward.py --cell medium_explore --json out.json
@@ -21,8 +23,12 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 
 
-def reward_batches(run_dir: Path) -> list[tuple[int, float]]:
-    """``(frames, reward per step)`` of each collected batch of the run in ``run_dir``."""
+def reward_batches(run_dir: Path, result: dict) -> list[tuple[int, float]]:
+    """``(frames, reward per step)`` of each collected batch of a run: from its result
+    JSON when it records them, else from the CSV log in its ``run_dir``."""
+    recorded = [s for s in result.get("online_signals") or [] if "reward_per_step" in s]
+    if recorded:
+        return [(s["frames"], s["reward_per_step"]) for s in recorded]
     files = sorted(run_dir.glob("logs/*/scalars/online/reward_per_step.csv"))
     if not files:
         raise FileNotFoundError(f"no online/reward_per_step.csv under {run_dir}/logs")
@@ -32,7 +38,7 @@ def reward_batches(run_dir: Path) -> list[tuple[int, float]]:
 
 def run_record(run_dir: Path, summary: dict) -> dict:
     """What one run found: batches with reward, the first such frame, positive evaluations."""
-    batches = reward_batches(run_dir)
+    batches = reward_batches(run_dir, summary)
     found = [frames for frames, reward in batches if reward > 0]
     online = [h for h in summary["history"] if h["label"] == "online"]
     return {

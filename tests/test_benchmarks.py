@@ -84,6 +84,14 @@ def test_online_reward_counts_the_batches_with_reward_and_the_positive_evaluatio
         "batches": 4, "batches_with_reward": 2, "first_reward_frames": 1000,
         "evaluations_with_return": 1, "evaluations": 3, "final_return": 0.0,
     }}}  # fmt: skip
+    # a JSON that records the batch rewards itself is read without the logs
+    summary["online_signals"] = [
+        {"frames": 500, "epistemic_share": 0.5, "reward_per_step": 0.0},
+        {"frames": 1000, "epistemic_share": 0.5, "reward_per_step": 0.004},
+    ]
+    (tmp_path / "results" / "cell" / "dual" / "seed3.json").write_text(json.dumps(summary))
+    records = online_reward.cell_records(tmp_path / "results", tmp_path / "elsewhere", "cell")
+    assert records["dual"][3]["batches"] == 2 and records["dual"][3]["first_reward_frames"] == 1000
 
 
 # ---------------------------------------------------------------- learning suite

@@ -118,9 +118,7 @@ def test_a_retired_cell_is_queued_only_when_named_and_stays_in_the_report(tmp_pa
 def test_variants_with_more_seeds_queue_them_and_the_header_says_so(monkeypatch):
     """``Cell.more_seeds``: the named variants run at their own seed count, the others at
     the cell's, and the header's seeds column names the exceptions."""
-    cell = learning.Cell(
-        ("env=frozenlake",), ("dual", "iql"), 2, "t", more_seeds=(("iql", 3),)
-    )
+    cell = learning.Cell(("env=frozenlake",), ("dual", "iql"), 2, "t", more_seeds=(("iql", 3),))
     monkeypatch.setitem(learning.CELLS, "t", cell)
     runs, _ = learning.build_queue(["t"], None, None)
     assert sorted((r.variant, r.seed) for r in runs) == [

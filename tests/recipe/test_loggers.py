@@ -209,7 +209,8 @@ def test_the_plot_has_the_score_and_the_online_signals_logged_per_batch(csv_run,
     scalars = csv_scalars(out)
     # one record per collected batch, the values DUAL logged as online/<signal>
     assert [s["frames"] for s in result.online_signals] == [50, 100]
-    for name in ("epistemic_std", "epistemic_share", "shift_distance", "exploration_std"):
+    names = ("epistemic_std", "epistemic_share", "shift_distance", "exploration_std")
+    for name in (*names, "reward_per_step"):
         series = [(s["frames"], s[name]) for s in result.online_signals]
         assert_same_series(series, scalars[f"online/{name}"])
     assert all(s["exploration_std"] > 0 for s in result.online_signals)

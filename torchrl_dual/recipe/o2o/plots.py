@@ -26,19 +26,24 @@ ONLINE_SIGNALS: dict[str, str] = {
     "exploration_std": "executed action std",
 }
 """Per-batch metrics of the online phase that the plot draws (key: panel label)."""
+RECORDED_ONLY: tuple[str, ...] = ("reward_per_step",)
+"""Per-batch metrics kept with the signals but not drawn: the collected reward (whether
+exploration found any, ``benchmarks/online_reward.py``)."""
 
 
 def online_signals(frames: int, metrics: dict) -> dict | None:
-    """The :data:`ONLINE_SIGNALS` among one collected batch's ``metrics``, with the online
-    frames at the end of the batch; ``None`` when the learner reports none.
+    """The :data:`ONLINE_SIGNALS` and :data:`RECORDED_ONLY` metrics among one collected
+    batch's ``metrics``, with the online frames at the end of the batch; ``None`` when
+    there are none.
 
     Examples:
-        >>> online_signals(200, {"reward_per_step": 0.1, "shift_distance": 0.5})
-        {'frames': 200, 'shift_distance': 0.5}
-        >>> online_signals(200, {"reward_per_step": 0.1}) is None
+        >>> online_signals(200, {"reward_per_step": 0.1, "shift_distance": 0.5, "loss": 2.0})
+        {'frames': 200, 'shift_distance': 0.5, 'reward_per_step': 0.1}
+        >>> online_signals(200, {"loss": 2.0}) is None
         True
     """
-    signals = {name: float(metrics[name]) for name in ONLINE_SIGNALS if name in metrics}
+    names = (*ONLINE_SIGNALS, *RECORDED_ONLY)
+    signals = {name: float(metrics[name]) for name in names if name in metrics}
     return {"frames": int(frames), **signals} if signals else None
 
 
