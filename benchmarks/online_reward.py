@@ -5,7 +5,7 @@ On a task whose reward lies where the offline data never go (``medium_explore``)
 the exploration reaches it at all is the first thing to know, before any score: the
 normalized score moves only once the policy has learnt to go there. The figures come from
 each run's JSON under ``benchmarks/results``: its evaluations, and the reward per step of
-each collected batch (``online_signals``, in runs started since 2026-12-05 06:40 UTC); for older
+each collected batch (``online_signals``, in runs started since 2026-12-05 06:06 UTC); for older
 runs the batch rewards are read from the run's own CSV log
 (``logs/*/scalars/online/reward_per_step.csv`` under ``--runs``, not committed).
 
@@ -25,9 +25,10 @@ REPO = Path(__file__).resolve().parents[1]
 
 def reward_batches(run_dir: Path, result: dict) -> list[tuple[int, float]]:
     """``(frames, reward per step)`` of each collected batch of a run: from its result
-    JSON when it records them, else from the CSV log in its ``run_dir``."""
-    recorded = [s for s in result.get("online_signals") or [] if "reward_per_step" in s]
-    if recorded:
+    JSON when it records them for every batch, else from the CSV log in its ``run_dir``
+    (a run resumed across the change records only its later batches)."""
+    recorded = result.get("online_signals") or []
+    if recorded and all("reward_per_step" in s for s in recorded):
         return [(s["frames"], s["reward_per_step"]) for s in recorded]
     files = sorted(run_dir.glob("logs/*/scalars/online/reward_per_step.csv"))
     if not files:

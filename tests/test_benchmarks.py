@@ -92,6 +92,10 @@ def test_online_reward_counts_the_batches_with_reward_and_the_positive_evaluatio
     (tmp_path / "results" / "cell" / "dual" / "seed3.json").write_text(json.dumps(summary))
     records = online_reward.cell_records(tmp_path / "results", tmp_path / "elsewhere", "cell")
     assert records["dual"][3]["batches"] == 2 and records["dual"][3]["first_reward_frames"] == 1000
+    del summary["online_signals"][0]["reward_per_step"]  # resumed across the change: the logs
+    (tmp_path / "results" / "cell" / "dual" / "seed3.json").write_text(json.dumps(summary))
+    records = online_reward.cell_records(tmp_path / "results", tmp_path / "runs", "cell")
+    assert records["dual"][3]["batches"] == 4
 
 
 # ---------------------------------------------------------------- learning suite
