@@ -47,7 +47,15 @@ ALLOWED: dict[str, tuple[str, ...]] = {
     # the entry: the schema, and the loop inside run() once the config is valid (torch-free
     # up to there: tests/recipe/test_settings_light.py)
     "recipe.cli": ("recipe.settings", "recipe.o2o.loop"),
-    "recipe.kits": ("recipe.kits", "recipe.settings", "data", "envs", "evaluation", "transforms"),
+    "recipe.kits": (
+        "recipe.kits",
+        "recipe.settings",
+        "data",
+        "envs",
+        "evaluation",
+        "transforms",
+        "_utils",
+    ),
     "recipe.o2o": (
         "recipe.o2o",
         "recipe.kits",
