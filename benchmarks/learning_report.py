@@ -176,6 +176,34 @@ def epistemic_share(result: dict) -> float | None:
     return statistics.fmean(values) if values else None
 
 
+def epistemic_share_bound(result: dict) -> float | None:
+    """For a run that logged ``epistemic_std`` and ``exploration_std`` per batch but not the
+    share (2026-12-02 to 2026-12-04): the mean over batches of ``epistemic_std² /
+    exploration_std²``, an upper bound of :func:`epistemic_share`'s value (the share divides
+    by the batch's mean executed variance, ``exploration_std`` is its mean executed std,
+    and a mean's square is at most the mean of the squares); ``None`` without both."""
+    values = [
+        s["epistemic_std"] ** 2 / s["exploration_std"] ** 2
+        for s in result.get("online_signals") or []
+        if s.get("epistemic_std") is not None and s.get("exploration_std")
+    ]
+    return statistics.fmean(values) if values else None
+
+
+def share_text(results: Sequence[dict]) -> str:
+    """The table's epistemic share of ``results`` (one variant's runs): mean ± t half-width
+    in percent; "≤ x %" (the mean of the runs' shares, or of their bounds where a run
+    logged only the stds) when some run has only a bound; "—" when some run has neither."""
+    shares = [epistemic_share(r) for r in results]
+    if None not in shares:
+        return f"{fmt(t_interval([100 * x for x in shares]))} %"
+    values = [
+        x if x is not None else epistemic_share_bound(r)
+        for x, r in zip(shares, results, strict=True)
+    ]
+    return "—" if None in values else f"≤ {100 * statistics.fmean(values):.1f} %"
+
+
 def cell_table(variants: dict[str, list[dict]], order: Sequence[str]) -> str:
     """Markdown table of one cell: mean ± 95 % t half-width per variant, and which
     variants separate from ``dual`` (final score / AUC). Under an online shift it adds
@@ -207,8 +235,7 @@ def cell_table(variants: dict[str, list[dict]], order: Sequence[str]) -> str:
         if shifted:
             values = [_offline_unshifted(r) for r in rs]
             unshifted = " — |" if any(map(math.isnan, values)) else f" {fmt(t_interval(values))} |"
-        shares = [epistemic_share(r) for r in rs]
-        share = "—" if None in shares else f"{fmt(t_interval([100 * x for x in shares]))} %"
+        share = share_text(rs)
         lines.append(
             f"| `{v}` | {len(rs)} | {fmt(s['offline_score'])} |{unshifted} {fmt(s['final_score'])} "
             f"| {fmt(s['auc'])} | {wall:.1f} | {cpu} | {share} | {marker} |"
@@ -300,8 +327,9 @@ def render_section(
         "normalized score over online frames, from the offline point to the end; *wall min*: "
         "mean minutes of offline + online phase (a shared offline phase counts in full); "
         "*epistemic share*: the epistemic variance of Eq. 9 as a share of the executed "
-        "variance, averaged over the online batches of each run (— without an ensemble, or "
-        "for runs from before 2026-12-04, which did not log it). "
+        "variance, averaged over the online batches of each run (≤: an upper bound for runs of "
+        "2026-12-02 to 2026-12-04, which logged the epistemic and executed stds but not the "
+        "share; — without an ensemble, or for runs that logged neither). "
         "*vs dual*: ▲ / ▼ when the variant's interval lies entirely above / below DUAL's, "
         "≈ when they overlap, ? with fewer than 2 seeds. Non-overlap of two 95 % intervals "
         "is a conservative test: for two intervals of equal width it needs a difference of "

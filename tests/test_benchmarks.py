@@ -568,3 +568,9 @@ def test_the_cell_table_reports_each_variant_s_epistemic_share():
     half = 4.3027 * statistics.stdev([20.0, 40.0, 20.0]) / math.sqrt(3)
     assert f"| 26.7 ± {half:.1f} % |" in table.splitlines()[2]
     assert "| — |" in table.splitlines()[3]
+    # runs that logged only the stds: an upper bound (std² over the mean executed std²)
+    stds = {"frames": 100, "epistemic_std": 0.1, "exploration_std": 0.5}
+    older = run(2, None) | {"online_signals": [stds, stds | {"epistemic_std": 0.2}]}
+    assert lr.epistemic_share_bound(older) == pytest.approx((0.04 + 0.16) / 2)
+    assert lr.share_text([run(0, [0.3]), older]) == "≤ 20.0 %"  # (30 % + 10 %) / 2
+    assert lr.share_text([run(0, [0.1]), run(1, None)]) == "—"
