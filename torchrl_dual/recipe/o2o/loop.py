@@ -77,7 +77,7 @@ def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORu
                 push(collector, run.learner.exploration_policy)  # to the workers
                 run.log({**stats, **losses}, run.frames, "online/")
                 if (signals := online_signals(run.frames, stats)) is not None:
-                    run.online_signals.append(signals)  # the plot's epistemic std and d_t
+                    run.online_signals.append(signals)  # the plot's signals, the batch's reward
                 if run.frames >= next_eval:
                     run.evaluate("online")
                     next_eval += budget.eval_every
