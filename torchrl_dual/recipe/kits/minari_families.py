@@ -36,6 +36,7 @@ from torch import nn
 from torchrl.envs import EnvBase
 
 from torchrl_dual.data import OfflineDataset, load_minari_dataset
+from torchrl_dual.data.goal_relabel import relabel_to_goal
 from torchrl_dual.envs import (
     FlatObservation,
     apply_shift,
@@ -43,9 +44,11 @@ from torchrl_dual.envs import (
     register_robotics_envs,
     release_maze_xml,
 )
+from torchrl_dual.envs.d4rl_antmaze import D4RL_SUCCESS_RADIUS, SingleGoalAntMaze
 from torchrl_dual.evaluation import evaluate_episodes
 from torchrl_dual.recipe.kits.build import Evaluator
-from torchrl_dual.recipe.settings.envs import FAMILIES
+from torchrl_dual.recipe.kits.d4rl_protocol import data_protocol, protocol_metadata
+from torchrl_dual.recipe.settings.envs import FAMILIES, reward_transform
 from torchrl_dual.recipe.settings.errors import UserError
 
 OBSERVATION_STD_EPS = 1e-3
@@ -99,8 +102,12 @@ def observation_normalizer(data: OfflineDataset, enabled: bool) -> tuple[np.ndar
 
 
 def _time_limit(cfg: DictConfig, dataset_id: str) -> int | None:
+    """``env.max_episode_steps``, else the protocol's, else the data set's env spec."""
     if cfg.env.max_episode_steps is not None:
         return int(cfg.env.max_episode_steps)
+    protocol = data_protocol(cfg)
+    if protocol.max_episode_steps is not None:
+        return protocol.max_episode_steps
     import minari
 
     spec = minari.load_dataset(dataset_id).env_spec
@@ -110,9 +117,17 @@ def _time_limit(cfg: DictConfig, dataset_id: str) -> int | None:
 def minari_data(cfg: DictConfig) -> OfflineDataset:
     env = cfg.env
     dataset_id = FAMILIES[env.kind].dataset_id(env)
-    data = load_minari_dataset(dataset_id)
+    protocol = data_protocol(cfg)
+    data = load_minari_dataset(dataset_id, observation_keys=protocol.observation_keys)
+    if protocol.antmaze_task is not None:  # D4RL's single goal: its rewards and terminals
+        data.transitions = relabel_to_goal(
+            data.transitions, protocol.antmaze_task.goal, radius=D4RL_SUCCESS_RADIUS
+        )
+    if protocol.references is not None:
+        data.reference_min, data.reference_max = protocol.references
     td = data.transitions
-    if env.reward_scale == "returns":
+    reward_scale_setting, reward_shift = reward_transform(cfg)
+    if reward_scale_setting == "returns":
         returns = _episode_returns(data)
         spread = float(returns.max() - returns.min())
         horizon = _time_limit(cfg, dataset_id) or 1000
@@ -124,8 +139,8 @@ def minari_data(cfg: DictConfig) -> OfflineDataset:
             )
         reward_scale = horizon / spread
     else:
-        reward_scale = float(env.reward_scale)
-    td["next", "reward"] = td["next", "reward"] * reward_scale + float(env.reward_shift)
+        reward_scale = float(reward_scale_setting)
+    td["next", "reward"] = td["next", "reward"] * reward_scale + reward_shift
     loc, scale = observation_normalizer(data, env.normalize_observations)
     loc_t, scale_t = torch.as_tensor(loc), torch.as_tensor(scale)
     td["observation"] = (td["observation"] - loc_t) / scale_t
@@ -133,8 +148,9 @@ def minari_data(cfg: DictConfig) -> OfflineDataset:
     if env.reference_returns is not None:
         data.reference_min, data.reference_max = (float(v) for v in env.reference_returns)
     data.metadata.update(
+        **protocol_metadata(protocol),
         reward_scale=reward_scale,
-        reward_shift=float(env.reward_shift),
+        reward_shift=reward_shift,
         observation_loc=loc.tolist(),
         observation_scale=scale.tolist(),
     )
@@ -150,9 +166,14 @@ def minari_gym_env(cfg: DictConfig, data: OfflineDataset, *, eval_env: bool, shi
     dataset_id = FAMILIES[env.kind].dataset_id(env)
     dataset = minari.load_dataset(dataset_id)
     register_robotics_envs()  # AntMaze / Adroit ids, without the import's notice
-    kwargs = {} if env.max_episode_steps is None else {"max_episode_steps": env.max_episode_steps}
+    protocol = data_protocol(cfg)
+    horizon = _time_limit(cfg, dataset_id)
+    kwargs = {} if horizon is None else {"max_episode_steps": horizon}
+    eval_env = eval_env and protocol.evaluate_in_eval_env
     raw = release_maze_xml(dataset.recover_environment(eval_env=eval_env, **kwargs))
     check_observation_layout(dataset.observation_space, raw.observation_space, dataset_id)
+    if protocol.antmaze_task is not None:
+        raw = SingleGoalAntMaze(raw, protocol.antmaze_task)
     if shifted:
         raw = apply_shift(raw, env.shift, scale=env.shift_scale, kind=env.kind)
     meta = data.metadata
