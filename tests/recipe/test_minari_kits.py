@@ -110,9 +110,7 @@ def test_antmaze_data_is_flattened_normalized_and_shifted(minari_path, tmp_path)
 def test_locomotion_keeps_terminations_and_scales_rewards_by_the_return_range(
     minari_path, tmp_path
 ):
-    cfg = compose(
-        tmp_path, "env=hopper", "env.normalize_observations=false", "env.protocol=minari"
-    )
+    cfg = compose(tmp_path, "env=hopper", "env.normalize_observations=false", "env.protocol=minari")
     data = env_kits.make_offline_dataset(cfg)
     episodes = raw_episodes(HOPPER_ID)
     returns = np.array([ep.rewards.sum() for ep in episodes])
@@ -198,9 +196,7 @@ def test_antmaze_runs_dual_end_to_end(minari_path, tmp_path):
     assert (tmp_path / "run" / "summary.json").is_file()
 
 
-def test_antmaze_runs_under_minari_s_protocol_with_the_data_set_s_references(
-    minari_path, tmp_path
-):
+def test_antmaze_runs_under_minari_s_protocol_with_the_data_set_s_references(minari_path, tmp_path):
     overrides = ("env=antmaze", "env.protocol=minari", "algo=iql", "num_threads=1", *FAST)
     result = run(compose(tmp_path, *overrides))
     for h in result.history:

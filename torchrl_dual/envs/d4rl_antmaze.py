@@ -246,7 +246,10 @@ class SingleGoalAntMaze(gym.Wrapper):
         maze_env = self.env.unwrapped
         noise = maze_env.position_noise_range
         maze_env.position_noise_range = 0.0  # the cells' centres; the Ant adds its joint noise
-        cells = {"reset_cell": np.array(self.task.reset_cell), "goal_cell": np.array(self.task.goal_cell)}
+        cells = {
+            "reset_cell": np.array(self.task.reset_cell),
+            "goal_cell": np.array(self.task.goal_cell),
+        }
         try:
             obs, info = self.env.reset(seed=seed, options=cells)
         finally:

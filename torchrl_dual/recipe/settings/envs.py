@@ -117,6 +117,7 @@ class FrozenLakeSettings(EnvSettings):
 PROTOCOLS = ("d4rl", "minari")
 """Values of ``env.protocol`` (``torchrl_dual.recipe.kits.d4rl_protocol``)."""
 
+
 @dataclass(frozen=True)
 class MinariFamily:
     """Published Minari data sets of one env kind.

@@ -1,0 +1,179 @@
+"""``env.protocol=d4rl`` (the default of the Minari families) on data sets written here under
+the published ids: D4RL's single-goal AntMaze task (data relabelled, online and evaluation
+envs in the data's maze, score = 100 x success rate), D4RL's horizons and reference returns,
+and the reward transforms of each critic's reference."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+pytest.importorskip("h5py", reason="Minari's storage needs h5py: pip install 'minari[hdf5]'")
+minari = pytest.importorskip("minari")
+
+from tensordict.nn import TensorDictModule  # noqa: E402
+
+from torchrl_dual.data.minari_standins import UMAZE_MAP, write_standin_dataset  # noqa: E402
+from torchrl_dual.data.transition_layout import validate_transitions  # noqa: E402
+from torchrl_dual.envs.d4rl_antmaze import SingleGoalAntMaze  # noqa: E402
+from torchrl_dual.recipe import CONFIG_DIR, compose_checked, run  # noqa: E402
+from torchrl_dual.recipe.kits import build as env_kits  # noqa: E402
+from torchrl_dual.recipe.kits.minari_families import minari_evaluator, minari_gym_env  # noqa: E402
+from torchrl_dual.recipe.settings.envs import FAMILIES, REWARD_TRANSFORMS  # noqa: E402
+
+ANTMAZE_ID, HOPPER_ID, PEN_ID = (
+    "D4RL/antmaze/umaze-v1",
+    "mujoco/hopper/medium-v0",
+    "D4RL/pen/cloned-v2",
+)
+GOAL = np.array([-3.25, 4.75])
+
+
+@pytest.fixture(scope="module")
+def minari_path(tmp_path_factory):
+    path = tmp_path_factory.mktemp("minari_datasets")
+    patch = pytest.MonkeyPatch()
+    patch.setenv("MINARI_DATASETS_PATH", str(path))
+    write_standin_dataset(ANTMAZE_ID, 3, 30)
+    write_standin_dataset(HOPPER_ID, 3, 30)
+    write_standin_dataset(PEN_ID, 2, 30)
+    yield path
+    patch.undo()
+
+
+def compose(tmp_path, *overrides: str):
+    return compose_checked(
+        CONFIG_DIR,
+        [f"output_dir={tmp_path / 'run'}", "budget=smoke", "progress=false", *overrides],
+    )
+
+
+def test_antmaze_data_are_d4rl_s_task_relabelled(minari_path, tmp_path):
+    """29 numbers without the goal; reward 1 within 0.5 of D4RL's goal (then IQL's r - 1),
+    terminal there; states normalized after the relabelling."""
+    cfg = compose(tmp_path, "env=antmaze", "env.normalize_observations=false")
+    data = env_kits.make_offline_dataset(cfg)
+    assert data.metadata["observation_keys"] == ["achieved_goal", "observation"]
+    assert data.metadata["protocol"] == "d4rl" and data.metadata["task_goal"] == GOAL.tolist()
+    assert (data.reference_min, data.reference_max) == (0.0, 1.0)
+    episodes = list(minari.load_dataset(ANTMAZE_ID).iterate_episodes())
+    next_xy = np.concatenate([ep.observations["achieved_goal"][1:] for ep in episodes])
+    reached = np.linalg.norm(next_xy - GOAL, axis=1) <= 0.5
+    td = data.transitions
+    assert td["observation"].shape[-1] == 29
+    assert np.allclose(td["next", "observation"][:, :2].numpy(), next_xy, atol=1e-6)
+    assert td["next", "reward"].squeeze(-1).tolist() == (reached.astype(np.float32) - 1).tolist()
+    assert td["next", "terminated"].squeeze(-1).tolist() == reached.tolist()
+    validate_transitions(td)
+
+
+def test_relabelled_data_reaching_the_goal_end_their_episode_there(minari_path, tmp_path):
+    """The stand-in's random ant never reaches the goal; moving D4RL's goal onto a visited
+    place shows the kit's relabelling splits the data's episodes at every success."""
+    from torchrl_dual.recipe.kits import d4rl_protocol
+
+    cfg = compose(tmp_path, "env=antmaze", "env.normalize_observations=false")
+    task = d4rl_protocol.data_protocol(cfg).antmaze_task
+    episodes = list(minari.load_dataset(ANTMAZE_ID).iterate_episodes())
+    visited = episodes[1].observations["achieved_goal"][12]
+    moved = type(task)(**{**task.__dict__, "goal": visited})
+    patch = pytest.MonkeyPatch()
+    patch.setattr(d4rl_protocol, "_antmaze_task", lambda *args: moved)
+    try:
+        data = env_kits.make_offline_dataset(cfg)
+    finally:
+        patch.undo()
+    td = data.transitions
+    next_xy = np.concatenate([ep.observations["achieved_goal"][1:] for ep in episodes])
+    reached = np.linalg.norm(next_xy - visited, axis=1) <= 0.5
+    assert reached.sum() >= 2
+    assert td["next", "terminated"].squeeze(-1).tolist() == reached.tolist()
+    done = td["next", "done"].squeeze(-1)
+    assert td["episode"].unique().numel() == int(done.sum()) > len(episodes)
+    validate_transitions(td)  # a new episode after every done transition
+
+
+def test_online_and_evaluation_envs_play_the_task_in_the_data_s_maze(minari_path, tmp_path):
+    cfg = compose(tmp_path, "env=antmaze")
+    data = env_kits.make_offline_dataset(cfg)
+    for eval_env in (False, True):
+        env = minari_gym_env(cfg, data, eval_env=eval_env, shifted=True)
+        assert isinstance(env.env, SingleGoalAntMaze)
+        assert env.unwrapped.maze.maze_map == UMAZE_MAP  # not Minari's turned eval map
+        assert env.spec.max_episode_steps == 700  # D4RL's antmaze-umaze
+        assert env.observation_space.shape == (29,)
+    online = env_kits.make_train_env(cfg, data)
+    rollout = online.rollout(5)
+    assert rollout["observation"].shape == (5, 29)
+    assert torch.all(rollout["next", "reward"] == -1.0)  # r = 0 far from the goal, IQL's r - 1
+
+
+def test_a_random_policy_scores_0_in_the_kit_s_evaluator(minari_path, tmp_path):
+    cfg = compose(tmp_path, "env=antmaze", "budget.eval_episodes=3")
+    data = env_kits.make_offline_dataset(cfg)
+    generator = torch.Generator().manual_seed(0)
+    policy = TensorDictModule(
+        lambda obs: torch.rand(obs.shape[0], 8, generator=generator) * 2 - 1,
+        in_keys=["observation"],
+        out_keys=["action"],
+    )
+    result = minari_evaluator(cfg, data)(policy)
+    assert result["return"] == 0.0 and result["normalized_score"] == 0.0
+
+
+@pytest.mark.parametrize("critic, scale, shift", [("iql", 1.0, -1.0), ("calql", 10.0, -5.0)])
+def test_each_critic_trains_on_its_reference_s_antmaze_reward(
+    minari_path, tmp_path, critic, scale, shift
+):
+    algo = {"iql": "iql", "calql": "calql"}[critic]
+    data = env_kits.make_offline_dataset(compose(tmp_path, "env=antmaze", f"algo={algo}"))
+    assert (data.metadata["reward_scale"], data.metadata["reward_shift"]) == (scale, shift)
+    assert torch.all(data.transitions["next", "reward"] == shift)  # never reached: r = 0
+    explicit = compose(
+        tmp_path, "env=antmaze", f"algo={algo}", "env.reward_scale=2", "env.reward_shift=0"
+    )
+    data = env_kits.make_offline_dataset(explicit)
+    assert (data.metadata["reward_scale"], data.metadata["reward_shift"]) == (2.0, 0.0)
+
+
+def test_every_family_has_a_reward_transform_for_every_critic():
+    from torchrl_dual.recipe.settings.algos import ALGORITHMS
+
+    critics = {c for algorithm in ALGORITHMS.values() for c in algorithm.settings.critics}
+    assert set(REWARD_TRANSFORMS) == set(FAMILIES)
+    for kind, table in REWARD_TRANSFORMS.items():
+        assert critics <= set(table), kind
+
+
+def test_pen_runs_at_d4rl_s_100_step_horizon(minari_path, tmp_path):
+    cfg = compose(tmp_path, "env=adroit")
+    data = env_kits.make_offline_dataset(cfg)
+    assert minari_gym_env(cfg, data, eval_env=True, shifted=False).spec.max_episode_steps == 100
+    minari_cfg = compose(tmp_path, "env=adroit", "env.protocol=minari")
+    assert (
+        minari_gym_env(minari_cfg, data, eval_env=True, shifted=False).spec.max_episode_steps == 200
+    )
+    assert (data.reference_min, data.reference_max) == (96.262799, 3076.8331017826877)
+
+
+def test_locomotion_scores_with_d4rl_s_references(minari_path, tmp_path):
+    fast = (
+        "budget.offline_updates=5",
+        "online.utd_ratio=0.2",
+        "budget.online_frames=30",
+        "budget.frames_per_batch=30",
+        "budget.eval_every=30",
+        "budget.checkpoint_every=30",
+        "budget.eval_episodes=1",
+        "budget.laplace_refit_every=5",
+        "env.max_episode_steps=20",
+    )
+    result = run(compose(tmp_path, "env=hopper", "algo=iql", "num_threads=1", *fast))
+    for h in result.history:
+        assert math.isfinite(h["normalized_score"])
+        assert h["normalized_score"] == pytest.approx(
+            100 * (h["return"] + 20.272305) / (3234.3 + 20.272305)
+        )
