@@ -84,11 +84,15 @@ def test_the_goal_noise_is_d4rl_s_square_around_the_fixed_goal():
 
 def test_reset_puts_the_ant_at_the_start_and_the_goal_at_the_task_s():
     env = make_env(UMAZE_MAP)
+    starts = []
     for seed in range(5):
         obs, info = env.reset(seed=seed)
-        assert np.abs(obs["achieved_goal"] - [-4.0, -4.0]).max() <= 0.1 + 1e-9  # Ant's joint noise
+        starts.append(obs["achieved_goal"])
+        assert np.abs(obs["achieved_goal"] - [-4.0, -4.0]).max() <= 0.1  # D4RL's joint noise
         assert obs["desired_goal"].tolist() == [-3.25, 4.75] and info["success"] is False
         assert env.unwrapped.goal.tolist() == [-3.25, 4.75]
+    assert len({tuple(xy) for xy in starts}) == 5  # noise, as D4RL's reset_model
+    assert np.array_equal(env.reset(seed=3)[0]["achieved_goal"], starts[3])  # seeded
     noisy = make_env(UMAZE_MAP, goal_noise=True)
     goals = {tuple(noisy.reset(seed=s)[0]["desired_goal"]) for s in range(5)}
     assert len(goals) == 5

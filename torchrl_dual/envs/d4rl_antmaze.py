@@ -18,8 +18,9 @@ that never end). :class:`D4RLAntMazeTask` maps D4RL's task onto the Minari maze:
   ``U(0, 0.5) * 0.25 s``, cell size ``s = 4``): D4RL's ``-v2`` envs redraw the goal in that
   ``1.5 x 1.5`` square at each reset, :class:`SingleGoalAntMaze` keeps its centre (or draws
   it as D4RL does with ``goal_noise=True``);
-* the start is the ``R`` cell's centre plus the Ant's own ``U(-0.1, 0.1)`` joint noise, as
-  D4RL's ``reset_model``.
+* the start is the ``R`` cell's centre plus D4RL's joint noise (``reset_model``:
+  ``U(-0.1, 0.1)`` on every ``qpos``, ``0.1 N(0, 1)`` on every ``qvel``; Gymnasium-Robotics'
+  Ant resets without noise).
 
 Facts and their sources are collected in ``docs/reproducing.md``.
 """
@@ -35,6 +36,8 @@ import numpy as np
 
 D4RL_SUCCESS_RADIUS = 0.5
 """D4RL AntMaze's sparse reward: 1 within 0.5 of the goal (Gymnasium-Robotics: 0.45)."""
+D4RL_RESET_NOISE = 0.1
+"""D4RL's Ant ``reset_model``: ``qpos + U(-0.1, 0.1)``, ``qvel + 0.1 N(0, 1)``."""
 D4RL_GOAL_NOISE = (0.25, 0.125)
 """D4RL's two one-sided uniform goal offsets, in cell sizes: ``U(0, 0.25 s) + U(0, 0.125 s)``."""
 
@@ -198,8 +201,8 @@ class D4RLAntMazeTask:
 class SingleGoalAntMaze(gym.Wrapper):
     """A Gymnasium-Robotics AntMaze env playing D4RL's single-goal task.
 
-    Each reset puts the ant at the task's reset cell (centre, plus the Ant's own joint
-    noise) and the goal at :attr:`D4RLAntMazeTask.goal`; each step's reward is 1 within
+    Each reset puts the ant at the task's reset cell (centre, plus D4RL's joint noise)
+    and the goal at :attr:`D4RLAntMazeTask.goal`; each step's reward is 1 within
     0.5 of it and 0 elsewhere, and the episode terminates at the first success
     (``info["success"]``). The observation dict is passed on; its ``desired_goal`` is the
     task goal (the recipe leaves it out of the policy's input).
@@ -211,6 +214,9 @@ class SingleGoalAntMaze(gym.Wrapper):
     Keyword Args:
         goal_noise (bool): draw the goal at each reset as D4RL's ``-v2`` envs do instead of
             its centre. Defaults to ``False``.
+        reset_noise (float): D4RL's joint noise at reset, ``U(-n, n)`` on every ``qpos``
+            and ``n N(0, 1)`` on every ``qvel`` (Gymnasium-Robotics' Ant has none).
+            Defaults to 0.1 (D4RL's).
 
     Examples:
         >>> import gymnasium as gym
@@ -228,7 +234,14 @@ class SingleGoalAntMaze(gym.Wrapper):
         (0.0, False, False)
     """
 
-    def __init__(self, env: gym.Env, task: D4RLAntMazeTask, *, goal_noise: bool = False) -> None:
+    def __init__(
+        self,
+        env: gym.Env,
+        task: D4RLAntMazeTask,
+        *,
+        goal_noise: bool = False,
+        reset_noise: float = D4RL_RESET_NOISE,
+    ) -> None:
         super().__init__(env)
         maze_env = env.unwrapped
         for name in ("maze", "update_target_site_pos", "position_noise_range"):
@@ -240,6 +253,7 @@ class SingleGoalAntMaze(gym.Wrapper):
         maze_env.reset_target = False  # the goal never moves inside an episode
         self.task = task
         self.goal_noise = goal_noise
+        self.reset_noise = reset_noise
         self._goal = task.goal.copy()
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -259,7 +273,12 @@ class SingleGoalAntMaze(gym.Wrapper):
         )
         maze_env.goal = self._goal.copy()
         maze_env.update_target_site_pos()
-        obs = {**obs, "desired_goal": self._goal.copy()}
+        ant = maze_env.ant_env  # Gymnasium-Robotics' Ant resets without noise: D4RL's here
+        rng = maze_env.np_random
+        qpos = ant.data.qpos + rng.uniform(-self.reset_noise, self.reset_noise, ant.model.nq)
+        qvel = ant.data.qvel + self.reset_noise * rng.standard_normal(ant.model.nv)
+        ant.set_state(qpos, qvel)
+        obs = {**maze_env._get_obs(ant._get_obs()), "desired_goal": self._goal.copy()}
         return obs, {**info, "success": self._success(obs)}
 
     def _success(self, obs: dict[str, np.ndarray]) -> bool:
