@@ -131,3 +131,20 @@ def test_antmaze_keeps_the_torso_position_and_pointmaze_does_not_duplicate_it():
     assert default_observation_keys(keys, "AntMaze_UMaze-v5") == keys[:1] + keys[2:] + keys[1:2]
     assert default_observation_keys(keys, "PointMaze_Large-v3") == ["observation", "desired_goal"]
     assert default_observation_keys(["b", "a"]) == ["a", "b"]
+
+
+def test_minari_download_s_default_remote_has_its_client():
+    """``pip install ".[minari]"`` installs ``minari[hf]``: Minari's default remote
+    (``hf://farama-minari``) needs ``huggingface_hub``, without which ``minari download``
+    ends in an ImportError before any network step. Building the client needs no network."""
+    from importlib.metadata import requires
+
+    from minari.storage.remotes import DEFAULT_REMOTE, get_cloud_storage
+
+    assert DEFAULT_REMOTE.startswith("hf://")
+    assert type(get_cloud_storage()).__name__ == "HuggingFaceStorage"
+    for extra in ("minari", "test"):
+        (requirement,) = [
+            r for r in requires("torchrl-dual") if r.startswith("minari[") and f'"{extra}"' in r
+        ]
+        assert "hf" in requirement.split("[")[1].split("]")[0].split(","), requirement

@@ -7,7 +7,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 import pytest
-from gymnasium_robotics.envs.maze.maps import LARGE_MAZE, MEDIUM_MAZE
+from gymnasium_robotics.envs.maze.maps import LARGE_MAZE, MEDIUM_MAZE, U_MAZE
 
 from torchrl_dual.data import MazeWaypointController
 from torchrl_dual.data.minari_standins import UMAZE_EVAL_MAP, UMAZE_MAP
@@ -47,6 +47,12 @@ def test_the_umaze_task_is_d4rl_s_in_minari_s_upside_down_map():
     assert task.reset_cell == (3, 1) and task.goal_cell == (1, 1)
     assert task.goal.tolist() == [-3.25, 4.75]
     assert task.max_episode_steps == 700
+    # umaze-diverse's map (Gymnasium-Robotics' U_MAZE: no markers, the same walls both ways)
+    # poses the same task, and D4RL's rows as they are (with their markers) the mirror image
+    diverse = D4RLAntMazeTask.for_maze("umaze", U_MAZE, maze_size_scaling=4.0)
+    assert diverse.reset_cell == (3, 1) and diverse.goal.tolist() == task.goal.tolist()
+    mirrored = D4RLAntMazeTask.for_maze("umaze", D4RL_ANTMAZE_MAPS["umaze"], maze_size_scaling=4.0)
+    assert mirrored.reset_cell == (1, 1) and mirrored.goal.tolist() == [-3.25, -4.75]
 
 
 @pytest.mark.parametrize(

@@ -12,7 +12,10 @@ that never end). :class:`D4RLAntMazeTask` maps D4RL's task onto the Minari maze:
 * the maze of the data's env must have D4RL's walls, either as the same rows or with the rows
   in reverse order (Gymnasium-Robotics puts row 0 at the top, ``+y`` downwards; D4RL puts
   row ``i`` at ``y = 4 i``): the ``R``/``G`` cells and the direction of D4RL's goal noise are
-  carried over accordingly;
+  carried over accordingly. Minari's ``umaze`` data map is D4RL's upside down (the same
+  world layout); its ``medium``/``large`` maps (and ``umaze-diverse``'s, whose walls read the
+  same both ways and which has no ``G`` cell) keep D4RL's rows, a mirror image of D4RL's
+  world, which the mirror-symmetric Ant cannot tell apart;
 * the goal is D4RL's ``G`` cell centre plus the mean of its goal noise, ``+0.75`` along
   D4RL's ``+x`` and ``+y`` (``_rowcol_to_xy`` adds ``U(0, 0.25 s)``, ``goal_sampler`` another
   ``U(0, 0.5) * 0.25 s``, cell size ``s = 4``): D4RL's ``-v2`` envs redraw the goal in that
@@ -154,11 +157,12 @@ class D4RLAntMazeTask:
                 f"the data set's maze is not D4RL's antmaze-{maze} (nor it upside down); "
                 "its task cannot be placed there: use env.protocol=minari"
             )
-        if same and flipped:  # a map symmetric in its rows (U-maze): the env's markers decide
-            try:
-                flipped = _find(env_map, _G) == (rows - 1 - _find(d4rl_map, _G)[0], 1)
+        if same and flipped:  # walls symmetric in the rows (U-maze): the env's G cell decides,
+            try:  # else D4RL's layout upside down, as Minari's umaze data map
+                goal_row, goal_col = _find(d4rl_map, _G)
+                flipped = _find(env_map, _G) != (goal_row, goal_col)
             except ValueError:
-                flipped = False
+                flipped = True
         d4rl_reset, d4rl_goal = _find(d4rl_map, _R), _find(d4rl_map, _G)
 
         def to_env(cell: tuple[int, int]) -> tuple[int, int]:
