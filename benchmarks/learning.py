@@ -43,10 +43,14 @@ from learning_grid import (  # noqa: F401 - the grid
     Cell,
     Run,
     active_cells,
+    cell_of,
     dual_cells,
+    paper_cells,
 )
 from learning_plots import latency_points, plot_cell_curves, plot_latency_vs_score
 from learning_report import compact_result, load_results, render_section, replace_section
+from paper_tables import gpu_projection_text
+from paper_tables import write_report as write_paper_report
 from tqdm.auto import tqdm
 
 REPO = Path(__file__).resolve().parents[1]
@@ -58,7 +62,7 @@ def build_queue(cells: list[str], variants: list[str] | None, seeds: list[int] |
 
     runs, notes = [], []
     for cell_name in cells:
-        cell = CELLS[cell_name]
+        cell = cell_of(cell_name)
         for variant in cell.variants:
             if variants is not None and variant not in variants:
                 continue
@@ -221,7 +225,7 @@ def report(args: argparse.Namespace, command: str) -> None:
         header=header_text(args.budget) + "\n\n" + cost_text(args, cells),
         cell_about={
             name: cell.about + (" (retired)" if cell.retired else "")
-            for name, cell in CELLS.items()
+            for name, cell in {**CELLS, **paper_cells()}.items()
         },
         dual_from=dual_cells(),
         variant_order=list(VARIANTS),
@@ -234,6 +238,8 @@ def report(args: argparse.Namespace, command: str) -> None:
     text = args.docs.read_text() if args.docs.exists() else "# Learning results\n"
     args.docs.write_text(replace_section(text, section, args.budget))
     print(f"report: {args.docs} ({len(figures)} figures under {args.figures})")
+    if set(cells) & set(paper_cells()) and args.paper_docs.exists():
+        write_paper_report(args.results / args.budget, args.paper_docs)
 
 
 def seeds_text(cell: Cell) -> str:
@@ -286,9 +292,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--cells",
         nargs="+",
-        choices=list(CELLS),
+        choices=[*CELLS, *paper_cells()],
         default=active_cells(),
-        help="default: every cell but the retired ones",
+        help="default: every cell but the retired ones and the paper's (t1_*, t2_*, t3_*)",
     )
     parser.add_argument("--variants", nargs="+", choices=list(VARIANTS))
     parser.add_argument("--seeds", nargs="+", type=int)
@@ -302,12 +308,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--results", type=Path, default=REPO / "benchmarks" / "results")
     parser.add_argument("--docs", type=Path, default=REPO / "docs" / "results.md")
     parser.add_argument("--figures", type=Path, default=REPO / "docs" / "figures")
+    parser.add_argument(
+        "--paper-docs",
+        type=Path,
+        default=REPO / "docs" / "reproducing.md",
+        help="where the paper's tables are set next to ours (cells t1_*, t2_*, t3_*)",
+    )
     parser.add_argument("--latency-json", type=Path, help="from benchmarks/latency.py --json")
     parser.add_argument("--report-only", action="store_true")
     parser.add_argument("--dry-run", action="store_true", help="print the queue and stop")
     args = parser.parse_args(flags)
     check_arguments(parser, args)
-    for name in ("out", "results", "docs", "figures"):
+    for name in ("out", "results", "docs", "figures", "paper_docs"):
         setattr(args, name, (Path.cwd() / getattr(args, name)).resolve())
     command = "python benchmarks/learning.py " + shlex.join(argv)
     failed: list[str] = []
@@ -318,6 +330,8 @@ def main(argv: list[str] | None = None) -> int:
             print(note)
         todo, status = queue_status(suite, runs, args.jobs)
         print(status)
+        if any(run.cell in paper_cells() for run in todo):
+            print(gpu_projection_text(sum(run.cell in paper_cells() for run in todo)))
         if args.dry_run:
             for run in todo:
                 print(shlex.join(suite.command(run)[1:]))

@@ -6,8 +6,8 @@ as the runs finish; the driver turns each finished run's ``summary.json`` into i
 JSON, so both backends write the same files in the same way.
 
 - ``local``: ``--jobs`` threads, each running one ``python recipes/o2o.py`` subprocess.
-- ``ray``: one Ray task per run (``@ray.remote(num_cpus=1)``, the same subprocess on
-  whichever node has a free CPU), submitted in the queue's order. A task lost with its
+- ``ray``: one Ray task per run (``@ray.remote(num_cpus=1, num_gpus=--gpus-per-run)``, the
+  same subprocess on whichever node has a free CPU, and GPU if asked), submitted in the queue's order. A task lost with its
   node is retried (``--ray-retries``); the retry finds the run's ``checkpoint.pt`` under
   ``--out`` and continues it with ``resume=true``, so ``--out`` must be storage that every
   node mounts at the same path (checked: every task reads a token the driver wrote there).
@@ -245,12 +245,15 @@ def run_recipe_cancellably(*args: Any) -> Outcome:
     return run_recipe(*args)
 
 
-def ray_task(ray: Any, max_retries: int) -> Any:
-    """:func:`run_recipe_cancellably` as a Ray task of one CPU, run again up to
-    ``max_retries`` times when its worker or node is lost."""
+def ray_task(ray: Any, max_retries: int, num_gpus: float = 0.0) -> Any:
+    """:func:`run_recipe_cancellably` as a Ray task of one CPU (and ``num_gpus`` GPUs: Ray
+    then sets the task's ``CUDA_VISIBLE_DEVICES``, so ``device=cuda`` is its GPU), run
+    again up to ``max_retries`` times when its worker or node is lost."""
     # by value: the workers need not find benchmarks/ on their sys.path
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
-    return ray.remote(num_cpus=1, max_retries=max_retries)(run_recipe_cancellably)
+    return ray.remote(num_cpus=1, num_gpus=num_gpus, max_retries=max_retries)(
+        run_recipe_cancellably
+    )
 
 
 def ray_backend(suite: Suite, runs: list[Run]) -> Iterator[tuple[Run, Outcome]]:
@@ -261,7 +264,7 @@ def ray_backend(suite: Suite, runs: list[Run]) -> Iterator[tuple[Run, Outcome]]:
     token = (str(suite.args.out / SHARED_TOKEN), uuid.uuid4().hex)
     Path(token[0]).parent.mkdir(parents=True, exist_ok=True)
     Path(token[0]).write_text(token[1])
-    task = ray_task(ray, suite.args.ray_retries)
+    task = ray_task(ray, suite.args.ray_retries, suite.args.gpus_per_run)
     cwd = str(REPO)
     refs = {
         task.remote(suite.command(run), str(suite.run_dir(run)), cwd, token): run for run in runs
@@ -303,11 +306,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--ray-retries", type=int, default=3, help="ray: retries of a task lost with its node"
     )
+    parser.add_argument(
+        "--gpus-per-run",
+        type=float,
+        default=0.0,
+        help="ray: GPUs each run's task holds (1 with device=cuda: one GPU per run)",
+    )
 
 
 def check_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     """Rejects a Ray flag without ``--backend ray`` and ``--backend ray`` without Ray."""
     if args.backend != "ray" and args.ray_address is not None:
         parser.error("--ray-address needs --backend ray")
+    if args.backend != "ray" and args.gpus_per_run:
+        parser.error("--gpus-per-run needs --backend ray")
+    if args.gpus_per_run < 0:
+        parser.error(f"--gpus-per-run must be >= 0, got {args.gpus_per_run}")
     if args.backend == "ray" and importlib.util.find_spec("ray") is None:
         parser.error(f"--backend ray needs Ray, which is not installed: {INSTALL_RAY}")

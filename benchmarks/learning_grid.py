@@ -239,6 +239,34 @@ CELLS: dict[str, Cell] = {
 }  # fmt: skip
 """Cell name -> :class:`Cell` (the issue's grid)."""
 
+PAPER_SEEDS = 5
+"""The paper's seeds per cell (Tables 1-3)."""
+
+
+def paper_cells() -> dict[str, Cell]:
+    """The cells of the paper's Tables 1-3 (``benchmarks/paper_tables.py``), one per row
+    that runs on Minari data, with the variants of its columns. They need the downloaded
+    data sets and are meant for ``--budget paper`` on GPUs: the suite queues them only when
+    ``--cells`` names them (:func:`active_cells` leaves them out).
+
+        >>> paper_cells()["t1_antmaze_umaze"].overrides
+        ('env=antmaze', 'env.dataset=umaze')
+    """
+    from paper_tables import runnable_rows
+
+    return {
+        row.cell: Cell(
+            row.overrides, row.variants, PAPER_SEEDS, f"the paper's Table {row.table}: `{row.row}`"
+        )
+        for row in runnable_rows()
+    }
+
+
+def cell_of(name: str) -> Cell:
+    """A cell of :data:`CELLS` or of :func:`paper_cells`, by name."""
+    return CELLS[name] if name in CELLS else paper_cells()[name]
+
+
 # Overrides that only the online phase reads: runs differing only in these share the
 # offline phase (torchrl_dual.recipe.o2o.offline_cache.ONLINE_KEYS).
 ONLINE_ONLY = (

@@ -177,3 +177,30 @@ def test_locomotion_scores_with_d4rl_s_references(minari_path, tmp_path):
         assert h["normalized_score"] == pytest.approx(
             100 * (h["return"] + 20.272305) / (3234.3 + 20.272305)
         )
+
+
+@pytest.mark.parametrize(
+    "dataset, goal_cell, goal",
+    [
+        ("umaze", (1, 1), (-3.25, 4.75)),
+        ("umaze-diverse", (1, 1), (-3.25, 4.75)),
+        ("medium-play", (6, 6), (10.75, -10.75)),
+        ("medium-diverse", (6, 6), (10.75, -10.75)),
+        ("large-play", (7, 9), (14.75, -12.75)),
+        ("large-diverse", (7, 9), (14.75, -12.75)),
+    ],
+)
+def test_d4rl_s_task_is_placed_in_every_minari_antmaze(
+    tmp_path, monkeypatch, dataset, goal_cell, goal
+):
+    """The generation scripts' mazes (stand-ins): D4RL's goal cell and goal in each."""
+    from torchrl_dual.recipe.kits import d4rl_protocol
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path))
+    dataset_id = f"D4RL/antmaze/{dataset}-v1"
+    write_standin_dataset(dataset_id, 1, 5)
+    d4rl_protocol._antmaze_task.cache_clear()
+    task = d4rl_protocol._antmaze_task(dataset_id, dataset)
+    d4rl_protocol._antmaze_task.cache_clear()
+    assert task.goal_cell == goal_cell and task.goal.tolist() == list(goal)
+    assert task.reset_cell in ((1, 1), (3, 1))

@@ -2,13 +2,17 @@
 versions and metadata fields, for machines that cannot download the published ones
 (tests, CI, benchmarks of the code paths).
 
-:data:`STANDINS` maps a published id to how its env is made: ``D4RL/antmaze/umaze-v1`` is
-``AntMaze_UMaze-v4`` with D4RL's U-maze map (goal top left, reset bottom left),
-``continuing_task=True``, ``reset_target=False``, and the evaluation env of the Minari
-generation scripts (start and goal on the right-hand column), with references as the D4RL
-imports carry; ``mujoco/<robot>/medium-v0`` are the v5 MuJoCo envs without references
-(Minari's MuJoCo data sets are not D4RL imports); ``D4RL/pen/cloned-v2`` is
-``AdroitHandPen-v1`` with references. The reference values are stand-ins of the right kind
+:data:`STANDINS` maps a published id to how its env is made, after Farama-Foundation's
+minari-dataset-generation-scripts (``scripts/D4RL/antmaze/create_antmaze_dataset.py``,
+the Adroit scripts): ``D4RL/antmaze/umaze-v1`` is ``AntMaze_UMaze-v4`` with D4RL's U-maze
+map upside down (goal top left, reset bottom left), ``continuing_task=True``,
+``reset_target=False``, and the scripts' evaluation env (start and goal on the right-hand
+column); ``umaze-diverse``, ``medium-*`` and ``large-*`` are the registered
+``AntMaze_UMaze-v4``, ``AntMaze_Medium-v4`` / ``AntMaze_Medium_Diverse_GR-v4``,
+``AntMaze_Large-v4`` / ``AntMaze_Large_Diverse_GR-v4`` with the scripts' evaluation maps
+(D4RL's ``*_TEST`` maps); ``mujoco/<robot>/medium-v0`` are the v5 MuJoCo envs without
+references (Minari's MuJoCo data sets are not D4RL imports); ``D4RL/<task>/cloned-v2`` are
+``AdroitHand<Task>-v1`` at the scripts' time limits, with references. The reference values are stand-ins of the right kind
 (random < expert), not the published numbers, and the data is uniform random actions: it
 exercises loading, flattening, boundaries, envs and scores, not learning.
 """
@@ -21,6 +25,7 @@ from typing import Any
 import gymnasium as gym
 
 from torchrl_dual.data.minari_writer import collect_episodes, write_minari_dataset
+from torchrl_dual.envs.d4rl_antmaze import D4RL_ANTMAZE_MAPS
 from torchrl_dual.envs.maze_xml import release_maze_xml
 from torchrl_dual.envs.robotics import register_robotics_envs
 
@@ -54,17 +59,49 @@ class StandIn:
     references: tuple[float, float] | None = None
 
 
+_ANTMAZE = {"continuing_task": True, "reset_target": False}
+_D4RL_EVAL = {  # the generation scripts' EVAL_ENV_MAPS: D4RL's *_TEST maps, rows as they are
+    maze: {"maze_map": [[c.lower() if isinstance(c, str) else c for c in row] for row in rows]}
+    for maze, rows in D4RL_ANTMAZE_MAPS.items()
+}
+
 STANDINS: dict[str, StandIn] = {
     "D4RL/antmaze/umaze-v1": StandIn(
         "AntMaze_UMaze-v4",
-        {"maze_map": UMAZE_MAP, "continuing_task": True, "reset_target": False},
+        {"maze_map": UMAZE_MAP, **_ANTMAZE},
         {"maze_map": UMAZE_EVAL_MAP},
         (0.0, 400.0),
+    ),
+    # the registered maps: no r/g/c cells (play: goals and starts anywhere) or c cells (diverse)
+    "D4RL/antmaze/umaze-diverse-v1": StandIn(
+        "AntMaze_UMaze-v4", dict(_ANTMAZE), {"maze_map": UMAZE_EVAL_MAP}, (0.0, 400.0)
+    ),
+    "D4RL/antmaze/medium-play-v1": StandIn(
+        "AntMaze_Medium-v4", dict(_ANTMAZE), _D4RL_EVAL["medium"], (0.0, 600.0)
+    ),
+    "D4RL/antmaze/medium-diverse-v1": StandIn(
+        "AntMaze_Medium_Diverse_GR-v4", dict(_ANTMAZE), _D4RL_EVAL["medium"], (0.0, 600.0)
+    ),
+    "D4RL/antmaze/large-play-v1": StandIn(
+        "AntMaze_Large-v4", dict(_ANTMAZE), _D4RL_EVAL["large"], (0.0, 600.0)
+    ),
+    "D4RL/antmaze/large-diverse-v1": StandIn(
+        "AntMaze_Large_Diverse_GR-v4", dict(_ANTMAZE), _D4RL_EVAL["large"], (0.0, 600.0)
     ),
     "mujoco/hopper/medium-v0": StandIn("Hopper-v5"),
     "mujoco/halfcheetah/medium-v0": StandIn("HalfCheetah-v5"),
     "mujoco/walker2d/medium-v0": StandIn("Walker2d-v5"),
     "D4RL/pen/cloned-v2": StandIn("AdroitHandPen-v1", references=(96.26, 3076.83)),
+    # the generation scripts' time limits of the cloned sets: door 300, hammer 625, relocate 530
+    "D4RL/door/cloned-v2": StandIn(
+        "AdroitHandDoor-v1", {"max_episode_steps": 300}, references=(-56.51, 2880.57)
+    ),
+    "D4RL/hammer/cloned-v2": StandIn(
+        "AdroitHandHammer-v1", {"max_episode_steps": 625}, references=(-274.86, 12794.13)
+    ),
+    "D4RL/relocate/cloned-v2": StandIn(
+        "AdroitHandRelocate-v1", {"max_episode_steps": 530}, references=(-6.43, 4233.88)
+    ),
 }
 """Published Minari id -> :class:`StandIn`."""
 
