@@ -239,7 +239,7 @@ def report(args: argparse.Namespace, command: str) -> None:
     args.docs.write_text(replace_section(text, section, args.budget))
     print(f"report: {args.docs} ({len(figures)} figures under {args.figures})")
     if set(cells) & set(paper_cells()) and args.paper_docs.exists():
-        write_paper_report(args.results / args.budget, args.paper_docs)
+        write_paper_report(cells, args.paper_docs)
 
 
 def seeds_text(cell: Cell) -> str:

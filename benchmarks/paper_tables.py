@@ -4,7 +4,7 @@ that puts our numbers next to the paper's.
     python benchmarks/learning.py --budget paper --cells $(python benchmarks/paper_tables.py --cells 1) --dry-run
     python benchmarks/learning.py --budget paper --backend ray --gpus-per-run 1 \\
         --cells $(python benchmarks/paper_tables.py --cells 1) device=cuda
-    python benchmarks/paper_tables.py --report              # docs/reproducing.md's tables
+    python benchmarks/learning.py --budget paper --report-only   # docs/reproducing.md's tables
 
 Each row of a table is one cell ``t<table>_<row>`` (e.g. ``t1_antmaze_umaze``) with the
 recipe overrides of the row's Minari data set and one variant per column we can run; the
@@ -13,8 +13,8 @@ paper's mean ± standard deviation over its 5 seeds is stored for every (table, 
 Minari counterpart (``medium-replay``, ``medium-expert``) and columns whose method does not
 run on that critic here (EDIS, Diff-QL, DACER on Cal-QL or SO2) are listed with the reason
 and queue no run. The report (between the ``paper-tables`` markers of
-``docs/reproducing.md``) shows ``ours (mean ± sd, n)`` next to the paper's for every cell of
-``benchmarks/results/paper/``.
+``docs/reproducing.md``, written by ``learning.py``'s report) shows ``ours (mean ± sd, n)``
+next to the paper's for every cell of ``benchmarks/results/<budget>/``.
 """
 
 from __future__ import annotations
@@ -275,27 +275,19 @@ def replace_section(text: str, section: str) -> str:
     return text.rstrip("\n") + "\n\n" + block + "\n"
 
 
-def write_report(results_dir: Path, docs: Path) -> None:
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from learning_report import load_results
-
-    results = load_results(results_dir) if results_dir.exists() else {}
+def write_report(results: dict[str, dict[str, list[dict]]], docs: Path) -> None:
+    """Regenerates the tables between the markers of ``docs`` from ``results``
+    (``learning_report.load_results`` of ``benchmarks/results/paper``)."""
     docs.write_text(replace_section(docs.read_text(), render_tables(results)))
-    print(f"paper tables: {docs} ({sum(len(v) for c in results.values() for v in c.values())} "
-          f"runs from {results_dir})")  # fmt: skip
+    runs = sum(len(v) for c in results.values() for v in c.values())
+    print(f"paper tables: {docs} ({runs} runs)")
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--cells", type=int, choices=(1, 2, 3), help="print a table's cells")
-    parser.add_argument("--report", action="store_true", help="regenerate the docs' tables")
-    parser.add_argument("--results", type=Path, default=REPO / "benchmarks/results/paper")
-    parser.add_argument("--docs", type=Path, default=REPO / "docs/reproducing.md")
+    parser.add_argument("--cells", type=int, choices=(1, 2, 3), required=True)
     args = parser.parse_args(argv)
-    if args.cells:
-        print(" ".join(r.cell for r in runnable_rows(args.cells)))
-    if args.report:
-        write_report(args.results, args.docs)
+    print(" ".join(r.cell for r in runnable_rows(args.cells)))
     return 0
 
 
