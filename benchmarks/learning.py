@@ -238,7 +238,7 @@ def report(args: argparse.Namespace, command: str) -> None:
     text = args.docs.read_text() if args.docs.exists() else "# Learning results\n"
     args.docs.write_text(replace_section(text, section, args.budget))
     print(f"report: {args.docs} ({len(figures)} figures under {args.figures})")
-    if set(cells) & set(paper_cells()) and args.paper_docs.exists():
+    if (args.budget == "paper" or set(cells) & set(paper_cells())) and args.paper_docs.exists():
         write_paper_report(cells, args.paper_docs)
 
 

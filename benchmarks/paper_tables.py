@@ -175,7 +175,7 @@ def _row(table: int, row: str) -> PaperRow:
     if dataset not in MINARI_LOCOMOTION:
         return PaperRow(
             table, row, overrides,
-            f"Minari has no mujoco/{robot}/{dataset} data set (D4RL's {dataset}-v2 only)",
+            f"Minari has no mujoco/{robot}/{dataset} data set",
         )  # fmt: skip
     return PaperRow(table, row, overrides)
 

@@ -141,3 +141,14 @@ def test_the_paper_cells_run_end_to_end_on_stand_ins_and_the_report_shows_ours_n
     ours, paper = umaze.split(" | ")[1].split(" / ")
     assert ours.endswith("(n = 1)") and paper == "90.38 ± 2.24"
     assert "| `hopper-medium-replay-v2` (Minari has no mujoco/hopper/medium-replay" in text
+
+
+def test_the_docs_tables_are_the_committed_results():
+    """docs/reproducing.md's tables regenerate exactly from benchmarks/results/paper/."""
+    from learning_report import load_results
+
+    results_dir = REPO / "benchmarks/results/paper"
+    results = load_results(results_dir) if results_dir.exists() else {}
+    text = (REPO / "docs/reproducing.md").read_text()
+    section = text.split(paper_tables.BEGIN)[1].split(paper_tables.END)[0]
+    assert section.strip() == paper_tables.render_tables(results).strip()

@@ -8,11 +8,17 @@ from torchrl_dual.data.cache import (
     load_or_generate,
     save_cached_dataset,
 )
+from torchrl_dual.data.d4rl_references import (
+    D4RL_HORIZONS,
+    D4RL_REFERENCE_RETURNS,
+    d4rl_references,
+)
 from torchrl_dual.data.frozenlake_dataset import (
     FROZENLAKE_GENERATOR_VERSION,
     generate_frozenlake_dataset,
     load_or_generate_frozenlake_dataset,
 )
+from torchrl_dual.data.goal_relabel import relabel_to_goal
 from torchrl_dual.data.maze_controller import MazeWaypointController
 from torchrl_dual.data.maze_dataset import (
     MAZE_GENERATOR_VERSION,
@@ -34,6 +40,10 @@ from torchrl_dual.data.transition_layout import (
 )
 
 __all__ = [
+    "D4RL_HORIZONS",
+    "D4RL_REFERENCE_RETURNS",
+    "d4rl_references",
+    "relabel_to_goal",
     "STANDINS",
     "FROZENLAKE_GENERATOR_VERSION",
     "MAZE_GENERATOR_VERSION",

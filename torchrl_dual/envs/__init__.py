@@ -2,6 +2,11 @@
 (normalized) observations for any Gymnasium env, and the online dynamics shifts
 (:data:`SHIFTS`) of these and of the MuJoCo locomotion robots (ODRL)."""
 
+from torchrl_dual.envs.d4rl_antmaze import (
+    D4RL_ANTMAZE_MAPS,
+    D4RLAntMazeTask,
+    SingleGoalAntMaze,
+)
 from torchrl_dual.envs.flat_observation import FlatObservation, flat_dim, make_flat_env
 from torchrl_dual.envs.frozenlake import (
     FROZENLAKE_MAPS,
@@ -53,6 +58,9 @@ from torchrl_dual.envs.shifts import (
 )
 
 __all__ = [
+    "D4RL_ANTMAZE_MAPS",
+    "D4RLAntMazeTask",
+    "SingleGoalAntMaze",
     "FlatObservation",
     "flat_dim",
     "make_flat_env",
