@@ -228,6 +228,9 @@ def test_ray_flags_need_the_ray_backend(capsys, monkeypatch):
         learning.main(["--ray-address", "auto", "--dry-run"])
     assert stop.value.code == 2
     assert "error: --ray-address needs --backend ray" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        learning.main(["--gpus-per-run", "1", "--dry-run"])
+    assert "error: --gpus-per-run needs --backend ray" in capsys.readouterr().err
     # where Ray does not install, --backend ray names the extra to install
     monkeypatch.setattr(
         learning_backends.importlib.util, "find_spec", lambda name: None if name == "ray" else 1
@@ -242,3 +245,11 @@ def test_ray_flags_need_the_ray_backend(capsys, monkeypatch):
 def test_backend_docstring_examples_run():
     failures, tried = doctest.testmod(learning_backends, optionflags=doctest.ELLIPSIS)
     assert (failures, tried >= 3) == (0, True)
+
+
+def test_a_run_s_task_holds_the_gpus_asked_for(ray_runtime):
+    """``--gpus-per-run 1``: each run's task holds one GPU (Ray then hands it its own
+    ``CUDA_VISIBLE_DEVICES``); by default none."""
+    assert learning_backends.ray_task(ray_runtime, 0)._default_options["num_gpus"] == 0.0
+    task = learning_backends.ray_task(ray_runtime, 0, num_gpus=1.0)
+    assert task._default_options["num_gpus"] == 1.0 and task._default_options["num_cpus"] == 1
