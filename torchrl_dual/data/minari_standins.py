@@ -12,9 +12,10 @@ column); ``umaze-diverse``, ``medium-*`` and ``large-*`` are the registered
 ``AntMaze_Large-v4`` / ``AntMaze_Large_Diverse_GR-v4`` with the scripts' evaluation maps
 (D4RL's ``*_TEST`` maps); ``mujoco/<robot>/medium-v0`` are the v5 MuJoCo envs without
 references (Minari's MuJoCo data sets are not D4RL imports); ``D4RL/<task>/cloned-v2`` are
-``AdroitHand<Task>-v1`` at the scripts' time limits, with references. The reference values are stand-ins of the right kind
-(random < expert), not the published numbers, and the data is uniform random actions: it
-exercises loading, flattening, boundaries, envs and scores, not learning.
+``AdroitHand<Task>-v1`` at the scripts' time limits, with references. The reference values
+are stand-ins of the right kind (random < expert), not the published numbers, and the data
+is uniform random actions: it exercises loading, flattening, boundaries, envs and scores,
+not learning.
 """
 
 from __future__ import annotations

@@ -197,10 +197,6 @@ class D4RLAntMazeTask:
         offset = rng.uniform(0, D4RL_GOAL_NOISE[0], 2) + rng.uniform(0, D4RL_GOAL_NOISE[1], 2)
         return self.goal + self.maze_size_scaling * (offset - mean) @ self.goal_noise_axes
 
-    def success(self, xy: np.ndarray) -> np.ndarray:
-        """Within D4RL's 0.5 of the task goal (any leading batch shape)."""
-        return np.linalg.norm(np.asarray(xy)[..., :2] - self.goal, axis=-1) <= D4RL_SUCCESS_RADIUS
-
 
 class SingleGoalAntMaze(gym.Wrapper):
     """A Gymnasium-Robotics AntMaze env playing D4RL's single-goal task.
@@ -209,7 +205,8 @@ class SingleGoalAntMaze(gym.Wrapper):
     and the goal at :attr:`D4RLAntMazeTask.goal`; each step's reward is 1 within
     0.5 of it and 0 elsewhere, and the episode terminates at the first success
     (``info["success"]``). The observation dict is passed on; its ``desired_goal`` is the
-    task goal (the recipe leaves it out of the policy's input).
+    task goal (the recipe leaves it out of the policy's input). ``reset``'s ``options``
+    (Gymnasium-Robotics' ``goal_cell`` / ``reset_cell``) are not used: the task fixes both.
 
     Args:
         env (gym.Env): a Gymnasium-Robotics ``AntMaze_*`` env (any wrapper of it).

@@ -5,20 +5,29 @@ One :class:`MinariFamily` per kind names the published data sets
 ``D4RL/<task>/<dataset>-v2``); every family shares one data path, one env and one
 evaluator:
 
+What D4RL's protocol changes (``env.protocol=d4rl``, the default: AntMaze's single-goal
+task, D4RL's horizons and references) comes from :mod:`~torchrl_dual.recipe.kits.d4rl_protocol`.
+
 * ``D_offline`` is read by :func:`~torchrl_dual.data.load_minari_dataset` (dict
-  observations flattened in :func:`~torchrl_dual.data.default_observation_keys` order),
-  then preprocessed as CORL does for IQL: rewards ``r' = reward_scale * r + reward_shift``
-  (AntMaze ``r - 1``; locomotion ``reward_scale: returns`` = ``T / (max - min)`` of the
+  observations flattened in :func:`~torchrl_dual.data.default_observation_keys` order, or
+  the protocol's: AntMaze without ``desired_goal``), AntMaze's rewards and terminals
+  relabelled to D4RL's goal (:func:`~torchrl_dual.data.relabel_to_goal`), then
+  preprocessed as the critic's reference does: rewards ``r' = reward_scale * r +
+  reward_shift`` (:func:`~torchrl_dual.recipe.settings.envs.reward_transform`: IQL's AntMaze
+  ``r - 1``, Cal-QL's ``10 r - 5``; locomotion ``returns`` = ``T / (max - min)`` of the
   data set's episode returns, ``T`` the time limit) and states normalized with the data
   set's mean and std + 1e-3 (:func:`observation_normalizer`).
 * The online env and the evaluation env are the data set's own
-  (``recover_environment()`` and ``recover_environment(eval_env=True)``: same id,
-  version and kwargs as the data), under ``env.shift`` (online only), behind the same
+  (``recover_environment()``; under ``protocol=minari`` the evaluation uses
+  ``recover_environment(eval_env=True)``: same id, version and kwargs as the data), at the
+  protocol's time limit, AntMaze wrapped in :class:`~torchrl_dual.envs.SingleGoalAntMaze`
+  under ``d4rl``, under ``env.shift`` (online only), behind the same
   :class:`~torchrl_dual.envs.FlatObservation` map as the data; their observation space
   must match the data set's (:func:`check_observation_layout`).
-* Scores are D4RL-normalized with the data set's ``ref_min_score`` / ``ref_max_score``
-  (or ``env.reference_returns``); without references the evaluator says so
-  (``normalized_score`` NaN and a ``score_note``) instead of inventing one.
+* Scores are D4RL-normalized with the protocol's references (``d4rl``: D4RL's; ``minari``:
+  the data set's ``ref_min_score`` / ``ref_max_score``) or ``env.reference_returns``;
+  without references the evaluator says so (``normalized_score`` NaN and a
+  ``score_note``) instead of inventing one.
 
 A data set that is not on disk stops ``validate_config`` with the exact
 ``minari download <id>`` command (:func:`check_minari_dataset`).
