@@ -72,12 +72,24 @@ VARIANTS: dict[str, tuple[str, ...]] = {
         "exploration.shift_weight=0",
         "exploration.extra_variance=0.15",
     ),
-}
+    # issue 39: each reference's reward transform for sparse mazes (CORL's IQL on AntMaze:
+    # r - 1; Cal-QL's AntMaze scripts: 10 r - 5, with its sparse Monte-Carlo bound r_fail = -5)
+    "calql_sparse": (
+        "algo=calql", "env.reward_scale=10", "env.reward_shift=-5",
+        "critic.sparse_failure_reward=-5",
+    ),
+    "calql_d3rlpy_sparse": ("algo=calql", "env.reward_scale=10", "env.reward_shift=-5"),
+    "iql_sparse": ("algo=iql", "env.reward_shift=-1"),
+    "iql_d3rlpy_sparse": ("algo=iql", "env.reward_shift=-1"),
+    "dual_sparse": ("algo=dual", "env.reward_shift=-1"),
+}  # fmt: skip
 """Variant name -> recipe overrides."""
 
 REFERENCE_SCRIPTS: dict[str, str] = {
     "iql_d3rlpy": "benchmarks/reference_d3rlpy.py",
     "calql_d3rlpy": "benchmarks/reference_d3rlpy.py",
+    "iql_d3rlpy_sparse": "benchmarks/reference_d3rlpy.py",
+    "calql_d3rlpy_sparse": "benchmarks/reference_d3rlpy.py",
 }
 """Variants run by a reference implementation's script instead of ``recipes/o2o.py``: the
 script takes the same overrides and writes the same ``summary.json``."""
@@ -114,6 +126,15 @@ MEDIUM_EXPLORE_ROOM = "[[4,6],[5,6],[6,5],[6,6]]"
 
 SHIFT_VARIANTS = ("dual", "iql", "dual_lambda0")
 
+SPARSE_REWARD_VARIANTS = (
+    "calql_sparse",
+    "calql_d3rlpy_sparse",
+    "iql_sparse",
+    "iql_d3rlpy_sparse",
+    "dual_sparse",
+)
+"""Each reference's sparse-maze reward transform (issue 39), on U-maze."""
+
 
 @dataclass(frozen=True)
 class Cell:
@@ -145,7 +166,7 @@ CELLS: dict[str, Cell] = {
             v for v in VARIANTS
             if v not in (*ABLATION_VARIANTS, *PAPER_BASELINES, *ONLINE_TUNING_VARIANTS,
                          *NOISE_VARIANTS, *NOISE_CONTROLS, *TEMPERATURE_VARIANTS,
-                         "iql_equal_time_online",
+                         "iql_equal_time_online", *SPARSE_REWARD_VARIANTS,
                          *REFERENCE_CHECKS)
         ), 5,
         "PointMaze U-maze",
@@ -180,6 +201,13 @@ CELLS: dict[str, Cell] = {
         "PointMaze Medium, goal (6, 6) in the dead end the data never enter, 40000 offline "
         "updates, 32000 online frames",
         more_seeds=(("dual_tdata", 7), ("dual_no_uq", 7)),  # T = data − no-UQ ≈ at 5 seeds
+    ),
+    # issue 39: does Cal-QL stop failing on U-maze with its reference's 10 r - 5 (and with
+    # it the sparse Monte-Carlo bound)? The others with CORL's r - 1, as on AntMaze
+    "umaze_sparse": Cell(
+        ("env=pointmaze_umaze",), SPARSE_REWARD_VARIANTS, 3,
+        "PointMaze U-maze, each reference's sparse-maze reward transform (Cal-QL 10 r − 5, "
+        "IQL and DUAL r − 1)",
     ),
     "umaze_online": Cell(
         ("env=pointmaze_umaze",), ONLINE_TUNING_VARIANTS, 5,

@@ -100,6 +100,21 @@ class FlatObservation(gym.ObservationWrapper):
         return ((self.flatten(observation) - self.loc) / self.scale).astype(np.float32)
 
 
+def reward_transforms(reward_scale: float = 1.0, reward_shift: float = 0.0) -> list:
+    """``[RewardScaling(loc=reward_shift, scale=reward_scale)]`` (``r' = scale * r + shift``,
+    a reference's reward modification), or ``[]`` for the identity.
+
+    Examples:
+        >>> reward_transforms(), type(reward_transforms(10.0, -5.0)[0]).__name__
+        ([], 'RewardScaling')
+    """
+    from torchrl.envs.transforms import RewardScaling
+
+    if reward_scale == 1.0 and reward_shift == 0.0:
+        return []
+    return [RewardScaling(loc=float(reward_shift), scale=float(reward_scale))]
+
+
 def make_flat_env(
     env: gym.Env,
     *,
@@ -131,16 +146,12 @@ def make_flat_env(
         (torch.Size([4, 3]), True)
     """
     from torchrl.envs import Compose, DoubleToFloat, GymWrapper, StepCounter, TransformedEnv
-    from torchrl.envs.transforms import RewardScaling
 
     if not isinstance(env.observation_space, gym.spaces.Box):
         raise ValueError(
             "make_flat_env needs a flat Box observation space; wrap the env in FlatObservation."
         )
-    transforms = [DoubleToFloat()]
-    if reward_scale != 1.0 or reward_shift != 0.0:
-        transforms.append(RewardScaling(loc=float(reward_shift), scale=float(reward_scale)))
-    transforms.append(StepCounter())
+    transforms = [DoubleToFloat(), *reward_transforms(reward_scale, reward_shift), StepCounter()]
     torchrl_env = TransformedEnv(GymWrapper(env, device=device), Compose(*transforms))
     if seed is not None:
         torchrl_env.set_seed(seed)

@@ -25,6 +25,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from torchrl_dual.envs.flat_observation import reward_transforms
 from torchrl_dual.envs.maze_xml import release_maze_xml
 from torchrl_dual.envs.robotics import register_robotics_envs
 from torchrl_dual.envs.shifts import apply_shift, check_shift
@@ -220,6 +221,8 @@ def make_pointmaze_env(
     shift_angle: float | None = None,
     shift_scale: float | None = None,
     goal_cell: Sequence[int] | None = None,
+    reward_scale: float = 1.0,
+    reward_shift: float = 0.0,
 ):
     """Creates a TorchRL PointMaze environment with a flat float32 ``"observation"``.
 
@@ -246,6 +249,10 @@ def make_pointmaze_env(
         shift_scale (float, optional): factor of ``"damping"`` / ``"mass"``.
         goal_cell (sequence of int, optional): ``(row, col)`` of a fixed goal cell;
             ``None`` (default): a random open cell per episode.
+        reward_scale (float): the reward becomes ``reward_scale * r + reward_shift``
+            (``RewardScaling`` after ``DoubleToFloat``; e.g. Cal-QL's sparse ``10 r - 5``).
+            Defaults to 1.
+        reward_shift (float): see ``reward_scale``. Defaults to 0.
 
     Raises:
         ValueError: unknown maze name (the message lists the valid ones), reward type,
@@ -282,6 +289,7 @@ def make_pointmaze_env(
         base,
         Compose(
             DoubleToFloat(),
+            *reward_transforms(reward_scale, reward_shift),
             CatTensors(
                 in_keys=list(POINTMAZE_OBS_KEYS), out_key="observation", del_keys=True, sort=False
             ),

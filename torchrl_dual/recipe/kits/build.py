@@ -83,7 +83,7 @@ def _pointmaze_avoided(env: DictConfig) -> list[list[int]] | None:
 
 def pointmaze_data(cfg: DictConfig) -> OfflineDataset:
     env = cfg.env
-    return load_or_generate_maze_dataset(
+    data = load_or_generate_maze_dataset(
         env.maze,
         cfg.budget.dataset_transitions,
         cfg.seed,
@@ -92,6 +92,10 @@ def pointmaze_data(cfg: DictConfig) -> OfflineDataset:
         goal_cell=_pointmaze_goal(env),
         avoid_cells=_pointmaze_avoided(env),
     )
+    if env.reward_scale != 1.0 or env.reward_shift != 0.0:  # as the online env's RewardScaling
+        reward = data.transitions["next", "reward"]
+        data.transitions["next", "reward"] = reward * env.reward_scale + env.reward_shift
+    return data
 
 
 def pointmaze_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
@@ -102,6 +106,8 @@ def pointmaze_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
         seed=cfg.seed,
         device="cpu",
         goal_cell=_pointmaze_goal(env),
+        reward_scale=env.reward_scale,
+        reward_shift=env.reward_shift,
         **_pointmaze_shift(env),
     )
 

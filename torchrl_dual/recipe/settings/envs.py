@@ -100,6 +100,10 @@ class PointMazeSettings(EnvSettings):
     data_avoid_cells: Any = key(
         Maybe(CellList()), "open cells the offline data never enter (null: none)"
     )
+    reward_scale: float = key(
+        Real(0, low_open=True), "r' = reward_scale * r + reward_shift (data and online env)"
+    )
+    reward_shift: float = key(Real(), "added after the scale")
 
 
 # ----------------------------------------------------------------------------- Frozen-Lake
