@@ -263,7 +263,8 @@ class TrainEnvFactory:
     Examples:
         >>> import pickle
         >>> env = {"kind": "pointmaze", "maze": "umaze", "max_episode_steps": 20}
-        >>> env.update(shift="none", shift_angle=0.0, shift_scale=None, goal_cell=None)
+        >>> env.update(shift="none", shift_angle=0.0, shift_scale=None, goal_cell=None,
+        ...     reward_scale=1.0, reward_shift=0.0)
         >>> cfg = OmegaConf.create({"seed": 0, "env": env})  # what the PointMaze kit reads
         >>> factory = pickle.loads(pickle.dumps(TrainEnvFactory(cfg)))
         >>> env = factory()
