@@ -40,8 +40,13 @@ def test_dual_variants_pair_with_dual_by_seed_and_report_shared_offline_phases()
     ]
     # no-UQ − DUAL: -2, -3, -4 (final, sd 1) and +1, 0, 0 (AUC, sd √(1/3)); t(2) = 4.3027
     final, auc = 4.3027 / 3**0.5, 4.3027 * (1 / 3) ** 0.5 / 3**0.5
-    assert rows[0].endswith(f"| -3.0 ± {final:.1f} ▼ | +0.3 ± {auc:.1f} ≈ |")
-    assert rows[1].endswith("| +10.0 ? | +20.0 ? |")  # one pair: no interval
+    # and their 90 % intervals, t(0.95, 2) = 2.9200: -3 ± 1.686, 1/3 ± 0.973, inside ±10
+    low, high = -3.0 - 2.92 / 3**0.5, 1 / 3 + 2.92 * (1 / 3) ** 0.5 / 3**0.5
+    assert rows[0].endswith(
+        f"| -3.0 ± {final:.1f} ▼ | +0.3 ± {auc:.1f} ≈ | yes [{low:+.1f}, -1.3] / yes [-0.6, "
+        f"{high:+.1f}] |"
+    )
+    assert rows[1].endswith("| +10.0 ? | +20.0 ? | ? / ? |")  # one pair: no interval
     n, (mean, _), _ = learning_pairs.paired_difference(cells["umaze_online"]["dual_utd025"], dual)
     assert (n, mean) == (2, pytest.approx(-5.0))
 
