@@ -176,6 +176,17 @@ CASES = [
         "[4, 4], [4, 5], [4, 6], [5, 1], [5, 3], [5, 4], [5, 6], [6, 1], [6, 2], [6, 3], "
         "[6, 5], [6, 6]].",
     ),
+    (
+        "env.data_avoid_cells=[[1,1],[1,2],[1,3],[2,3],[3,1],[3,2],[3,3]]",
+        "env.data_avoid_cells=[[1, 1], [1, 2], [1, 3], [2, 3], [3, 1], [3, 2], [3, 3]]: covers "
+        "every open cell of the umaze maze, so the offline data would have nowhere to go; "
+        "leave at least one open cell out",
+    ),
+    (
+        "compile.compile_mode=ludicrous",
+        "compile.compile_mode=ludicrous: unknown option; choose null or one of default, "
+        "reduce-overhead, max-autotune, max-autotune-no-cudagraphs",
+    ),
 ]
 
 
@@ -238,6 +249,28 @@ def test_resume_with_a_logger_that_cannot_resume_fails(tmp_path, monkeypatch):
     assert str(err.value) == (
         "logger.backend=mlflow: cannot resume (resume=true); use one of csv, tensorboard, wandb"
     )
+
+
+def test_a_batch_larger_than_the_offline_data_is_warned_about_at_once(tmp_path, capsys):
+    """Sampled with replacement, such a batch works, slowly: one ``warning:`` line when the
+    data are loaded, before any update."""
+    from torchrl_dual.recipe.kits.build import make_offline_dataset
+
+    overrides = ["env=frozenlake", "budget=smoke", "budget.dataset_transitions=200"]
+    cfg = compose_checked(
+        CONFIG_DIR,
+        [*overrides, "budget.batch_size=100000", f"output_dir={tmp_path / 'run'}",
+         f"data_cache_dir={tmp_path / 'data'}"],
+    )  # fmt: skip
+    assert len(make_offline_dataset(cfg)) == 200
+    assert capsys.readouterr().err.splitlines() == [
+        "warning: budget.batch_size=100000 exceeds the 200 transitions of the offline data: "
+        "drawn with replacement, a batch holds each about 500 times and every update pays for "
+        "all 100000; lower it to at most 200"
+    ]
+    cfg.budget.batch_size = 200
+    make_offline_dataset(cfg)
+    assert capsys.readouterr().err == ""
 
 
 # ----------------------------------------------------------------------------- command line

@@ -6,6 +6,7 @@ online and evaluation envs, the family presets, and the errors for missing data.
 from __future__ import annotations
 
 import math
+import shutil
 import sys
 from pathlib import Path
 
@@ -272,6 +273,33 @@ def test_the_command_line_stops_with_one_error_line(tmp_path, monkeypatch):
     monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "empty"))
     line = failed(run_recipe(tmp_path / "out", tmp_path / "cache", "env=antmaze"))
     assert "minari download D4RL/antmaze/umaze-v1" in line
+
+
+def test_a_datasets_path_that_is_a_file_ends_in_one_error_line(tmp_path, monkeypatch):
+    path = tmp_path / "file"
+    path.write_text("x")
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(path))
+    line = failed(run_recipe(tmp_path / "out", tmp_path / "cache", "env=antmaze"))
+    assert line == (
+        f"error: MINARI_DATASETS_PATH={path}: not a directory Minari can use (File exists: "
+        f"{path}); point it at a directory, or unset it to use ~/.minari/datasets"
+    )
+
+
+def test_a_damaged_metadata_file_is_named_with_the_download_command(
+    minari_path, tmp_path, monkeypatch
+):
+    datasets = tmp_path / "datasets"
+    shutil.copytree(minari_path, datasets)
+    metadata = datasets / "D4RL" / "antmaze" / "umaze-v1" / "data" / "metadata.json"
+    metadata.write_text("{broken")
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(datasets))
+    line = failed(run_recipe(tmp_path / "out", tmp_path / "cache", "env=antmaze"))
+    assert line.startswith(
+        "error: env.dataset=umaze: the Minari data set D4RL/antmaze/umaze-v1 is damaged: "
+        f"{metadata} cannot be read ("
+    )
+    assert line.endswith("download it again with: minari download --force D4RL/antmaze/umaze-v1")
 
 
 def test_ids_of_the_published_families():

@@ -41,10 +41,11 @@ from torchrl_dual.envs import (
     make_frozenlake_env,
     make_pointmaze_env,
     make_pointmaze_gym_env,
+    open_cells,
 )
 from torchrl_dual.evaluation import evaluate_episodes, frozenlake_policy_actions
 from torchrl_dual.recipe.settings.envs import ENV_KITS, EnvKit
-from torchrl_dual.recipe.settings.errors import ConfigError, UserError
+from torchrl_dual.recipe.settings.errors import ConfigError, UserError, warn
 from torchrl_dual.transforms import PreviousTransition
 
 Evaluator = Callable[[nn.Module], dict[str, float]]
@@ -61,11 +62,19 @@ def check_pointmaze(cfg: DictConfig) -> None:
             goal_maze_map(cfg.env.maze, list(goal_cell))
         except ValueError as err:
             raise ConfigError("env.goal_cell", list(goal_cell), str(err)) from err
-    for cell in _pointmaze_avoided(cfg.env) or ():
+    avoided = _pointmaze_avoided(cfg.env) or []
+    for cell in avoided:
         try:
             goal_maze_map(cfg.env.maze, cell)
         except ValueError as err:
             raise ConfigError("env.data_avoid_cells", cell, str(err)) from err
+    if avoided and set(open_cells(cfg.env.maze)) <= {tuple(cell) for cell in avoided}:
+        raise ConfigError(
+            "env.data_avoid_cells",
+            avoided,
+            f"covers every open cell of the {cfg.env.maze} maze, so the offline data would "
+            "have nowhere to go; leave at least one open cell out",
+        )
 
 
 def _pointmaze_shift(env: DictConfig) -> dict[str, Any]:
@@ -225,7 +234,27 @@ def make_offline_dataset(cfg: DictConfig) -> OfflineDataset:
             f"the cached offline data of env={cfg.env.name} is invalid: {err} Delete its "
             "entry in the cache to regenerate it.",
         ) from err
+    warn_if_batches_exceed_data(cfg, len(data))
     return data
+
+
+def warn_if_batches_exceed_data(cfg: DictConfig, transitions: int) -> None:
+    """One ``warning:`` line when an update draws more transitions (``online.batch_size``)
+    or windows (``planner.batch_size``) than ``D_offline`` holds: sampled with replacement,
+    such a batch repeats the data many times over at a cost that grows with its size."""
+    for section in ("online", "planner"):
+        node = cfg.get(section)
+        if node is None or node.get("batch_size", 0) <= transitions:
+            continue
+        batch = node.batch_size
+        interpolated = OmegaConf.is_interpolation(node, "batch_size")  # the budget's value
+        name = "budget.batch_size" if interpolated else f"{section}.batch_size"
+        warn(
+            f"{name}={batch} exceeds the {transitions} transitions of the offline data: "
+            f"drawn with replacement, a batch holds each about {batch / transitions:.0f} "
+            f"times and every update pays for all {batch}; lower it to at most {transitions}"
+        )
+        return
 
 
 def projected_policy(cfg: DictConfig, policy: nn.Module) -> nn.Module:

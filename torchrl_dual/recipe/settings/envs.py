@@ -14,6 +14,8 @@ recipe branches on the env.
 
 from __future__ import annotations
 
+import json
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -267,7 +269,8 @@ MINARI_SETTINGS: dict[str, type] = {
 
 # ----------------------------------------------------------------------------- checks
 def check_minari_dataset(cfg: DictConfig) -> None:
-    """Stops before any work when minari is missing or the data set is not on disk."""
+    """Stops before any work when minari is missing, ``MINARI_DATASETS_PATH`` is not a
+    directory, the data set is not on disk or its ``metadata.json`` does not parse."""
     dataset_id = FAMILIES[cfg.env.kind].dataset_id(cfg.env)
     try:
         from minari.storage import get_dataset_path
@@ -277,7 +280,24 @@ def check_minari_dataset(cfg: DictConfig) -> None:
             cfg.env.kind,
             "reading Minari data sets needs the minari package: pip install 'torchrl-dual[minari]'",
         ) from err
-    path = get_dataset_path(dataset_id)
+    try:
+        path = get_dataset_path(dataset_id)  # creates the directories: fails on a file
+    except OSError as err:
+        reason = f"{err.strerror}: {err.filename}"
+        root = os.environ.get("MINARI_DATASETS_PATH")
+        if root:
+            raise ConfigError(
+                "MINARI_DATASETS_PATH",
+                root,
+                f"not a directory Minari can use ({reason}); point it at a directory, or "
+                "unset it to use ~/.minari/datasets",
+            ) from err
+        raise ConfigError(
+            None,
+            None,
+            f"Minari's data sets directory cannot be used ({reason}); set "
+            "MINARI_DATASETS_PATH to a directory",
+        ) from err
     if not (path / "data").exists():
         raise ConfigError(
             "env.dataset",
@@ -286,6 +306,17 @@ def check_minari_dataset(cfg: DictConfig) -> None:
             f"MINARI_DATASETS_PATH to look elsewhere); download it with: "
             f"minari download {dataset_id}",
         )
+    metadata = path / "data" / "metadata.json"  # Minari reads it first
+    try:
+        if metadata.is_file():
+            json.loads(metadata.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise ConfigError(
+            "env.dataset",
+            cfg.env.dataset,
+            f"the Minari data set {dataset_id} is damaged: {metadata} cannot be read ({err}); "
+            f"download it again with: minari download --force {dataset_id}",
+        ) from err
 
 
 # ----------------------------------------------------------------------------- the table

@@ -91,6 +91,13 @@ def report(err: UserError, *, debug: bool = False) -> NoReturn:
     sys.exit(EXIT_CODE)
 
 
+def warn(text: str) -> None:
+    """Prints ``warning: <text>`` on one line of stderr: something the run can do, but
+    probably not what the user meant (the run goes on)."""
+    sys.stdout.flush()
+    print("warning: " + " ".join(text.split()), file=sys.stderr, flush=True)
+
+
 @contextmanager
 def user_errors(*, debug: bool = False) -> Iterator[None]:
     """Turns a :class:`UserError` raised inside the block into :func:`report`."""

@@ -161,6 +161,16 @@ class Maybe(Rule):
         return value is None or self.rule.allows(value)
 
     def describe(self) -> str:
+        """``must be null or <the rule's text>``; for a :class:`Choice`, its options.
+
+        Examples:
+            >>> Maybe(Integer(0)).describe()
+            'must be null or an integer >= 0'
+            >>> Maybe(Choice(("default", "max-autotune"))).describe()
+            'unknown option; choose null or one of default, max-autotune'
+        """
+        if isinstance(self.rule, Choice):  # "unknown option; ...", not a "must be" text
+            return "unknown option; choose null or one of " + ", ".join(self.rule.options)
         return "must be null or " + self.rule.describe().removeprefix("must be ")
 
 
