@@ -42,6 +42,7 @@ from torchrl_dual.envs.pointmaze import (
     make_pointmaze_gym_env,
     open_cells,
     pointmaze_env_id,
+    start_cells,
 )
 from torchrl_dual.envs.robotics import register_robotics_envs
 from torchrl_dual.envs.shifts import (
@@ -102,4 +103,5 @@ __all__ = [
     "register_robotics_envs",
     "release_maze_xml",
     "pointmaze_env_id",
+    "start_cells",
 ]

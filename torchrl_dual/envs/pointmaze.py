@@ -14,6 +14,9 @@ Conventions (the Gymnasium-Robotics defaults, which mirror D4RL ``maze2d``):
 * goal: a random open cell per episode (Gymnasium-Robotics); ``goal_cell=(row, col)``
   fixes it, as D4RL maze2d fixes one target per maze (the start stays random), which
   makes the task single-goal instead of goal-conditioned.
+* start: a random open cell other than the goal's (Gymnasium-Robotics);
+  ``start_avoid_cells`` leaves given cells out (:func:`start_cells`), e.g. the region the
+  offline data never enter, so that no episode starts inside the task's unexplored part.
 """
 
 from __future__ import annotations
@@ -99,15 +102,84 @@ def goal_maze_map(maze: str, goal_cell: Sequence[int]) -> list[list[Any]]:
         >>> goal_maze_map("umaze", (3, 1))[3]
         [1, 'g', 0, 0, 1]
     """
+    row, col = _open_cell(maze, goal_cell, "goal_cell")
+    maze_map = _maze_map(maze)
+    maze_map[row][col] = "g"
+    return maze_map
+
+
+def _open_cell(maze: str, cell: Sequence[int], name: str) -> tuple[int, int]:
+    """``cell`` as a ``(row, col)`` tuple; a ``ValueError`` listing the open cells unless
+    it is one."""
     cells = open_cells(maze)
-    cell = tuple(goal_cell)
-    if cell not in cells:
+    if tuple(cell) not in cells:
         raise ValueError(
-            f"goal_cell {list(goal_cell)} is not an open cell of the {maze} maze (a "
+            f"{name} {list(cell)} is not an open cell of the {maze} maze (a "
             f"[row, col] pair, row 0 at the top); open cells: {[list(c) for c in cells]}."
         )
-    maze_map = _maze_map(maze)
-    maze_map[cell[0]][cell[1]] = "g"
+    return (int(cell[0]), int(cell[1]))
+
+
+def start_cells(
+    maze: str,
+    goal_cell: Sequence[int] | None = None,
+    start_avoid_cells: Sequence[Sequence[int]] | None = None,
+) -> list[tuple[int, int]]:
+    """The cells, in reading order, where an episode of a PointMaze env made with
+    ``goal_cell`` and ``start_avoid_cells`` starts, each as likely as the others
+    (Gymnasium-Robotics' uniform reset cell, plus its noise of up to a quarter cell): the
+    open cells but ``goal_cell`` and ``start_avoid_cells``. With a random goal per episode
+    (``goal_cell=None``) an episode never starts in its own goal's cell either.
+
+    Raises:
+        ValueError: a ``start_avoid_cells`` entry is not an open cell, or they leave no
+            start cell (with a random goal, fewer than two: a start must differ from the
+            episode's goal cell); the message lists the open cells.
+
+    Examples:
+        >>> start_cells("umaze", goal_cell=(3, 1), start_avoid_cells=[(3, 2)])
+        [(1, 1), (1, 2), (1, 3), (2, 3), (3, 3)]
+        >>> start_cells("umaze", goal_cell=(3, 1)) == start_cells("umaze", (3, 1), None)
+        True
+    """
+    avoided = {
+        _open_cell(maze, cell, "start_avoid_cells entry") for cell in start_avoid_cells or ()
+    }
+    if goal_cell is not None:
+        avoided.add(_open_cell(maze, goal_cell, "goal_cell"))
+    cells = [cell for cell in open_cells(maze) if cell not in avoided]
+    needed = 1 if goal_cell is not None else 2  # a random goal may fall in the one left
+    if len(cells) < needed:
+        problem = (
+            f"and goal_cell leave no open cell of the {maze} maze to start an episode in"
+            if needed == 1
+            else f"leave {len(cells)} open cell(s) of the {maze} maze to start an episode in; "
+            "with a random goal per episode (goal_cell null) at least 2 are needed, as a start "
+            "must differ from the goal's cell"
+        )
+        raise ValueError(
+            f"start_avoid_cells {problem}. Open cells: {[list(c) for c in open_cells(maze)]}."
+        )
+    return cells
+
+
+def _task_maze_map(
+    maze: str,
+    goal_cell: Sequence[int] | None,
+    start_avoid_cells: Sequence[Sequence[int]] | None,
+) -> list[list[Any]]:
+    """The ``maze_map`` given to Gymnasium-Robotics: ``goal_cell`` marked ``"g"``
+    (:func:`goal_maze_map`) and, with ``start_avoid_cells``, the start cells marked reset
+    cells (``"r"``; ``"c"``, goal or reset, with a random goal, the avoided cells then
+    ``"g"``: every open cell stays a possible goal)."""
+    maze_map = _maze_map(maze) if goal_cell is None else goal_maze_map(maze, goal_cell)
+    if start_avoid_cells:
+        starts = set(start_cells(maze, goal_cell, start_avoid_cells))
+        for row, col in open_cells(maze):
+            if (row, col) in starts:
+                maze_map[row][col] = "r" if goal_cell is not None else "c"
+            elif goal_cell is None:
+                maze_map[row][col] = "g"
     return maze_map
 
 
@@ -117,6 +189,7 @@ def _gym_kwargs(
     continuing_task: bool,
     reward_type: str,
     goal_cell: Sequence[int] | None = None,
+    start_avoid_cells: Sequence[Sequence[int]] | None = None,
 ) -> tuple[str, dict[str, Any]]:
     env_id = pointmaze_env_id(maze)
     if reward_type not in _REWARD_TYPES:
@@ -130,8 +203,8 @@ def _gym_kwargs(
     }
     if max_episode_steps is not None:
         kwargs["max_episode_steps"] = int(max_episode_steps)
-    if goal_cell is not None:
-        kwargs["maze_map"] = goal_maze_map(maze, goal_cell)
+    if goal_cell is not None or start_avoid_cells:
+        kwargs["maze_map"] = _task_maze_map(maze, goal_cell, start_avoid_cells)
     return env_id, kwargs
 
 
@@ -156,6 +229,7 @@ def make_pointmaze_gym_env(
     shift_angle: float | None = None,
     shift_scale: float | None = None,
     goal_cell: Sequence[int] | None = None,
+    start_avoid_cells: Sequence[Sequence[int]] | None = None,
 ) -> gym.Env:
     """Builds the raw Gymnasium PointMaze env (dict observations) with the factory's settings.
 
@@ -174,6 +248,8 @@ def make_pointmaze_gym_env(
             shift's default if ``None``).
         goal_cell (sequence of int, optional): ``(row, col)`` of a fixed goal cell
             (:func:`goal_maze_map`); ``None`` (default): a random open cell per episode.
+        start_avoid_cells (sequence of (row, col), optional): open cells where no episode
+            starts (:func:`start_cells`); ``None`` (default): none.
 
     Examples:
         >>> env = make_pointmaze_gym_env("umaze", max_episode_steps=5)
@@ -182,7 +258,9 @@ def make_pointmaze_gym_env(
         (6,)
     """
     _register()
-    env_id, kwargs = _gym_kwargs(maze, max_episode_steps, continuing_task, reward_type, goal_cell)
+    env_id, kwargs = _gym_kwargs(
+        maze, max_episode_steps, continuing_task, reward_type, goal_cell, start_avoid_cells
+    )
     check_shift(shift, "pointmaze")
     return apply_shift(
         release_maze_xml(gym.make(env_id, **kwargs)),
@@ -221,6 +299,7 @@ def make_pointmaze_env(
     shift_angle: float | None = None,
     shift_scale: float | None = None,
     goal_cell: Sequence[int] | None = None,
+    start_avoid_cells: Sequence[Sequence[int]] | None = None,
     reward_scale: float = 1.0,
     reward_shift: float = 0.0,
 ):
@@ -249,6 +328,8 @@ def make_pointmaze_env(
         shift_scale (float, optional): factor of ``"damping"`` / ``"mass"``.
         goal_cell (sequence of int, optional): ``(row, col)`` of a fixed goal cell;
             ``None`` (default): a random open cell per episode.
+        start_avoid_cells (sequence of (row, col), optional): open cells where no episode
+            starts (:func:`start_cells`); ``None`` (default): every open cell but the goal's.
         reward_scale (float): the reward becomes ``reward_scale * r + reward_shift``
             (``RewardScaling`` after ``DoubleToFloat``; e.g. Cal-QL's sparse ``10 r - 5``).
             Defaults to 1.
@@ -256,7 +337,7 @@ def make_pointmaze_env(
 
     Raises:
         ValueError: unknown maze name (the message lists the valid ones), reward type,
-            shift or goal cell.
+            shift, goal cell or start cells.
 
     Examples:
         >>> env = make_pointmaze_env("umaze", max_episode_steps=20, seed=0)
@@ -277,7 +358,9 @@ def make_pointmaze_env(
     )
 
     _register()
-    env_id, kwargs = _gym_kwargs(maze, max_episode_steps, continuing_task, reward_type, goal_cell)
+    env_id, kwargs = _gym_kwargs(
+        maze, max_episode_steps, continuing_task, reward_type, goal_cell, start_avoid_cells
+    )
     check_shift(shift, "pointmaze")
     gym_env = release_maze_xml(gym.make(env_id, **kwargs))
     if shift != "none":

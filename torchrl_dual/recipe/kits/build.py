@@ -27,6 +27,7 @@ from torchrl.envs import EnvBase
 
 from torchrl_dual._utils import one_hot_at
 from torchrl_dual.data import (
+    MazeWaypointController,
     OfflineDataset,
     load_or_generate_frozenlake_dataset,
     load_or_generate_maze_dataset,
@@ -42,6 +43,7 @@ from torchrl_dual.envs import (
     make_pointmaze_env,
     make_pointmaze_gym_env,
     open_cells,
+    start_cells,
 )
 from torchrl_dual.evaluation import evaluate_episodes, frozenlake_policy_actions
 from torchrl_dual.recipe.settings.envs import ENV_KITS, EnvKit
@@ -54,8 +56,9 @@ Evaluator = Callable[[nn.Module], dict[str, float]]
 
 
 def check_pointmaze(cfg: DictConfig) -> None:
-    """``env.goal_cell`` and every ``env.data_avoid_cells`` entry are open cells of
-    ``env.maze`` (``[row, col]`` pairs)."""
+    """``env.goal_cell`` and every ``env.data_avoid_cells`` and ``env.start_avoid_cells``
+    entry are open cells of ``env.maze`` (``[row, col]`` pairs), and the latter leave a
+    cell to start in (:func:`~torchrl_dual.envs.start_cells`)."""
     goal_cell = cfg.env.goal_cell
     if goal_cell is not None:
         try:
@@ -75,6 +78,11 @@ def check_pointmaze(cfg: DictConfig) -> None:
             f"covers every open cell of the {cfg.env.maze} maze, so the offline data would "
             "have nowhere to go; leave at least one open cell out",
         )
+    no_start = _pointmaze_starts_avoided(cfg.env)
+    try:
+        start_cells(cfg.env.maze, _pointmaze_goal(cfg.env), no_start)
+    except ValueError as err:
+        raise ConfigError("env.start_avoid_cells", no_start, str(err)) from err
 
 
 def _pointmaze_shift(env: DictConfig) -> dict[str, Any]:
@@ -85,9 +93,13 @@ def _pointmaze_goal(env: DictConfig) -> list[int] | None:
     return None if env.goal_cell is None else list(env.goal_cell)
 
 
-def _pointmaze_avoided(env: DictConfig) -> list[list[int]] | None:
-    cells = env.get("data_avoid_cells")
+def _pointmaze_avoided(env: DictConfig, key: str = "data_avoid_cells") -> list[list[int]] | None:
+    cells = env.get(key)
     return None if not cells else [list(cell) for cell in cells]
+
+
+def _pointmaze_starts_avoided(env: DictConfig) -> list[list[int]] | None:
+    return _pointmaze_avoided(env, "start_avoid_cells")
 
 
 def pointmaze_data(cfg: DictConfig) -> OfflineDataset:
@@ -115,6 +127,7 @@ def pointmaze_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
         seed=cfg.seed,
         device="cpu",
         goal_cell=_pointmaze_goal(env),
+        start_avoid_cells=_pointmaze_starts_avoided(env),
         reward_scale=env.reward_scale,
         reward_shift=env.reward_shift,
         **_pointmaze_shift(env),
@@ -130,6 +143,7 @@ def pointmaze_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
                 env.maze,
                 max_episode_steps=env.max_episode_steps,
                 goal_cell=_pointmaze_goal(env),
+                start_avoid_cells=_pointmaze_starts_avoided(env),
                 **shift,
             ),
             policy,
@@ -155,6 +169,40 @@ def pointmaze_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
         return result
 
     return evaluate
+
+
+def pointmaze_start_distances(env: DictConfig) -> dict[str, dict[int, int]]:
+    """How far from the goal and from the cells the data never enter the episodes of a
+    PointMaze ``env.*`` config start (the online env's and the evaluator's, which share
+    the reset): ``{"goal": {moves: start cells}, "avoided": {moves: start cells}}``, the
+    shortest path in cell moves through the maze from each start cell of the env (its
+    Gymnasium-Robotics reset cells, equally likely) to ``env.goal_cell`` and to the nearest
+    ``env.data_avoid_cells`` cell (0: inside them); an entry is left out when its key is
+    null. Start cells over all of them is the share of episodes.
+
+    Examples:
+        >>> env = OmegaConf.create({"maze": "umaze", "goal_cell": [3, 1],
+        ...     "data_avoid_cells": [[3, 1], [3, 2]], "start_avoid_cells": None})
+        >>> pointmaze_start_distances(env)
+        {'goal': {1: 1, 2: 1, 3: 1, 4: 1, 5: 1, 6: 1}, 'avoided': {0: 1, 1: 1, 2: 1, 3: 1, 4: 1, 5: 1}}
+        >>> env.start_avoid_cells = env.data_avoid_cells  # no start inside them
+        >>> pointmaze_start_distances(env)["avoided"]
+        {1: 1, 2: 1, 3: 1, 4: 1, 5: 1}
+    """
+    gym_env = make_pointmaze_gym_env(
+        env.maze, goal_cell=_pointmaze_goal(env), start_avoid_cells=_pointmaze_starts_avoided(env)
+    )
+    maze = gym_env.unwrapped.maze
+    paths = MazeWaypointController(maze.maze_map, maze_size_scaling=maze.maze_size_scaling)
+    starts = [paths.xy_to_cell(xy) for xy in maze.unique_reset_locations]
+    gym_env.close()
+    targets = {"goal": [_pointmaze_goal(env)], "avoided": _pointmaze_avoided(env)}
+    out = {}
+    for name, cells in targets.items():
+        if cells and cells[0] is not None:
+            moves = [min(paths.path_length(s, tuple(c)) for c in cells) for s in starts]
+            out[name] = {d: moves.count(d) for d in sorted(set(moves))}
+    return out
 
 
 def frozenlake_data(cfg: DictConfig) -> OfflineDataset:

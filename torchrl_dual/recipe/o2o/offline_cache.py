@@ -69,6 +69,7 @@ ONLINE_KEYS: tuple[str, ...] = (
     "env.shift",
     "env.shift_angle",
     "env.shift_scale",
+    "env.start_avoid_cells",  # PointMaze's online and evaluation starts
     "env.online_success_rate",
 )
 """Dotted keys that no algorithm's offline stages read (the online phase, the offline

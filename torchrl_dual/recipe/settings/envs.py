@@ -87,7 +87,16 @@ class EnvSettings:
 # ----------------------------------------------------------------------------- PointMaze
 @dataclass
 class PointMazeSettings(EnvSettings):
-    """``env/pointmaze_*.yaml``: Gymnasium-Robotics PointMaze, maze2d-style local data."""
+    """``env/pointmaze_*.yaml``: Gymnasium-Robotics PointMaze, maze2d-style local data.
+
+    ``data_avoid_cells`` shapes the offline data only; ``start_avoid_cells`` the online
+    env's and the evaluator's starts only (each collector worker's env too), so that an
+    exploration task (the goal in cells the data never enter) can keep its episodes from
+    starting inside them: ``env.start_avoid_cells=${env.data_avoid_cells}``. Named as its
+    data twin, a list of cells left out (Gymnasium-Robotics' reset cells, ``"r"`` in its
+    ``maze_map``, are their complement: :func:`~torchrl_dual.envs.start_cells`). It changes
+    no offline stage (an online key: runs that differ in it share the offline phase).
+    """
 
     maze: str = key(Choice(POINTMAZE_MAZES), "layout")
     shift: str = key(Choice(SHIFTS_BY_KIND["pointmaze"]), "online-only dynamics shift")
@@ -101,6 +110,11 @@ class PointMazeSettings(EnvSettings):
     )
     data_avoid_cells: Any = key(
         Maybe(CellList()), "open cells the offline data never enter (null: none)"
+    )
+    start_avoid_cells: Any = key(
+        Maybe(CellList()),
+        "open cells where no online or evaluation episode starts (null: every open cell but "
+        "the goal's, as Gymnasium-Robotics)",
     )
     reward_scale: float = key(
         Real(0, low_open=True), "r' = reward_scale * r + reward_shift (data and online env)"
