@@ -1,7 +1,8 @@
 """The hot path compiles whole and never reads a device value back to the host.
 
 ``torch.compile(fullgraph=True)`` (Dynamo with the ``eager`` backend: the graph-break
-check, without code generation) of DUAL's three losses and of its acting policy, and a
+check, without code generation) of the forward of DUAL's three losses and of its acting
+policy in both exploration modes (DETERMINISTIC and RANDOM), on the CPU, and a
 ``TorchDispatchMode`` that counts the ops which copy a device value to the host
 (``aten._local_scalar_dense``: ``.item()``, ``bool(t)``, ``int(t)``; ``nonzero``) during an
 update's forward and backward and during an acting step.
@@ -155,20 +156,32 @@ def test_each_loss_compiles_without_a_graph_break(name):
     assert torch.isfinite(out[key])
 
 
+@pytest.mark.parametrize("mode", [ExplorationType.DETERMINISTIC, ExplorationType.RANDOM])
 @pytest.mark.parametrize("name", ["dual", "iql_la"])
-def test_the_acting_policy_compiles_without_a_graph_break_and_acts_alike(name):
+def test_the_acting_policy_compiles_without_a_graph_break_and_acts_alike(name, mode):
+    """DETERMINISTIC as the evaluation acts, RANDOM as the collector acts (Eq. 9's
+    ensemble draw and Eq. 10's noise: ``LaplaceEnsembleActor`` then ``ShiftAwareNoise``).
+    The ``eager`` backend runs Dynamo's graph with the same ops in the same order, so under
+    one seed the compiled policy draws the same noise as the eager one."""
     policy = _policies()[name]
     step = _step()
 
     def act(td):
-        with set_exploration_type(ExplorationType.DETERMINISTIC):
+        with set_exploration_type(mode):
             return policy(td)
 
     with torch.no_grad():
+        act(step.clone())  # a collector's first step: caches and memos built eagerly
+        torch.manual_seed(1)
         eager = act(step.clone())
         torch._dynamo.reset()
-        compiled = torch.compile(act, fullgraph=True, backend="eager")(step.clone())
-    torch.testing.assert_close(compiled["action"], eager["action"])
+        compiled_act = torch.compile(act, fullgraph=True, backend="eager")
+        torch.manual_seed(1)
+        compiled = compiled_act(step.clone())
+    for key in ("action", "loc", "scale", "exploration_scale"):
+        torch.testing.assert_close(compiled[key], eager[key])
+    if mode is ExplorationType.RANDOM:  # the noise is there: not the mean action
+        assert not torch.allclose(compiled["action"], compiled["loc"].clamp(-1.0, 1.0))
 
 
 def test_an_update_reads_nothing_back_to_the_host_once_checks_are_off(monkeypatch):
