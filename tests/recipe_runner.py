@@ -9,7 +9,9 @@ of starting Python and importing torch, TorchRL and Hydra. ``cli=True`` runs the
 (``test_o2o.py``'s PointMaze smoke run, ``test_config_errors.py``'s command-line tests).
 ``run_script`` runs a benchmark script in this process the same way. ``succeeded`` and
 ``failed`` assert on how a run ended (``failed``: exit 2, one
-``error:`` line, no traceback).
+``error:`` line, no traceback). ``TINY`` is a cut-down smoke budget for in-process runs of
+every algorithm, ``checkpoint_state`` reads a run's checkpoint and ``WALL_CLOCK`` names
+what two runs of one seed may differ in.
 """
 
 from __future__ import annotations
@@ -30,6 +32,35 @@ import torch
 from torchrl_dual.recipe import CONFIG_DIR
 
 REPO = Path(__file__).resolve().parents[1]
+
+TINY = (
+    "budget=smoke",
+    "env=frozenlake",
+    "budget.dataset_transitions=1000",
+    "budget.network_width=16",
+    "budget.batch_size=32",  # dacer estimates its entropy on 32 states of a batch
+    "budget.planner_updates=4",
+    "budget.distill_updates=[2,2,2,2,2]",
+    "budget.offline_updates=4",
+    "budget.online_frames=100",
+    "budget.frames_per_batch=50",
+    "budget.laplace_refit_every=10",
+    "budget.eval_every=100",
+    "budget.eval_episodes=1",
+    "budget.checkpoint_every=50",
+    "progress=false",
+    "num_threads=1",
+)
+"""Frozen-Lake at a cut-down smoke budget: every algorithm in seconds, in-process."""
+
+WALL_CLOCK = ("stage_seconds", "stage_cpu_seconds", "logger")
+"""What two runs of the same seed may differ in: the stages' times and the logger's paths."""
+
+
+def checkpoint_state(output_dir: Path) -> dict:
+    """The state saved in ``output_dir/checkpoint.pt``."""
+    payload = torch.load(output_dir / "checkpoint.pt", map_location="cpu", weights_only=False)
+    return payload["state"]
 
 
 def run_recipe(

@@ -15,31 +15,10 @@ from pathlib import Path
 
 import pytest
 import torch
+from recipe_runner import TINY, WALL_CLOCK
 
 from torchrl_dual.checkpoint import state_differences
 from torchrl_dual.recipe import ALGORITHMS, CONFIG_DIR, O2ORun, compose_checked, run_o2o
-
-TINY = (
-    "budget=smoke",
-    "env=frozenlake",
-    "budget.dataset_transitions=1000",
-    "budget.network_width=16",
-    "budget.batch_size=32",  # dacer estimates its entropy on 32 states of a batch
-    "budget.planner_updates=4",
-    "budget.distill_updates=[2,2,2,2,2]",
-    "budget.offline_updates=4",
-    "budget.online_frames=100",
-    "budget.frames_per_batch=50",
-    "budget.laplace_refit_every=10",
-    "budget.eval_every=100",
-    "budget.eval_episodes=1",
-    "budget.checkpoint_every=50",
-    "progress=false",
-    "num_threads=1",
-)
-
-WALL_CLOCK = ("stage_seconds", "stage_cpu_seconds", "logger")
-"""What two runs of the same seed may differ in: the stages' times and the logger's paths."""
 
 pytestmark = pytest.mark.long_running(seconds=60)  # starts first under xdist
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import torch
 from omegaconf import OmegaConf
-from recipe_runner import run_recipe, succeeded
+from recipe_runner import checkpoint_state, run_recipe, succeeded
 from tensordict import TensorDict
 from torch import nn
 from torchrl.data import Bounded
@@ -53,11 +53,6 @@ def common_overrides(output_dir: Path, cache_dir: Path) -> list[str]:
         "num_threads=1",
         *FAST,
     ]
-
-
-def checkpoint_state(output_dir: Path) -> dict:
-    payload = torch.load(output_dir / "checkpoint.pt", map_location="cpu", weights_only=False)
-    return payload["state"]
 
 
 @pytest.fixture(scope="module")

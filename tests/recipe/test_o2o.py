@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from recipe_runner import failed, run_recipe, succeeded
+from recipe_runner import checkpoint_state, failed, run_recipe, succeeded
 
 from torchrl_dual.data import OfflineDataset, make_transitions
 from torchrl_dual.data.cache import load_cached_dataset, save_cached_dataset
@@ -35,11 +35,6 @@ from torchrl_dual.recipe.settings.dual import DualSections
 pytestmark = pytest.mark.long_running(seconds=140)  # starts first under xdist
 ONLINE_FRAMES = 400  # budget/smoke.yaml
 INTERRUPT_AT = 200
-
-
-def checkpoint_state(output_dir: Path) -> dict:
-    payload = torch.load(output_dir / "checkpoint.pt", map_location="cpu", weights_only=False)
-    return payload["state"]
 
 
 def csv_steps(path: Path) -> list[int]:

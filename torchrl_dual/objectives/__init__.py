@@ -6,7 +6,11 @@ from torchrl_dual.objectives.density_ratio import DensityRatioLoss, make_density
 from torchrl_dual.objectives.diffusion_planner import DiffusionPlannerLoss, train_planner
 from torchrl_dual.objectives.distillation import DistillationLoss, progressive_distillation
 from torchrl_dual.objectives.so2 import SO2QLoss
-from torchrl_dual.objectives.update_loop import ExponentialMovingAverage, run_updates
+from torchrl_dual.objectives.update_loop import (
+    ExponentialMovingAverage,
+    UpdateCheckpoints,
+    run_updates,
+)
 from torchrl_dual.objectives.weighted_map_actor import WEIGHTINGS, WeightedMAPActorLoss
 
 __all__ = [
@@ -18,6 +22,7 @@ __all__ = [
     "DistillationLoss",
     "ExponentialMovingAverage",
     "SO2QLoss",
+    "UpdateCheckpoints",
     "WeightedMAPActorLoss",
     "make_density_ratio_network",
     "progressive_distillation",

@@ -4,13 +4,18 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import torch
 from tensordict import TensorDict, TensorDictBase, TensorDictParams
 
 from torchrl_dual.diffusion.model import TrajectoryDiffusion
 from torchrl_dual.objectives._trajectory_window_loss import TrajectoryWindowLoss, masked_mean
-from torchrl_dual.objectives.update_loop import ExponentialMovingAverage, run_updates
+from torchrl_dual.objectives.update_loop import (
+    ExponentialMovingAverage,
+    UpdateCheckpoints,
+    run_updates,
+)
 
 
 class DistillationLoss(TrajectoryWindowLoss):
@@ -131,6 +136,28 @@ class DistillationLoss(TrajectoryWindowLoss):
         return TensorDict({"loss_distillation": loss, **metadata}, batch_size=[])
 
 
+class _RoundCheckpoints:
+    """One round's view of :func:`progressive_distillation`'s checkpoints: its loop state
+    saved under the round's index, its updates counted over all rounds. Only the round a
+    resumed distillation continues asks ``outer`` to resume (right before its loop runs,
+    where the caller may restore its random state)."""
+
+    def __init__(
+        self, outer: UpdateCheckpoints, index: int, updates: Sequence[int], resuming: bool
+    ) -> None:
+        self.outer, self.index, self.resuming = outer, index, resuming
+        self.offset, self.total = sum(updates[:index]), sum(updates)
+
+    def resume(self) -> dict[str, Any] | None:
+        saved = self.outer.resume() if self.resuming else None
+        return None if saved is None else saved["loop"]
+
+    def after_update(self, done: int, total: int, state: Callable[[], dict[str, Any]]) -> None:
+        self.outer.after_update(
+            self.offset + done, self.total, lambda: {"round": self.index, "loop": state()}
+        )
+
+
 def progressive_distillation(
     teacher: TrajectoryDiffusion,
     sample: Callable[[], TensorDictBase],
@@ -142,6 +169,7 @@ def progressive_distillation(
     ema_decay: float | None = 0.995,
     logger=None,
     progress: bool = True,
+    checkpoints: UpdateCheckpoints | None = None,
     **kwargs,
 ) -> TrajectoryDiffusion:
     """Halves the sampler's steps until ``final_steps`` (Algorithm 1, line 5).
@@ -153,6 +181,11 @@ def progressive_distillation(
     be a sequence, one entry per round, that spends more updates there. Within a round
     the learning rate decays along a cosine and the student kept at the end is the
     exponential moving average of its weights (``ema_decay``; ``None`` keeps the last).
+
+    With ``checkpoints`` (:class:`~torchrl_dual.objectives.UpdateCheckpoints`) the rounds
+    are checkpointed within: a resumed distillation skips the finished rounds (their
+    students' weights come back with the round it continues) and continues that round's
+    loop; ``done`` counts the updates of all rounds.
 
     Returns:
         the final student (the input ``teacher`` is left unchanged).
@@ -172,10 +205,15 @@ def progressive_distillation(
             f"updates_per_round has {len(updates_per_round)} entries but distilling "
             f"{steps} -> {final_steps} steps takes {num_rounds} rounds."
         )
+    saved = None if checkpoints is None else checkpoints.resume()
+    first = 0 if saved is None else saved["round"]
     current = teacher
-    for round_updates in updates_per_round:
+    for index, round_updates in enumerate(updates_per_round):
         student = copy.deepcopy(current)
         student.num_steps = current.num_steps // 2
+        if index < first:  # done before the resume: round `first` loads its weights
+            current = student
+            continue
         loss = DistillationLoss(student, current, action_condition_prob=action_condition_prob)
         optimizer = torch.optim.Adam(loss.parameters(), lr=lr)
         ema = None if ema_decay is None else ExponentialMovingAverage(student, ema_decay)
@@ -190,6 +228,11 @@ def progressive_distillation(
             progress=progress,
             cosine_lr=True,
             ema=ema,
+            checkpoints=None
+            if checkpoints is None
+            else _RoundCheckpoints(
+                checkpoints, index, updates_per_round, saved is not None and index == first
+            ),
             **kwargs,
         )
         if ema is not None:

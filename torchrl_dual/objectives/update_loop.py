@@ -1,8 +1,16 @@
-"""The gradient-update loop shared by the training drivers, and a parameter EMA."""
+"""The gradient-update loop shared by the training drivers, and a parameter EMA.
+
+:func:`run_updates` can be checkpointed within the loop and resumed from there
+(:class:`UpdateCheckpoints`): what it saves is everything the loop itself holds (the
+loss module's weights, the optimizer, the learning-rate schedule, the EMA and the
+running log window), so a loop resumed from its state ends exactly as an uninterrupted
+one, given the same random state (the caller's to keep).
+"""
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any, Protocol
 
 import torch
 from tensordict import TensorDictBase
@@ -33,11 +41,38 @@ class ExponentialMovingAverage:
     def update(self) -> None:
         torch._foreach_lerp_(self.shadow, [p.detach() for p in self.params], 1.0 - self.decay)
 
+    def state_dict(self) -> dict[str, list[torch.Tensor]]:
+        """The averages (copies), for a checkpoint."""
+        return {"shadow": [average.clone() for average in self.shadow]}
+
+    @torch.no_grad()
+    def load_state_dict(self, state: dict[str, list[torch.Tensor]]) -> None:
+        """Restores what :meth:`state_dict` returned."""
+        for average, saved in zip(self.shadow, state["shadow"], strict=True):
+            average.copy_(saved)
+
     @torch.no_grad()
     def copy_to(self, module: torch.nn.Module) -> None:
         """Writes the averages into ``module`` (the module the EMA was built on)."""
         for param, average in zip(module.parameters(), self.shadow, strict=True):
             param.copy_(average)
+
+
+class UpdateCheckpoints(Protocol):
+    """Where a resumable update loop (:func:`run_updates`) finds and leaves its progress.
+
+    The recipe's offline stages pass one (``O2ORun.stage_checkpoints``): it saves the run
+    with the loop's state every so many updates and when the run is interrupted.
+    """
+
+    def resume(self) -> dict[str, Any] | None:
+        """The loop state to continue from (what an ``after_update`` call's ``state()``
+        returned), or ``None`` to start at update 0; called right before the loop runs."""
+
+    def after_update(self, done: int, total: int, state: Callable[[], dict[str, Any]]) -> None:
+        """Called after each update: ``done`` of ``total`` updates are done and ``state()``
+        is the loop's state now (built only when called). May raise ``KeyboardInterrupt``
+        to stop the loop there."""
 
 
 def run_updates(
@@ -55,12 +90,15 @@ def run_updates(
     progress: bool = True,
     cosine_lr: bool = False,
     ema: ExponentialMovingAverage | None = None,
+    checkpoints: UpdateCheckpoints | None = None,
 ) -> dict[str, float]:
     """Runs ``num_updates`` gradient steps on the sum of the ``loss_*`` entries.
 
     Scalar entries of the loss output are averaged over each ``log_every`` window
     and sent to ``logger`` (a :class:`torchrl.record.loggers.Logger`) as
-    ``{log_prefix}{name}``; the last window's averages are returned.
+    ``{log_prefix}{name}``; the last window's averages are returned. With
+    ``checkpoints``, the loop continues from the state its ``resume()`` returns and hands
+    its state to ``after_update`` after each step (:class:`UpdateCheckpoints`).
 
     Examples:
         >>> import torch
@@ -82,9 +120,39 @@ def run_updates(
         else None
     )
     sums: dict[str, torch.Tensor] = {}  # on the device: read back once per window
-    count = 0
+    count = start = 0
     averages: dict[str, float] = {}
-    bar = tqdm(range(num_updates), desc=desc, disable=not progress, leave=False)
+
+    def loop_state() -> dict[str, Any]:
+        return {
+            "done": update + 1,
+            "loss": loss_module.state_dict(),
+            "optimizer": optimizer.state_dict(),
+            "scheduler": None if scheduler is None else scheduler.state_dict(),
+            "ema": None if ema is None else ema.state_dict(),
+            "sums": dict(sums),
+            "count": count,
+            "averages": averages,  # the last window's, returned
+        }
+
+    saved = None if checkpoints is None else checkpoints.resume()
+    if saved is not None:
+        start, sums, count = saved["done"], dict(saved["sums"]), saved["count"]
+        averages = dict(saved["averages"])
+        loss_module.load_state_dict(saved["loss"])
+        optimizer.load_state_dict(saved["optimizer"])
+        if scheduler is not None:
+            scheduler.load_state_dict(saved["scheduler"])
+        if ema is not None:
+            ema.load_state_dict(saved["ema"])
+    bar = tqdm(
+        range(start, num_updates),
+        desc=desc,
+        disable=not progress,
+        leave=False,
+        initial=start,
+        total=num_updates,
+    )
     for update in bar:
         out = loss_module(sample())
         loss = sum(value for key, value in out.items() if key.startswith("loss_"))
@@ -108,4 +176,6 @@ def run_updates(
                 for key, value in averages.items():
                     logger.log_scalar(f"{log_prefix}{key}", value, step=step_offset + update + 1)
             sums, count = {}, 0
+        if checkpoints is not None:
+            checkpoints.after_update(update + 1, num_updates, loop_state)
     return averages

@@ -156,9 +156,21 @@ def check_command_line(
 
 
 def hydra_task(cfg: DictConfig) -> Any:
-    """The body of ``@hydra.main``: :func:`run` with user errors reported as one line."""
+    """The body of ``@hydra.main``: :func:`run` with user errors reported as one line.
+
+    Ctrl-C or SIGTERM in the offline or online phase ends the run with a checkpoint and
+    one line (:func:`~torchrl_dual.recipe.run_o2o`); anywhere else (while the data and
+    networks are built, at the very end) with one line too, its last checkpoint kept."""
     with user_errors(debug=bool(cfg.get("debug", False))):
-        return run(cfg)
+        try:
+            return run(cfg)
+        except KeyboardInterrupt:
+            print(
+                f"[{cfg.algo}] interrupted; nothing new saved (the last checkpoint in "
+                f"{cfg.output_dir}, if any, is kept). Continue with resume=true.",
+                flush=True,
+            )
+            return None
 
 
 def main() -> None:

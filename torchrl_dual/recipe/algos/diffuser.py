@@ -73,17 +73,20 @@ class DiffuserLearner(Learner):
         return [("planner", self.pretrain_planner)]
 
     def pretrain_planner(self) -> None:
-        """``budget.planner_updates`` ``L_VLB`` steps on ``D_offline`` windows (Eq. 3)."""
-        run_updates(
-            self.loss,
-            self.offline_windows.sample,
-            self.cfg.budget.planner_updates,
-            self.optimizer,
-            desc="planner",
-            logger=self.run.logger,
-            log_prefix="planner/",
-            progress=self.cfg.progress,
-        )
+        """``budget.planner_updates`` ``L_VLB`` steps on ``D_offline`` windows (Eq. 3),
+        checkpointed within the stage."""
+        with self.run.stage_checkpoints() as checkpoints:
+            run_updates(
+                self.loss,
+                self.offline_windows.sample,
+                self.cfg.budget.planner_updates,
+                self.optimizer,
+                desc="planner",
+                logger=self.run.logger,
+                log_prefix="planner/",
+                progress=self.cfg.progress,
+                checkpoints=checkpoints,
+            )
 
     def windows(self) -> TensorDictBase:
         """``planner.batch_size`` windows, ``online.offline_fraction`` of them offline."""

@@ -262,17 +262,20 @@ class DualLearner(Learner):
 
         Ablations: ``distillation.final_steps = N > 1`` stops the halving at N steps
         ("w/o distillation"); ``actor.init=scratch`` keeps the actor's fresh weights
-        ("w/o planner"), the student then only serves as the transition model."""
-        student = progressive_distillation(
-            self.teacher,
-            self.windows.sample,
-            list(self.cfg.budget.distill_updates),
-            final_steps=self.settings.distillation.final_steps,
-            lr=self.settings.distillation.lr,
-            action_condition_prob=self.settings.planner.action_condition_prob,
-            logger=self.run.logger,
-            progress=self.cfg.progress,
-        )
+        ("w/o planner"), the student then only serves as the transition model. The rounds
+        are checkpointed within the stage."""
+        with self.run.stage_checkpoints() as checkpoints:
+            student = progressive_distillation(
+                self.teacher,
+                self.windows.sample,
+                list(self.cfg.budget.distill_updates),
+                final_steps=self.settings.distillation.final_steps,
+                lr=self.settings.distillation.lr,
+                action_condition_prob=self.settings.planner.action_condition_prob,
+                logger=self.run.logger,
+                progress=self.cfg.progress,
+                checkpoints=checkpoints,
+            )
         if self.settings.actor.init == "distilled":
             self.actor.model.load_state_dict(student.state_dict())
         if self.transition.frozen:  # a shared transition model is actor.model itself

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager
 from typing import Any, Protocol
 
 import torch
@@ -54,6 +55,10 @@ class RunContext(Protocol):
 
     def refresh_offline_buffer(self) -> None:
         """Rebuilds ``offline_buffer`` from ``data`` (after the learner relabelled it)."""
+
+    def stage_checkpoints(self) -> AbstractContextManager[Any]:
+        """``with run.stage_checkpoints() as checkpoints:`` around an offline stage's update
+        loop: its ``checkpoints=`` (``UpdateCheckpoints``, or ``None`` outside a stage)."""
 
 
 class Learner(ABC):
@@ -101,7 +106,8 @@ class Learner(ABC):
     @abstractmethod
     def offline_stages(self) -> list[tuple[str, Callable[[], None]]]:
         """The offline phase as ordered ``(name, fn)`` stages, each checkpointed when done
-        and skipped on resume; :meth:`O2ORun.pretrain_updates` is the shared
+        and skipped on resume; a stage's update loop is checkpointed within it through
+        ``run.stage_checkpoints()``. :meth:`O2ORun.pretrain_updates` is the shared
         ``budget.offline_updates`` stage. The run appends ``offline_eval``."""
 
     @abstractmethod

@@ -48,6 +48,7 @@ ONLINE_KEYS: tuple[str, ...] = (
     "output_dir",
     "resume",
     "interrupt_at_frames",
+    "interrupt_at_offline_updates",  # where a run stops, not what its stages compute
     "offline_cache",
     "data_cache_dir",  # where the data set is cached, not what it holds
     "progress",  # display only
@@ -59,6 +60,7 @@ ONLINE_KEYS: tuple[str, ...] = (
     "budget.eval_every",
     "budget.eval_episodes",
     "budget.checkpoint_every",
+    "budget.offline_checkpoint_every",  # checkpoints within a stage change nothing in it
     "online.offline_fraction",
     "online.utd_ratio",
     "replay",

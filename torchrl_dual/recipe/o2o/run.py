@@ -13,7 +13,8 @@ of :data:`~torchrl_dual.recipe.ALGORITHMS` is a learner class and a config file.
 from __future__ import annotations
 
 import random
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -29,9 +30,11 @@ from torchrl_dual.checkpoint import CheckpointError, RunCheckpoint, rng_state, s
 from torchrl_dual.data import TRANSITION_KEYS
 from torchrl_dual.recipe.kits import build as env_kits
 from torchrl_dual.recipe.o2o.episodes import assign_episodes
+from torchrl_dual.recipe.o2o.interrupts import held
 from torchrl_dual.recipe.o2o.learner import Learner
 from torchrl_dual.recipe.o2o.loggers import logs_text, make_logger
 from torchrl_dual.recipe.o2o.plots import plot_learning_curve
+from torchrl_dual.recipe.o2o.stage_checkpoints import StageCheckpoints
 from torchrl_dual.recipe.o2o.stage_clock import StageClock
 from torchrl_dual.recipe.o2o.summary import score_text, write_summary
 from torchrl_dual.recipe.o2o.update_step import make_update_step
@@ -45,6 +48,7 @@ RESUMABLE_KEYS = (
     "resume",
     "progress",
     "interrupt_at_frames",
+    "interrupt_at_offline_updates",
     "num_threads",
     "device",
     "debug",
@@ -66,7 +70,10 @@ _COUNTERS = (
     "next_episode",
     "history",
     "online_signals",
+    "offline_steps",
 )
+_LATER_COUNTERS = {"online_signals": list, "offline_steps": int}
+"""Counters a checkpoint written before them lacks, and how each starts (empty, 0)."""
 
 
 class O2ORun:
@@ -88,6 +95,8 @@ class O2ORun:
             if k not in RESUMABLE_KEYS
         }
         fingerprint["checkpoint_layout"] = self.checkpoint_layout = CHECKPOINT_LAYOUT
+        # may change on resume, and absent from checkpoints written before it (2026-12-05)
+        fingerprint["budget"].pop("offline_checkpoint_every", None)
         check_output_dir(cfg)
         self.checkpoint = RunCheckpoint(
             self.output_dir / "checkpoint.pt", fingerprint, free_keys=RESUMABLE_KEYS
@@ -118,6 +127,11 @@ class O2ORun:
         self.open_episodes: dict[int, int] = {}  # collector trajectory id -> its episode id
         self.history: list[dict] = []
         self.online_signals: list[dict] = []  # per collected batch (plots.online_signals)
+        self.offline_steps = 0  # updates of the offline stages' loops (stage_checkpoints)
+        self.stage_progress: dict | None = None  # the running stage's loop, when saved
+        self.current_stage: str | None = None
+        self.stage_clock: StageClock | None = None
+        self.stopped_at: str | None = None  # where an interrupt saved the running stage
         logger_state = self.load(saved) if saved is not None else None
         self.make_logger(logger_state)
 
@@ -167,6 +181,7 @@ class O2ORun:
             online_data=online[: len(online)].clone() if len(online) else None,
             rng=rng_state(),
             logger=self.logger.state_dict() if hasattr(self.logger, "state_dict") else None,
+            stage_progress=self.stage_progress,
         )
         return state
 
@@ -196,8 +211,10 @@ class O2ORun:
                 f"the checkpoint {self.checkpoint.path} does not fit this run's networks "
                 f"({err}). Resume with the settings that wrote it, or use another output_dir.",
             ) from err
-        for name in _COUNTERS:  # online_signals may be absent (checkpoints from before it)
-            setattr(self, name, state[name] if name != "online_signals" else state.get(name, []))
+        for name in _COUNTERS:  # a counter added later is absent from older checkpoints
+            later = _LATER_COUNTERS.get(name)
+            setattr(self, name, state[name] if later is None else state.get(name, later()))
+        self.stage_progress = state.get("stage_progress")
         if state["online_data"] is not None:
             self.replay.extend(state["online_data"])
             # next_episode (a counter above) is past every id handed out, stored or held
@@ -209,12 +226,18 @@ class O2ORun:
         return state["logger"]
 
     def stage(self, name: str, fn: Callable[[], Any]) -> None:
-        """Runs one offline stage unless a resumed run already did it; then checkpoints."""
+        """Runs one offline stage unless a resumed run already did it (continuing its
+        update loop from a checkpoint within it, if there is one); then checkpoints."""
         if name in self.stages_done:
             self.say(f"{name}: done in the checkpoint, skipped")
             return
-        clock = StageClock(self.stage_seconds, self.stage_cpu_seconds, name)
-        self.say(f"{name}: started")
+        self.current_stage = name
+        clock = self.stage_clock = StageClock(self.stage_seconds, self.stage_cpu_seconds, name)
+        progress = self.stage_progress
+        if progress is not None and progress["stage"] == name:
+            self.say(f"{name}: continues from update {progress['done']}/{progress['total']}")
+        else:
+            self.say(f"{name}: started")
         fn()
         clock.tick()
         self.say(
@@ -222,7 +245,17 @@ class O2ORun:
             f"({self.stage_cpu_seconds[name]:.0f} CPU-s)"
         )
         self.stages_done.append(name)
+        self.current_stage = self.stage_progress = None
         self.save()
+
+    @contextmanager
+    def stage_checkpoints(self) -> Iterator[StageCheckpoints | None]:
+        """The running offline stage's :class:`StageCheckpoints`, for its update loop
+        (``checkpoints=`` of ``run_updates``); Ctrl-C and SIGTERM stop the loop after an
+        update (:func:`~torchrl_dual.recipe.o2o.interrupts.held`). ``None`` outside a
+        stage (a learner's stage method called on its own)."""
+        with held():
+            yield None if self.current_stage is None else StageCheckpoints(self)
 
     def log(self, values: dict, step: int, prefix: str) -> None:
         for key, value in values.items():
@@ -243,22 +276,32 @@ class O2ORun:
         return metrics
 
     def pretrain_updates(self) -> None:
-        """``budget.offline_updates`` updates on D_offline (DUAL: Alg. 1 lines 6-8)."""
-        bar = tqdm(
-            range(self.cfg.budget.offline_updates),
-            desc="actor+critic",
-            disable=not self.cfg.progress,
-            leave=False,
-        )
-        tenth = max(self.cfg.budget.offline_updates // 10, 1)
-        for i in bar:
-            metrics = self.update(self.offline_buffer.sample().to(self.cfg.device))
-            if i % 100 == 0:
-                self.log(metrics, self.updates, "offline/")
-                if "loss_actor" in metrics:
-                    bar.set_postfix(actor=f"{metrics['loss_actor']:.3f}")
-            if not self.cfg.progress and (i + 1) % tenth == 0:  # no bar: a line per 10 %
-                self.say(f"actor+critic: {i + 1}/{self.cfg.budget.offline_updates} updates")
+        """``budget.offline_updates`` updates on D_offline (DUAL: Alg. 1 lines 6-8),
+        checkpointed within (:meth:`stage_checkpoints`; the weights, optimizers, counters
+        and random state are the run's own state)."""
+        total = self.cfg.budget.offline_updates
+        tenth = max(total // 10, 1)
+        with self.stage_checkpoints() as checkpoints:
+            saved = None if checkpoints is None else checkpoints.resume()
+            start = 0 if saved is None else saved["done"]
+            bar = tqdm(
+                range(start, total),
+                desc="actor+critic",
+                disable=not self.cfg.progress,
+                leave=False,
+                initial=start,
+                total=total,
+            )
+            for i in bar:
+                metrics = self.update(self.offline_buffer.sample().to(self.cfg.device))
+                if i % 100 == 0:
+                    self.log(metrics, self.updates, "offline/")
+                    if "loss_actor" in metrics:
+                        bar.set_postfix(actor=f"{metrics['loss_actor']:.3f}")
+                if not self.cfg.progress and (i + 1) % tenth == 0:  # no bar: a line per 10 %
+                    self.say(f"actor+critic: {i + 1}/{total} updates")
+                if checkpoints is not None:
+                    checkpoints.after_update(i + 1, total, lambda done=i + 1: {"done": done})
 
     def evaluate(self, label: str) -> dict:
         result = self.evaluate_policy(self.learner.evaluation_policy)

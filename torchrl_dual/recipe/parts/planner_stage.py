@@ -32,15 +32,18 @@ def pretrain_planner(
     run: RunContext, planner: TrajectoryDiffusion, windows: WindowReplayBuffer
 ) -> None:
     """``budget.planner_updates`` ``L_VLB`` steps on ``D_offline`` windows (Eq. 3), with the
-    ``planner.*`` learning rate and ``a_0``-conditioning probability; logs ``planner/``."""
+    ``planner.*`` learning rate and ``a_0``-conditioning probability; logs ``planner/``;
+    checkpointed within the stage (``run.stage_checkpoints``)."""
     cfg = run.cfg
-    train_planner(
-        planner,
-        windows.sample,
-        cfg.budget.planner_updates,
-        lr=cfg.planner.lr,
-        action_condition_prob=cfg.planner.action_condition_prob,
-        logger=run.logger,
-        log_prefix="planner/",
-        progress=cfg.progress,
-    )
+    with run.stage_checkpoints() as checkpoints:
+        train_planner(
+            planner,
+            windows.sample,
+            cfg.budget.planner_updates,
+            lr=cfg.planner.lr,
+            action_condition_prob=cfg.planner.action_condition_prob,
+            logger=run.logger,
+            log_prefix="planner/",
+            progress=cfg.progress,
+            checkpoints=checkpoints,
+        )

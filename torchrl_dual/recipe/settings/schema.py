@@ -57,6 +57,9 @@ class RunSettings:
     output_dir: str = key(Text(), "metrics, plot, checkpoint")
     resume: bool = key(Flag(), "continue the run in output_dir")
     interrupt_at_frames: Any = key(Maybe(Integer(0)), "test aid: stop after this many frames")
+    interrupt_at_offline_updates: Any = key(
+        Maybe(Integer(1)), "test aid: stop after this many offline updates"
+    )
     progress: bool = key(Flag(), "tqdm progress bars")
     data_cache_dir: Any = key(Maybe(Text()), "where generated offline data is cached")
     offline_cache: Any = key(Maybe(Text()), "where shared offline phases are stored")
@@ -93,6 +96,9 @@ class BudgetSettings:
     eval_every: int = key(Integer(1), "online frames between evaluations")
     eval_episodes: int = key(Integer(1), "episodes per evaluation")
     checkpoint_every: int = key(Integer(1), "online frames between checkpoints")
+    offline_checkpoint_every: int = key(
+        Integer(1), "offline updates (all stages' loops) between checkpoints within a stage"
+    )
 
 
 def _choice(cfg: DictConfig, path: str, table: dict, what: str) -> Any:
