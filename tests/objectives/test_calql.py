@@ -369,3 +369,64 @@ def test_the_loss_compiles_whole_and_gives_the_eager_losses(layout):
     assert set(out.keys()) == set(eager.keys()) == set(loss.out_keys)
     for key in loss.out_keys:
         torch.testing.assert_close(out[key], eager[key], msg=key)
+
+
+# ----------------------------------------------------------------------------- Lagrange form
+def test_the_lagrange_penalty_is_alpha_prime_times_the_penalty_minus_the_gap_by_hand():
+    # Cal-QL's / CQL's reference code: α'·w·(diff_i − τ) per network, α' = exp(log α').
+    loss = _mock_loss(min_q_weight=5.0, with_lagrange=True, lagrange_thresh=0.8)
+    assert float(loss.log_alpha_prime.detach()) == 1.0  # the references' initial log α'
+    batch = _mock_batch(0.3)
+    td, value, _, draws = _spied_penalty(loss, batch)
+    per_net, _ = _by_hand(loss, batch, batch["mc_return"], draws)
+    expected = math.e * (per_net.mean(-1) - 5.0 * 0.8).sum()
+    torch.testing.assert_close(value, expected)
+    # the multiplier's loss: −½·α'·Σ_i (mean penalty_i − w·τ)
+    prime_loss, _ = loss.alpha_prime_loss(td)
+    torch.testing.assert_close(prime_loss, -0.5 * math.e * (per_net.mean(-1) - 4.0).sum())
+
+
+def test_the_lagrange_gradients_reach_q_through_the_penalty_and_log_alpha_prime_only_by_its_loss():
+    loss = _mock_loss(with_lagrange=True, lagrange_thresh=0.8)
+    out = loss(_mock_batch(0.3))
+    out["loss_cql"].backward(retain_graph=True)
+    assert loss.log_alpha_prime.grad is None  # α' is a constant of the critic's penalty
+    q_params = list(loss.qvalue_network_params.values(True, True))
+    assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in q_params)
+    for p in q_params:
+        p.grad = None
+    out["loss_alpha_prime"].backward()
+    assert all(p.grad is None for p in q_params)  # the multiplier's loss moves log α' only
+    excess = float(-out["loss_alpha_prime"].detach() / (0.5 * loss.log_alpha_prime.detach().exp()))
+    # d loss / d log α' = loss (α' = exp(log α')): negative while the penalty exceeds w·τ
+    torch.testing.assert_close(loss.log_alpha_prime.grad, out["loss_alpha_prime"].detach())
+    assert (float(loss.log_alpha_prime.grad) < 0) == (excess > 0)
+
+
+def test_a_multiplier_step_raises_alpha_prime_while_the_penalty_exceeds_the_gap_and_lowers_it_below():
+    for gap, direction in ((-1e3, 1.0), (1e3, -1.0)):
+        loss = _mock_loss(with_lagrange=True, lagrange_thresh=gap)
+        before = float(loss.log_alpha_prime.detach())
+        optimizer = torch.optim.SGD([loss.log_alpha_prime], lr=1e-4)
+        loss(_mock_batch(0.3))["loss_alpha_prime"].backward()
+        optimizer.step()
+        assert (float(loss.log_alpha_prime.detach()) - before) * direction > 0
+
+
+def test_torchrl_cqlloss_still_leaves_its_penalty_unweighted_by_the_lagrange_multiplier():
+    # The TorchRL 0.14.1 behaviour CalQLLoss replaces: if this fails, TorchRL applies α' now
+    # and CalQLLoss's Lagrange form (and its docstring) should be revisited.
+    losses = []
+    for log_alpha_prime in (0.0, 3.0):
+        loss = _mock_loss(cls=CQLLoss, with_lagrange=True, lagrange_thresh=0.8)
+        with torch.no_grad():
+            loss.log_alpha_prime.fill_(log_alpha_prime)
+        torch.manual_seed(1)
+        losses.append(loss(_mock_batch())["loss_cql"])
+    torch.testing.assert_close(losses[0], losses[1])
+    loss = _mock_loss(cls=CQLLoss, with_lagrange=True, lagrange_thresh=0.8)
+    loss(_mock_batch())["loss_alpha_prime"].backward()
+    assert any(
+        p.grad is not None and p.grad.abs().sum() > 0
+        for p in loss.qvalue_network_params.values(True, True)
+    )

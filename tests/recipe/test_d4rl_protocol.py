@@ -22,7 +22,8 @@ from torchrl_dual.envs.d4rl_antmaze import SingleGoalAntMaze  # noqa: E402
 from torchrl_dual.recipe import CONFIG_DIR, compose_checked, run  # noqa: E402
 from torchrl_dual.recipe.kits import build as env_kits  # noqa: E402
 from torchrl_dual.recipe.kits.minari_families import minari_evaluator, minari_gym_env  # noqa: E402
-from torchrl_dual.recipe.settings.envs import FAMILIES, REWARD_TRANSFORMS  # noqa: E402
+from torchrl_dual.recipe.settings.envs import FAMILIES  # noqa: E402
+from torchrl_dual.recipe.settings.references import REWARD_TRANSFORMS  # noqa: E402
 
 ANTMAZE_ID, HOPPER_ID, PEN_ID = (
     "D4RL/antmaze/umaze-v1",
@@ -30,6 +31,20 @@ ANTMAZE_ID, HOPPER_ID, PEN_ID = (
     "D4RL/pen/cloned-v2",
 )
 GOAL = np.array([-3.25, 4.75])
+
+
+FAST = (
+    "budget.offline_updates=5",
+    "online.utd_ratio=0.2",
+    "budget.online_frames=30",
+    "budget.frames_per_batch=30",
+    "budget.eval_every=30",
+    "budget.checkpoint_every=30",
+    "budget.eval_episodes=1",
+    "budget.laplace_refit_every=5",
+    "env.max_episode_steps=20",
+)
+"""A run of a few updates and one online batch: the end-to-end tests' budget."""
 
 
 @pytest.fixture(scope="module")
@@ -148,6 +163,62 @@ def test_every_family_has_a_reward_transform_for_every_critic():
         assert critics <= set(table), kind
 
 
+@pytest.mark.parametrize(
+    "overrides, critic_depth, lagrange_gap, sparse_failure, min_q_weight, actor_depth, normalize",
+    [
+        (("env=antmaze", "algo=calql"), 4, 0.8, -5.0, 5.0, 2, False),  # the authors' AntMaze
+        (("env=adroit", "algo=calql"), 3, None, None, 1.0, 3, False),  # CORL's cloned Adroit
+        (("env=hopper", "algo=calql"), 2, None, None, 5.0, 2, True),  # no reference: defaults
+        (("env=pointmaze_umaze", "algo=calql"), 2, None, None, 5.0, 2, None),  # local data
+        (
+            ("env=antmaze", "algo=calql", "critic.depth=2", "critic.lagrange_gap=null"),
+            2,
+            None,
+            -5.0,
+            5.0,
+            2,
+            False,
+        ),  # the command line wins
+    ],
+)
+def test_cal_ql_takes_its_reference_s_settings_on_each_family(
+    minari_path,
+    tmp_path,
+    overrides,
+    critic_depth,
+    lagrange_gap,
+    sparse_failure,
+    min_q_weight,
+    actor_depth,
+    normalize,
+):
+    cfg = compose(tmp_path, *overrides)
+    assert cfg.critic.depth == critic_depth and cfg.critic.lagrange_gap == lagrange_gap
+    assert cfg.critic.sparse_failure_reward == sparse_failure
+    assert cfg.critic.min_q_weight == min_q_weight and cfg.actor.depth == actor_depth
+    assert cfg.env.get("normalize_observations") == normalize
+
+
+def test_the_iql_critic_keeps_corl_s_settings_and_dual_on_cal_ql_takes_cal_ql_s(
+    minari_path, tmp_path
+):
+    iql = compose(tmp_path, "env=antmaze", "algo=iql")
+    assert iql.env.normalize_observations is True and iql.critic.expectile == 0.9
+    dual = compose(tmp_path, "env=antmaze", "algo=dual", "critic=calql")
+    assert (dual.critic.depth, dual.critic.lagrange_gap) == (4, 0.8)
+    assert dual.env.normalize_observations is False
+
+
+def test_cal_ql_on_antmaze_trains_its_lagrange_multiplier_end_to_end(minari_path, tmp_path):
+    result = run(compose(tmp_path, "env=antmaze", "algo=calql", "num_threads=1", *FAST))
+    loss = result.learner.critic.loss
+    assert loss.with_lagrange and loss.target_action_gap == 0.8
+    assert float(loss.log_alpha_prime.detach()) != 1.0  # stepped from the references' 1.0
+    linear = [k for k in loss.qvalue_network_params.keys(True, True) if k[-1] == "weight"]
+    assert len(linear) == 4 + 1  # 4 hidden layers and the output
+    assert torch.isfinite(result.learner.update(result.replay.sample())["alpha_prime"])
+
+
 def test_pen_runs_at_d4rl_s_100_step_horizon(minari_path, tmp_path):
     cfg = compose(tmp_path, "env=adroit")
     data = env_kits.make_offline_dataset(cfg)
@@ -160,18 +231,7 @@ def test_pen_runs_at_d4rl_s_100_step_horizon(minari_path, tmp_path):
 
 
 def test_locomotion_scores_with_d4rl_s_references(minari_path, tmp_path):
-    fast = (
-        "budget.offline_updates=5",
-        "online.utd_ratio=0.2",
-        "budget.online_frames=30",
-        "budget.frames_per_batch=30",
-        "budget.eval_every=30",
-        "budget.checkpoint_every=30",
-        "budget.eval_episodes=1",
-        "budget.laplace_refit_every=5",
-        "env.max_episode_steps=20",
-    )
-    result = run(compose(tmp_path, "env=hopper", "algo=iql", "num_threads=1", *fast))
+    result = run(compose(tmp_path, "env=hopper", "algo=iql", "num_threads=1", *FAST))
     for h in result.history:
         assert math.isfinite(h["normalized_score"])
         assert h["normalized_score"] == pytest.approx(

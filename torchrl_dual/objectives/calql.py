@@ -43,6 +43,16 @@ class CalQLLoss(CQLLoss):
        Q'_π − log π(a'_π|s')] / T) − Q(s, a))`` per Q network, summed over the two, with
        ``w = min_q_weight`` and ``T = temperature``.
 
+    **Lagrange form** (``with_lagrange=True``, ``lagrange_thresh=τ``; Cal-QL's AntMaze
+    setting, τ = 0.8): as in the Cal-QL and CQL reference code, the penalty of each Q
+    network becomes ``α'·(loss_cql_i − w·τ)`` with ``α' = exp(log α')`` read detached, and
+    ``loss_alpha_prime = −½·α'·Σ_i (loss_cql_i − w·τ)`` with the penalties detached: its
+    gradient reaches ``log α'`` only, which grows while the penalty exceeds ``w·τ``. TorchRL
+    0.14.1's ``CQLLoss`` learns ``α'`` but never applies it to ``loss_cql`` and lets
+    ``loss_alpha_prime``'s gradient reach the Q networks; this class replaces both
+    (``tests/objectives/test_calql.py`` checks that TorchRL still does so). ``log α'``
+    starts at ``log_alpha_prime_init`` (the references' 1.0; TorchRL's 0).
+
     ``penalty_layout`` picks the grouping of step 3. ``"calql"`` (default) follows the
     Cal-QL and CQL reference code: the ``3·num_random`` actions of one state in one
     logsumexp, the next-state policy actions evaluated at ``s`` (``Q(s, a'_π)``).
@@ -66,6 +76,8 @@ class CalQLLoss(CQLLoss):
 
     Keyword Args:
         penalty_layout (str): one of :data:`PENALTY_LAYOUTS`. Defaults to ``"calql"``.
+        log_alpha_prime_init (float): the initial ``log α'`` of the Lagrange form (unused
+            without ``with_lagrange``). Defaults to 1.0 (Cal-QL's and CORL's code).
         **kwargs: every keyword argument of ``CQLLoss``: ``min_q_weight`` (CQL's ``α``,
             default 1.0), ``num_random`` (10), ``temperature`` (1.0), ``with_lagrange``
             (False), ``lagrange_thresh``, ``alpha_init``, ``loss_function``, ``reduction`` ...
@@ -124,7 +136,15 @@ class CalQLLoss(CQLLoss):
     default_keys = _AcceptedKeys
     tensor_keys: _AcceptedKeys
 
-    def __init__(self, actor_network, qvalue_network, *, penalty_layout: str = "calql", **kwargs):
+    def __init__(
+        self,
+        actor_network,
+        qvalue_network,
+        *,
+        penalty_layout: str = "calql",
+        log_alpha_prime_init: float = 1.0,
+        **kwargs,
+    ):
         if penalty_layout not in PENALTY_LAYOUTS:
             raise ValueError(
                 f"penalty_layout={penalty_layout!r} is not one of {PENALTY_LAYOUTS}: 'calql' "
@@ -133,6 +153,9 @@ class CalQLLoss(CQLLoss):
         self._calql_in_keys = None
         super().__init__(actor_network, qvalue_network, **kwargs)
         self.penalty_layout = penalty_layout
+        if self.with_lagrange:
+            with torch.no_grad():
+                self.log_alpha_prime.fill_(log_alpha_prime_init)
         self.in_keys, self.out_keys  # noqa: B018 (cached now: compiled calls only read them)
 
     @property
@@ -231,6 +254,10 @@ class CalQLLoss(CQLLoss):
         tensordict.set(self.tensor_keys.cql_q2_loss, cql_q[1])
         rate = raised.reshape(4, *tensordict.shape, num).mean((0, -1))
         tensordict.set(self.tensor_keys.bound_rate, rate)
+        if self.with_lagrange:  # α'·w·(diff − τ) per network, α' a constant here
+            cql_q = self._alpha_prime().detach() * (
+                cql_q - self.min_q_weight * self.target_action_gap
+            )
         loss = self._reduce_loss(cql_q.sum(0), tensordict=tensordict)
         self._clear_weakrefs(
             tensordict,
@@ -240,3 +267,23 @@ class CalQLLoss(CQLLoss):
             "target_qvalue_network_params",
         )
         return loss, {"bound_rate": rate.mean().detach()}
+
+    def _alpha_prime(self) -> Tensor:
+        """``α' = exp(log α')``, clipped at 1e6 as the references and ``CQLLoss`` do."""
+        return self.log_alpha_prime.exp().clamp_max(1e6)
+
+    def alpha_prime_loss(self, tensordict: TensorDictBase) -> tuple[Tensor, dict]:
+        """The Lagrange multiplier's loss ``−½·α'·Σ_i (mean loss_cql_i − w·τ)`` on the
+        penalties :meth:`cql_loss` wrote (detached: only ``log α'`` gets a gradient)."""
+        penalties = [tensordict.get(key, None) for key in self._cql_keys()]
+        if any(penalty is None for penalty in penalties):
+            raise KeyError(
+                "alpha_prime_loss reads the penalties cql_loss writes: call "
+                "cql_loss(tensordict) first (forward does)."
+            )
+        gap = self.min_q_weight * self.target_action_gap
+        excess = sum(penalty.detach().mean() - gap for penalty in penalties)
+        return -0.5 * self._alpha_prime() * excess, {}
+
+    def _cql_keys(self) -> tuple[NestedKey, NestedKey]:
+        return self.tensor_keys.cql_q1_loss, self.tensor_keys.cql_q2_loss

@@ -65,18 +65,24 @@ class CalQLLearner(Learner):
         """Cal-QL's losses on one batch: the critics on TD + bounded penalty, the actor
         and ``log α`` on SAC's losses (which read the Q networks detached); one step of
         each optimizer, then the soft target update."""
-        out = self.critic.loss(batch)
+        loss = self.critic.loss
+        out = loss(batch)
         critic_loss = out["loss_qvalue"] + out["loss_cql"]
+        if loss.with_lagrange:  # critic.lagrange_gap: the multiplier steps with the Q networks
+            critic_loss = critic_loss + out["loss_alpha_prime"]
         self.critic.optimizer.zero_grad(set_to_none=True)
         self.actor_optimizer.zero_grad(set_to_none=True)
         (critic_loss + out["loss_actor"] + out["loss_alpha"]).backward()
         self.critic.optimizer.step()
         self.actor_optimizer.step()
         self.critic.target_updater.step()
-        return {
+        logged = {
             key: out[key].detach()
             for key in ("loss_qvalue", "loss_cql", "loss_actor", "alpha", "entropy", "bound_rate")
         }
+        if loss.with_lagrange:
+            logged["alpha_prime"] = loss.log_alpha_prime.detach().exp()
+        return logged
 
     def state_dict(self) -> dict:
         return self.labels.state_dict()

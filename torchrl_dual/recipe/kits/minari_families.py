@@ -13,7 +13,7 @@ task, D4RL's horizons and references) comes from :mod:`~torchrl_dual.recipe.kits
   the protocol's: AntMaze without ``desired_goal``), AntMaze's rewards and terminals
   relabelled to D4RL's goal (:func:`~torchrl_dual.data.relabel_to_goal`), then
   preprocessed as the critic's reference does: rewards ``r' = reward_scale * r +
-  reward_shift`` (:func:`~torchrl_dual.recipe.settings.envs.reward_transform`: IQL's AntMaze
+  reward_shift`` (:func:`~torchrl_dual.recipe.settings.references.reward_transform`: IQL's AntMaze
   ``r - 1``, Cal-QL's ``10 r - 5``; locomotion ``returns`` = ``T / (max - min)`` of the
   data set's episode returns, ``T`` the time limit) and states normalized with the data
   set's mean and std + 1e-3 (:func:`observation_normalizer`).
@@ -57,8 +57,9 @@ from torchrl_dual.envs.d4rl_antmaze import D4RL_SUCCESS_RADIUS, SingleGoalAntMaz
 from torchrl_dual.evaluation import evaluate_episodes
 from torchrl_dual.recipe.kits.build import Evaluator
 from torchrl_dual.recipe.kits.d4rl_protocol import data_protocol, protocol_metadata
-from torchrl_dual.recipe.settings.envs import FAMILIES, reward_transform
+from torchrl_dual.recipe.settings.envs import FAMILIES
 from torchrl_dual.recipe.settings.errors import UserError
+from torchrl_dual.recipe.settings.references import reward_transform
 
 OBSERVATION_STD_EPS = 1e-3
 """Added to the data set's state std (CORL's ``compute_mean_std(eps=1e-3)``)."""

@@ -82,6 +82,7 @@ LATER_KEYS: dict[str, object] = {
     "env.protocol": "minari",  # 2026-12-05, the Minari families' behaviour before the key
     "env.reward_scale": 1.0,  # 2026-12-05 on PointMaze (the Minari families had it before)
     "env.reward_shift": 0.0,
+    "critic.lagrange_gap": None,  # 2026-12-05, Cal-QL's Lagrange multiplier (off before)
 }
 """Keys added to the config after offline caches were written, with the value that
 reproduces what ran before them: left out of the key at that value, so the caches of

@@ -115,7 +115,10 @@ def iql_terms(loss: IQLLoss, batch: TensorDictBase) -> dict[str, torch.Tensor]:
 
 def calql_terms(loss: CalQLLoss, batch: TensorDictBase) -> dict[str, torch.Tensor]:
     """Cal-QL: the Bellman loss and the conservative penalty with the Monte-Carlo bound."""
-    return {"loss_qvalue": loss.q_loss(batch)[0], "loss_cql": loss.cql_loss(batch)[0]}
+    terms = {"loss_qvalue": loss.q_loss(batch)[0], "loss_cql": loss.cql_loss(batch)[0]}
+    if loss.with_lagrange:  # the multiplier's loss: its gradient reaches log α' only
+        terms["loss_alpha_prime"] = loss.alpha_prime_loss(batch)[0]
+    return terms
 
 
 def so2_terms(loss: SO2QLoss, batch: TensorDictBase) -> dict[str, torch.Tensor]:
@@ -265,7 +268,9 @@ def make_calql_critic(
     """Cal-QL's twin Q networks in a :class:`~torchrl_dual.objectives.CalQLLoss` on
     ``actor`` (a TorchRL ``TanhNormal`` actor: the penalty and the SAC actor loss sample
     it); ``temperature`` is unused (Cal-QL's actor loss is SAC's, not AWR). The critic's
-    optimizer holds the Q networks only; the learner steps the actor and ``log_alpha``."""
+    optimizer holds the Q networks (and, with ``critic.lagrange_gap``, the penalty's
+    ``log α'`` at the critic's learning rate, as Cal-QL's code); the learner steps the actor
+    and ``log_alpha``."""
     if actor is None:
         raise ValueError("critic=calql needs the actor it samples (a TanhNormal actor).")
     c = settings
@@ -277,11 +282,15 @@ def make_calql_critic(
         min_q_weight=c.min_q_weight,
         num_random=c.num_random,
         temperature=c.temperature,
+        with_lagrange=c.lagrange_gap is not None,
+        lagrange_thresh=0.0 if c.lagrange_gap is None else c.lagrange_gap,
         action_spec=actor.spec,
     ).to(device)
     loss.make_value_estimator(gamma=c.discount)
     saves_actor = not any(isinstance(m, _MeanAndStd) for m in actor.modules())  # policy_view
-    params = loss.qvalue_network_params.values(True, True)
+    params = list(loss.qvalue_network_params.values(True, True))
+    if loss.with_lagrange:
+        params.append(loss.log_alpha_prime)
     return Critic.around(loss, params, c, calql_terms, saves_actor=saves_actor)
 
 

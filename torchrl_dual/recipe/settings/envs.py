@@ -235,45 +235,6 @@ class AdroitSettings(MinariSettings):
     shift: str = key(Choice(SHIFTS_BY_KIND["adroit"]), "online-only dynamics shift")
 
 
-REWARD_TRANSFORMS: dict[str, dict[str, tuple[float | str, float]]] = {
-    "antmaze": {"iql": (1.0, -1.0), "so2": (1.0, -1.0), "calql": (10.0, -5.0)},
-    "locomotion": {"iql": ("returns", 0.0), "so2": ("returns", 0.0), "calql": (1.0, 0.0)},
-    "adroit": {"iql": (1.0, 0.0), "so2": (1.0, 0.0), "calql": (1.0, 0.0)},
-}
-"""``env.kind`` -> ``critic.name`` -> ``(reward_scale, reward_shift)`` of that critic's
-reference on that family, used where ``env.reward_scale`` / ``env.reward_shift`` are null.
-The IQL critic (``iql``, ``dual``, and every algorithm on ``critic=iql``) takes CORL's IQL
-(``algorithms/finetune/iql.py`` ``modify_reward``: AntMaze ``r - 1``, locomotion
-``T / (max - min return)``, Adroit unchanged); Cal-QL its reference's (CORL's
-``configs/finetune/cal_ql/antmaze/*.yaml`` and the authors' scripts: ``10 r - 5`` on
-AntMaze; Adroit ``reward_scale: 1.0``, ``reward_bias: 0.0``; it normalizes no MuJoCo
-reward); SO2 keeps IQL's (its MuJoCo-only reference gives no AntMaze or Adroit setting).
-A transformed reward trains the critic only: evaluation scores the env's own reward."""
-
-
-def reward_transform(cfg: DictConfig) -> tuple[float | str, float]:
-    """``(reward_scale, reward_shift)`` of a Minari family's run: ``env.reward_scale`` /
-    ``env.reward_shift`` where set, else :data:`REWARD_TRANSFORMS` for ``critic.name``.
-
-    Examples:
-        >>> from omegaconf import OmegaConf
-        >>> cfg = OmegaConf.create({"env": {"kind": "antmaze", "reward_scale": None,
-        ...     "reward_shift": None}, "critic": {"name": "calql"}})
-        >>> reward_transform(cfg)
-        (10.0, -5.0)
-        >>> cfg.env.reward_shift = -1.0
-        >>> reward_transform(cfg)
-        (10.0, -1.0)
-    """
-    preset_scale, preset_shift = REWARD_TRANSFORMS[cfg.env.kind][cfg.critic.name]
-    scale = cfg.env.reward_scale
-    shift = cfg.env.reward_shift
-    return (
-        preset_scale if scale is None else (scale if scale == "returns" else float(scale)),
-        float(preset_shift if shift is None else shift),
-    )
-
-
 MINARI_SETTINGS: dict[str, type] = {
     "antmaze": AntMazeSettings,
     "locomotion": LocomotionSettings,

@@ -52,6 +52,10 @@ class CalQLCriticSettings(CriticSettings):
     sparse_failure_reward: Any = key(
         Maybe(Real()), "r_fail of Cal-QL's sparse-reward bound r_fail / (1 - γ); null: off"
     )
+    lagrange_gap: Any = key(
+        Maybe(Real()),
+        "target gap τ of the penalty's Lagrange multiplier (Cal-QL AntMaze: 0.8); null: a fixed weight",
+    )
 
 
 @dataclass

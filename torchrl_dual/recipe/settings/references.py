@@ -1,0 +1,127 @@
+"""What each critic's reference implementation uses on each Minari family, in one place.
+
+A run on a published family (``env.kind``: ``antmaze``, ``locomotion``, ``adroit``) takes
+the settings its critic's reference uses there, as the paper's protocol does ("following
+exactly the O2O benchmark of CORL", Appendix A). Two tables, one concept:
+
+* :data:`REWARD_TRANSFORMS`: the reward transform ``r' = scale·r + shift`` of each
+  reference, used where ``env.reward_scale`` / ``env.reward_shift`` are ``null``
+  (:func:`reward_transform`);
+* :data:`REFERENCE_SETTINGS`: every other setting that differs from the recipe's default
+  there, read by the config through the ``${reference:<key>,<default>}`` interpolation
+  (``critic/calql.yaml``, ``algo/calql.yaml``, the families' ``env/*.yaml``): the value of
+  ``<key>`` in the table for the run's ``env.kind`` and ``critic.name``, else ``<default>``.
+  A key set on the command line replaces the interpolation, so it always wins.
+
+IQL's family presets (expectile, temperature: CORL's) sit in each ``env/*.yaml`` as
+``env.critic_expectile`` / ``env.actor_temperature``, because every algorithm on the IQL
+critic reads them. DUAL trains on the IQL critic (Eq. 6) with CORL's IQL settings; on
+``critic=calql`` it takes Cal-QL's rows like the ``calql`` baseline. Sources, with the
+files they come from, are in docs/reproducing.md.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+
+REWARD_TRANSFORMS: dict[str, dict[str, tuple[float | str, float]]] = {
+    "antmaze": {"iql": (1.0, -1.0), "so2": (1.0, -1.0), "calql": (10.0, -5.0)},
+    "locomotion": {"iql": ("returns", 0.0), "so2": ("returns", 0.0), "calql": (1.0, 0.0)},
+    "adroit": {"iql": (1.0, 0.0), "so2": (1.0, 0.0), "calql": (1.0, 0.0)},
+}
+"""``env.kind`` -> ``critic.name`` -> ``(reward_scale, reward_shift)`` of that critic's
+reference on that family, used where ``env.reward_scale`` / ``env.reward_shift`` are null.
+The IQL critic (``iql``, ``dual``, and every algorithm on ``critic=iql``) takes CORL's IQL
+(``algorithms/finetune/iql.py`` ``modify_reward``: AntMaze ``r - 1``, locomotion
+``T / (max - min return)``, Adroit unchanged); Cal-QL its reference's (CORL's
+``configs/finetune/cal_ql/antmaze/*.yaml`` and the authors' scripts: ``10 r - 5`` on
+AntMaze; Adroit ``reward_scale: 1.0``, ``reward_bias: 0.0``; it normalizes no MuJoCo
+reward); SO2 keeps IQL's (its MuJoCo-only reference gives no AntMaze or Adroit setting).
+A transformed reward trains the critic only: evaluation scores the env's own reward."""
+
+REFERENCE_SETTINGS: dict[str, dict[str, dict[str, Any]]] = {
+    "antmaze": {
+        "calql": {
+            # the authors' scripts/run_antmaze.sh: --qf_arch=256-256-256-256,
+            # --cql.cql_lagrange=True --cql.cql_target_action_gap=0.8 (CORL's configs agree on
+            # the multiplier, and use 5 hidden layers)
+            "critic.depth": 4,
+            "critic.lagrange_gap": 0.8,
+            # is_sparse_reward: an episode that never reaches the goal is bounded by
+            # r_fail / (1 - γ), r_fail = 10·0 - 5 after the reward transform
+            "critic.sparse_failure_reward": -5.0,
+            # JaxCQL normalizes no state (CORL's Cal-QL: normalize: false)
+            "env.normalize_observations": False,
+        },
+    },
+    "adroit": {
+        "calql": {
+            # CORL's configs/finetune/cal_ql/{door,hammer,pen,relocate}/cloned_v1.yaml (the
+            # authors ran the binary Adroit tasks only): cql_alpha 1.0, q_n_hidden_layers 3,
+            # no multiplier, normalize: false; its TanhGaussianPolicy has 3 hidden layers
+            "critic.depth": 3,
+            "critic.min_q_weight": 1.0,
+            "actor.depth": 3,
+            "env.normalize_observations": False,
+        },
+    },
+}
+"""``env.kind`` -> ``critic.name`` -> ``{dotted config key: value}``: the settings of the
+critic's reference on that family where they differ from the recipe's defaults (Cal-QL on
+AntMaze: the authors' code; on Adroit's cloned data: CORL's). Read through the
+``reference`` interpolation (:func:`reference_setting`)."""
+
+RESOLVER = "reference"
+"""The OmegaConf resolver name: ``${reference:critic.depth,2}``."""
+
+
+def reference_setting(key: str, default: Any, *, _root_: DictConfig) -> Any:
+    """The value of ``key`` for the run's ``env.kind`` and ``critic.name`` in
+    :data:`REFERENCE_SETTINGS`, else ``default`` (the ``reference`` resolver).
+
+    Examples:
+        >>> from omegaconf import OmegaConf
+        >>> register_reference_resolver()
+        >>> cfg = OmegaConf.create({"env": {"kind": "antmaze"}, "critic": {"name": "calql",
+        ...     "depth": "${reference:critic.depth,2}", "lagrange_gap": "${reference:critic.lagrange_gap,null}"}})
+        >>> cfg.critic.depth, cfg.critic.lagrange_gap
+        (4, 0.8)
+        >>> cfg.env.kind = "pointmaze"
+        >>> cfg.critic.depth, cfg.critic.lagrange_gap
+        (2, None)
+    """
+    kind = OmegaConf.select(_root_, "env.kind", default=None)
+    critic = OmegaConf.select(_root_, "critic.name", default=None)
+    return REFERENCE_SETTINGS.get(kind, {}).get(critic, {}).get(key, default)
+
+
+def register_reference_resolver() -> None:
+    """Registers :func:`reference_setting` as ``${reference:...}`` (idempotent; done when
+    :mod:`torchrl_dual.recipe.settings` is imported)."""
+    if not OmegaConf.has_resolver(RESOLVER):
+        OmegaConf.register_new_resolver(RESOLVER, reference_setting)
+
+
+def reward_transform(cfg: DictConfig) -> tuple[float | str, float]:
+    """``(reward_scale, reward_shift)`` of a Minari family's run: ``env.reward_scale`` /
+    ``env.reward_shift`` where set, else :data:`REWARD_TRANSFORMS` for ``critic.name``.
+
+    Examples:
+        >>> from omegaconf import OmegaConf
+        >>> cfg = OmegaConf.create({"env": {"kind": "antmaze", "reward_scale": None,
+        ...     "reward_shift": None}, "critic": {"name": "calql"}})
+        >>> reward_transform(cfg)
+        (10.0, -5.0)
+        >>> cfg.env.reward_shift = -1.0
+        >>> reward_transform(cfg)
+        (10.0, -1.0)
+    """
+    preset_scale, preset_shift = REWARD_TRANSFORMS[cfg.env.kind][cfg.critic.name]
+    scale = cfg.env.reward_scale
+    shift = cfg.env.reward_shift
+    return (
+        preset_scale if scale is None else (scale if scale == "returns" else float(scale)),
+        float(preset_shift if shift is None else shift),
+    )
