@@ -79,6 +79,13 @@ VARIANTS: dict[str, tuple[str, ...]] = {
         "critic.sparse_failure_reward=-5",
     ),
     "calql_d3rlpy_sparse": ("algo=calql", "env.reward_scale=10", "env.reward_shift=-5"),
+    # ours as d3rlpy's runs it (no sparse bound: d3rlpy has none), and the authors' AntMaze
+    # Cal-QL whole (settings/references.py: + Lagrange gap 0.8, Q 256 x 4)
+    "calql_sparse_no_bound": ("algo=calql", "env.reward_scale=10", "env.reward_shift=-5"),
+    "calql_antmaze_preset": (
+        "algo=calql", "env.reward_scale=10", "env.reward_shift=-5",
+        "critic.sparse_failure_reward=-5", "critic.lagrange_gap=0.8", "critic.depth=4",
+    ),
     "iql_sparse": ("algo=iql", "env.reward_shift=-1"),
     "iql_d3rlpy_sparse": ("algo=iql", "env.reward_shift=-1"),
     "dual_sparse": ("algo=dual", "env.reward_shift=-1"),
@@ -135,6 +142,8 @@ SHIFT_VARIANTS = ("dual", "iql", "dual_lambda0")
 SPARSE_REWARD_VARIANTS = (
     "calql_sparse",
     "calql_d3rlpy_sparse",
+    "calql_sparse_no_bound",
+    "calql_antmaze_preset",
     "iql_sparse",
     "iql_d3rlpy_sparse",
     "dual_sparse",
