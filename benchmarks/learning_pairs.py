@@ -233,14 +233,27 @@ def baseline_pairs_table(
 
 def reference_pairs() -> dict[str, str]:
     """The suite's own variant of each method that a reference implementation also ran
-    (:data:`learning_grid.REFERENCE_SCRIPTS`, named ``<ours>_d3rlpy[_suffix]``) -> that
-    reference variant.
+    (:data:`learning_grid.REFERENCE_SCRIPTS`) -> that reference variant: ours is the
+    variant with the very same overrides (the same run on the other implementation),
+    ``<ours>_d3rlpy[_suffix]``'s name breaking a tie.
 
-        >>> reference_pairs()["iql"], reference_pairs()["calql"]
-        ('iql_d3rlpy', 'calql_d3rlpy')
+        >>> pairs = reference_pairs()
+        >>> pairs["iql"], pairs["calql"], pairs["calql_sparse_no_bound"]
+        ('iql_d3rlpy', 'calql_d3rlpy', 'calql_d3rlpy_sparse')
+        >>> "calql_sparse" in pairs  # its sparse bound has no d3rlpy counterpart
+        False
     """
-    ours = {ref: ref.replace("_d3rlpy", "", 1) for ref in REFERENCE_SCRIPTS}
-    return {name: ref for ref, name in ours.items() if name in VARIANTS}
+    pairs = {}
+    for ref in REFERENCE_SCRIPTS:
+        same = [
+            name
+            for name, overrides in VARIANTS.items()
+            if overrides == VARIANTS[ref] and name not in REFERENCE_SCRIPTS
+        ]
+        named = ref.replace("_d3rlpy", "", 1)
+        if same:
+            pairs[named if named in same else same[0]] = ref
+    return pairs
 
 
 def reference_pairs_table(cells: dict[str, dict[str, list[dict]]], order: Sequence[str]) -> str:
