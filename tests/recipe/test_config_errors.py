@@ -164,6 +164,23 @@ CASES = [
         "collector.num_workers=3: use a multiple of it",
     ),
     (
+        "collector.num_envs=3",
+        "budget.frames_per_batch=500: collector.num_envs=3 envs collect equal shares of each "
+        "batch: use a multiple of it",
+    ),
+    ("collector.num_envs=0", "collector.num_envs=0: must be an integer >= 1"),
+    (
+        "collector=multi_sync +collector.num_envs=4",
+        "collector.num_envs=4: collector=multi_sync steps one env per worker; batched envs "
+        "are collector=single's (collector=single collector.num_envs=N), or raise "
+        "collector.num_workers",
+    ),
+    (
+        "algo=calql collector.num_envs=4",
+        "collector.num_envs=4: critic=calql labels one stream of online episodes with "
+        "Monte-Carlo returns; use collector.num_envs=1 with it",
+    ),
+    (
         "algo=calql collector=multi_async",
         "collector=multi_async: critic=calql labels one stream of online episodes with "
         "Monte-Carlo returns; use collector=single with it",

@@ -57,6 +57,7 @@ from torchrl_dual.envs.shifts import (
     check_shift,
     shift_names,
 )
+from torchrl_dual.envs.vectorized import vectorized_env
 
 __all__ = [
     "D4RL_ANTMAZE_MAPS",
@@ -104,4 +105,5 @@ __all__ = [
     "release_maze_xml",
     "pointmaze_env_id",
     "start_cells",
+    "vectorized_env",
 ]

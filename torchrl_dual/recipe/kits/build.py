@@ -44,6 +44,7 @@ from torchrl_dual.envs import (
     make_pointmaze_gym_env,
     open_cells,
     start_cells,
+    vectorized_env,
 )
 from torchrl_dual.evaluation import evaluate_episodes, frozenlake_policy_actions
 from torchrl_dual.recipe.settings.envs import ENV_KITS, EnvKit
@@ -321,6 +322,17 @@ def make_train_env(cfg: DictConfig, data: OfflineDataset | None = None) -> EnvBa
     to the policy; the policy turns them into ``d_t`` of Eq. (10). ``data`` is
     ``D_offline`` when the caller has it (kits whose env depends on it read it otherwise)."""
     return env_kit(cfg).make_env(cfg, data).append_transform(PreviousTransition())
+
+
+def make_collection_env(cfg: DictConfig, data: OfflineDataset | None, env: EnvBase) -> EnvBase:
+    """The env ``collector=single`` steps: the online env ``env`` itself, or with
+    ``collector.num_envs = N > 1`` N more copies of it (:func:`make_train_env`) stepped as
+    one batch ``[N]`` (:func:`~torchrl_dual.envs.vectorized_env`: one Gymnasium vector env,
+    each copy with the kit's Gymnasium wrappers, the transforms once over the batch)."""
+    num_envs = cfg.collector.get("num_envs", 1)
+    if num_envs == 1:
+        return env
+    return vectorized_env(lambda: make_train_env(cfg, data), num_envs)
 
 
 class TrainEnvFactory:

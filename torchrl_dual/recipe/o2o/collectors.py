@@ -2,7 +2,9 @@
 
 * ``single`` (``collector/single.yaml``, the default): TorchRL's
   :class:`~torchrl.collectors.Collector` steps the run's online env in this process with the
-  learner's exploration policy.
+  learner's exploration policy; with ``collector.num_envs = N > 1`` it steps N copies as
+  one batch (:func:`~torchrl_dual.envs.vectorized_env`), the policy acting for all N in
+  one call, each copy ``budget.frames_per_batch / N`` frames of a ``[N, T]`` batch.
 * ``multi_sync`` (``collector/multi_sync.yaml``): TorchRL's
   :class:`~torchrl.collectors.MultiSyncCollector`; ``collector.num_workers`` processes each
   step their own env for ``budget.frames_per_batch / num_workers`` frames, and the run gets
@@ -71,12 +73,15 @@ def collector_device(cfg: DictConfig) -> torch.device:
 
 
 def make_single(run: O2ORun, total_frames: int) -> BaseCollector:
-    """TorchRL's ``Collector`` on ``run.env`` (seeded ``seed + 1 + frames``), acting on
-    ``collector.device`` (a copy of the policy there if the learner's is elsewhere)."""
+    """TorchRL's ``Collector`` on ``run.collection_env`` (``run.env``, or its
+    ``collector.num_envs`` copies as one batch; seeded ``seed + 1 + frames``, copy ``i``
+    ``seed + 1 + frames + i``), acting on ``collector.device`` (a copy of the policy there
+    if the learner's is elsewhere)."""
     cfg = run.cfg
-    run.env.set_seed(cfg.seed + 1 + run.frames)
+    env = run.collection_env
+    env.set_seed(cfg.seed + 1 + run.frames)
     return Collector(
-        run.env,
+        env,
         run.learner.exploration_policy,
         frames_per_batch=cfg.budget.frames_per_batch,
         total_frames=total_frames,

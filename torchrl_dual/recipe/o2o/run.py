@@ -109,6 +109,8 @@ class O2ORun:
         self.data = env_kits.make_offline_dataset(cfg)
         self.env = env_kits.make_train_env(cfg, self.data)
         env_kits.check_dims(self.env, self.data, cfg.env.name)
+        # what collector=single steps: the env, or collector.num_envs copies as one batch
+        self.collection_env = env_kits.make_collection_env(cfg, self.data, self.env)
         self.evaluate_policy = env_kits.make_evaluator(cfg, self.data)
         self.offline_buffer = self._offline_buffer()
         # ---- the algorithm's networks, losses and policies
@@ -327,7 +329,7 @@ class O2ORun:
 
     def store(self, batch: TensorDictBase) -> dict:
         """D_online ← D_online ∪ {(s_t, a_t, s_t+1, r_t)} with the executed action (l. 13)."""
-        batch = batch.reshape(-1)  # [workers, T] (multi_sync) or [T]
+        batch = batch.reshape(-1)  # [workers, T] (multi_sync), [num_envs, T] or [T]
         episode, self.next_episode = assign_episodes(
             batch["collector", "traj_ids"],
             batch["next", "done"],

@@ -68,6 +68,13 @@ class CollectorSettings:
 
 
 @dataclass
+class SingleCollectorSettings(CollectorSettings):
+    """``collector/single.yaml``: the run's own process, ``num_envs`` envs as one batch."""
+
+    num_envs: int = key(Integer(1), "envs stepped as one batch, one policy call for all")
+
+
+@dataclass
 class MultiCollectorSettings(CollectorSettings):
     """``collector/multi_sync.yaml`` and ``collector/multi_async.yaml``."""
 
@@ -84,14 +91,22 @@ class RayCollectorSettings(CollectorSettings):
 
 
 def check_worker_count(cfg: DictConfig) -> None:
-    """``collector.num_workers`` with ``collector=single`` (run before the key checks, which
-    would only call it an unknown key)."""
-    if cfg.collector.name == "single" and "num_workers" in cfg.collector:
+    """``collector.num_workers`` with ``collector=single`` and ``collector.num_envs`` with
+    the others (run before the key checks, which would only call them unknown keys)."""
+    name = cfg.collector.name
+    if name == "single" and "num_workers" in cfg.collector:
         raise ConfigError(
             "collector.num_workers",
             cfg.collector.num_workers,
             "collector=single collects in this process; choose collector=multi_sync or "
             "collector=multi_async for worker processes, collector=ray for Ray actors",
+        )
+    if name != "single" and "num_envs" in cfg.collector:
+        raise ConfigError(
+            "collector.num_envs",
+            cfg.collector.num_envs,
+            f"collector={name} steps one env per worker; batched envs are collector=single's "
+            "(collector=single collector.num_envs=N), or raise collector.num_workers",
         )
 
 
@@ -99,25 +114,36 @@ def check_collector(cfg: DictConfig) -> None:
     """The combinations of ``collector.*`` with other keys that cannot work."""
     name = cfg.collector.name
     if name == "single":
+        envs = cfg.collector.num_envs
+        if envs > 1:  # every env collects budget.frames_per_batch / num_envs frames
+            split = f"collector.num_envs={envs} envs collect equal shares of each batch"
+            check_streams(cfg, split, envs, "collector.num_envs", envs, "collector.num_envs=1")
         return
     if name == "ray":
         check_ray_collector(cfg)
     workers = cfg.collector.num_workers
     stacked = name == "multi_sync" or (name == "ray" and cfg.collector.sync)
-    if stacked and cfg.budget.frames_per_batch % workers:  # one slice per worker
-        sync = " collector.sync=true" if name == "ray" else ""
+    sync = " collector.sync=true" if name == "ray" else ""
+    split = f"collector={name}{sync} splits each batch over collector.num_workers={workers}"
+    check_streams(cfg, split if stacked else None, workers, "collector", name, "collector=single")
+
+
+def check_streams(
+    cfg: DictConfig, split: str | None, parts: int, key: str, value: Any, one_stream: str
+) -> None:
+    """Online batches from several streams (workers or envs, ``key=value``): an even
+    ``split`` into ``parts`` (``None``: not split) needs ``budget.frames_per_batch`` to be a
+    multiple of them, and Cal-QL's Monte-Carlo labels need ``one_stream``."""
+    if split is not None and cfg.budget.frames_per_batch % parts:
         raise ConfigError(
-            "budget.frames_per_batch",
-            cfg.budget.frames_per_batch,
-            f"collector={name}{sync} splits each batch over collector.num_workers={workers}: "
-            "use a multiple of it",
+            "budget.frames_per_batch", cfg.budget.frames_per_batch, f"{split}: use a multiple of it"
         )
     if cfg.critic.name == "calql":
         raise ConfigError(
-            "collector",
-            name,
+            key,
+            value,
             "critic=calql labels one stream of online episodes with Monte-Carlo returns; "
-            "use collector=single with it",
+            f"use {one_stream} with it",
         )
 
 
@@ -138,7 +164,9 @@ _RAY = "torchrl_dual.recipe.o2o.ray_collector"
 
 COLLECTORS: dict[str, CollectorKind] = {
     "single": CollectorKind(
-        CollectorSettings, Ref(f"{_COLLECTORS}:make_single"), Ref(f"{_COLLECTORS}:push_to_single")
+        SingleCollectorSettings,
+        Ref(f"{_COLLECTORS}:make_single"),
+        Ref(f"{_COLLECTORS}:push_to_single"),
     ),
     "multi_sync": CollectorKind(
         MultiCollectorSettings,
