@@ -579,3 +579,18 @@ def test_the_cell_table_reports_each_variant_s_epistemic_share():
     assert lr.epistemic_share_bound(older) == pytest.approx((0.04 + 0.16) / 2)
     assert lr.share_text([run(0, [0.3]), older]) == "≤ 20.0 %"  # (30 % + 10 %) / 2
     assert lr.share_text([run(0, [0.1]), run(1, None)]) == "—"
+
+
+def test_collection_speed_times_each_env_count_and_its_ratio(tmp_path):
+    out = tmp_path / "collection_speed.json"
+    proc = run_script(
+        "benchmarks/collection_speed.py",
+        *("--envs", "pointmaze", "--num-envs", "1", "2", "--batch", "4"),
+        *("--frames", "8", "--rounds", "2", "--json", str(out)),
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    rows = json.loads(out.read_text())["pointmaze"]["num_envs"]
+    assert set(rows) == {"1", "2"}
+    assert rows["1"]["ratio_to_1"] == 1.0 and rows["2"]["ratio_to_1"] > 0
+    assert all(len(row["steps_per_s_all"]) == 2 for row in rows.values())
+    assert "| pointmaze | 2 |" in proc.stdout
