@@ -4,7 +4,8 @@ The batched env (:func:`~torchrl_dual.envs.vectorized_env`) is env for env the k
 online env: under the same actions, copy ``i`` seeded ``s + i`` steps, ends and resets
 exactly as its own env seeded ``s + i`` (PointMaze with a shift, start cells and a reward
 transform; Frozen-Lake with its slip shift; a Minari family with normalized observations),
-episodes ending at different times. A DUAL run at ``collector.num_envs=4`` acts with one
+episodes ending at different times. DUAL's exploration policy acts for each env of a
+batch in one call as for that env alone. A DUAL run at ``collector.num_envs=4`` acts with one
 policy call per batched step, stores every frame once as ``[4, T]`` batches, counts each
 env's episodes apart (ids unique, each episode one contiguous trajectory of its env, its
 ``previous_*`` keys its own), and a run interrupted and resumed ends bitwise as the run
@@ -18,14 +19,19 @@ from types import SimpleNamespace
 import pytest
 import torch
 from recipe_runner import WALL_CLOCK
+from tensordict import TensorDict
 from test_collectors import (
     FAST,
     assert_contiguous_episodes,
     assert_previous_keys_follow_trajectories,
 )
+from torchrl.data import Bounded
+from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchrl_dual.checkpoint import state_differences
+from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
 from torchrl_dual.envs import vectorized_env
+from torchrl_dual.modules import PlannerActor, TransitionModel, make_dual_policy
 from torchrl_dual.recipe import CONFIG_DIR, O2ORun, compose_checked, run
 from torchrl_dual.recipe.kits import build as env_kits
 
@@ -72,6 +78,37 @@ def steps_alike(make_env, num_envs: int, steps: int, seed: int = 3) -> int:
                 assert torch.equal(out[i][key], single[key]), (i, key)
         ended += int(out["next", "done"].sum())
     return ended
+
+
+def test_dual_s_exploration_policy_acts_for_each_env_of_a_batch_as_for_it_alone():
+    """One call on 4 envs' states: every member's mean and variance, the predicted state,
+    d_t (0 where an env has just reset) and the executed std of each env are what a call on
+    that env alone gives (up to the rounding of batched matrix products)."""
+    torch.manual_seed(0)
+    model = TrajectoryDiffusion(TrajectoryLayout(6, 2, 4), num_steps=1, hidden=32, depth=1)
+    policy = make_dual_policy(
+        PlannerActor(model),
+        Bounded(-1.0, 1.0, shape=(2,)),
+        transition_model=TransitionModel.frozen_copy(model),
+        shift_weight=0.5,
+    )
+    policy[0].fit_laplace([TensorDict({"observation": torch.randn(64, 6)}, [64])])
+    observation = torch.randn(4, 6)
+    step = TensorDict(
+        observation=observation,
+        previous_observation=observation + 0.1 * torch.randn(4, 6),
+        previous_action=torch.rand(4, 2) * 2 - 1,
+        previous_valid=torch.tensor([[True], [False], [True], [True]]),
+        batch_size=[4],
+    )
+    with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
+        batched = policy(step.clone())
+        alone = torch.cat([policy(step[i : i + 1].clone()) for i in range(4)])
+    keys = ("loc", "scale", "epistemic_variance", "expected_observation", "shift_distance")
+    for key in (*keys, "exploration_scale"):
+        torch.testing.assert_close(batched[key], alone[key], rtol=1e-5, atol=1e-5)
+    assert batched["shift_distance"][1].item() == 0.0 < batched["shift_distance"][0].item()
+    assert batched["action"].shape == (4, 2) and (batched["action"].abs() <= 1).all()
 
 
 def compose(tmp_path, *overrides: str):
