@@ -594,3 +594,23 @@ def test_collection_speed_times_each_env_count_and_its_ratio(tmp_path):
     assert rows["1"]["ratio_to_1"] == 1.0 and rows["2"]["ratio_to_1"] > 0
     assert all(len(row["steps_per_s_all"]) == 2 for row in rows.values())
     assert "| pointmaze | 2 |" in proc.stdout
+
+
+def test_update_speed_times_ours_and_d3rlpys_updates_and_profiles_them(tmp_path):
+    out = tmp_path / "update_speed.json"
+    with_d3rlpy = (REPO / ".venv-reference" / "bin" / "python").exists()
+    proc = run_script(
+        "benchmarks/update_speed.py",
+        *("--width", "16", "--batch", "8", "--batches", "2", "--warmup", "1"),
+        *("--updates", "2", "--rounds", "2", "--profile", "2", "--json", str(out)),
+        *(() if with_d3rlpy else ("--no-d3rlpy",)),
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    result = json.loads(out.read_text())
+    names = {"iql", "calql", "dual"} | ({"iql_d3rlpy", "calql_d3rlpy"} if with_d3rlpy else set())
+    assert set(result["ms_per_update_all"]) == names
+    assert all(len(v) == 2 for v in result["ms_per_update_all"].values())
+    assert "dual/iql" in result["ratios"]
+    assert with_d3rlpy == ("iql/iql_d3rlpy" in result["ratios"])
+    assert set(result["profile"]) == {"iql", "calql", "dual"}
+    assert "| dual |" in proc.stdout
