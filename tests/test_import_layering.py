@@ -42,6 +42,8 @@ ALLOWED: dict[str, tuple[str, ...]] = {
     "modules.dual_policy": ("modules",),
     "modules": ("modules",),
     "objectives": ("objectives", "diffusion", "modules.actors", "_utils"),
+    # DUAL in TorchRL's Trainer: the library's parts, not the recipe
+    "trainers": ("trainers", *LIBRARY),
     # the recipe: settings (no torch, nothing else) < kits < o2o < parts < algos
     "recipe.settings": ("recipe.settings",),
     # the entry: the schema, and the loop inside run() once the config is valid (torch-free

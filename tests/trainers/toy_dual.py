@@ -1,0 +1,129 @@
+"""A toy DUAL run on TorchRL's ``Trainer`` (Pendulum, tiny networks), shared by the tests."""
+
+from __future__ import annotations
+
+import torch
+from tensordict.nn import TensorDictModule
+from torch import nn
+from torchrl.data import LazyTensorStorage, OfflineToOnlineReplayBuffer, ReplayBuffer
+from torchrl.envs import GymEnv
+from torchrl.modules import MLP, ProbabilisticActor, ValueOperator
+from torchrl.objectives import IQLLoss, SoftUpdate
+from torchrl.trainers import Trainer, UpdateWeights
+from torchrl.trainers.algorithms.offline_to_online import OfflineToOnlineReplayBufferHook
+
+from torchrl_dual.data import TRANSITION_KEYS, validate_transitions
+from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
+from torchrl_dual.modules import PlannerActor, TransitionModel, make_dual_policy
+from torchrl_dual.objectives import WeightedMAPActorLoss
+from torchrl_dual.trainers import (
+    CriticActorStepper,
+    LaplaceRefitHook,
+    OfflineStagesHook,
+    dual_collector,
+    iql_critic_loss,
+)
+from torchrl_dual.transforms import PreviousTransition
+
+KEYS = [key for key in TRANSITION_KEYS if key != "episode"]
+
+
+class _NoActor(nn.Module):
+    def forward(self, observation):
+        raise RuntimeError("DUAL's actor loss is WeightedMAPActorLoss (Eq. 7)")
+
+
+def toy_trainer(save_file, *, total_frames: int = 40, refit_interval: int = 4, log=None):
+    """A Trainer with DUAL's stepper and hooks; ``log`` records the post_steps order."""
+    torch.manual_seed(0)
+    env = GymEnv("Pendulum-v1").append_transform(PreviousTransition())
+    env.set_seed(0)
+    rollout = env.rollout(max_steps=40)
+    rollout["episode"] = torch.zeros(40, dtype=torch.long)
+    transitions = validate_transitions(rollout.select(*TRANSITION_KEYS))
+    model = TrajectoryDiffusion(
+        TrajectoryLayout(obs_dim=3, action_dim=1, horizon=2), num_steps=1, hidden=16, depth=1
+    )
+    model.normalizer.fit(transitions["observation"], transitions["action"])
+    actor = PlannerActor(model)
+    iql = IQLLoss(
+        ProbabilisticActor(
+            TensorDictModule(_NoActor(), in_keys=["observation"], out_keys=["loc", "scale"]),
+            in_keys=["loc", "scale"],
+            distribution_class=torch.distributions.Normal,
+        ),
+        ValueOperator(
+            MLP(in_features=4, out_features=1, num_cells=[16]), ["observation", "action"]
+        ),
+        ValueOperator(MLP(in_features=3, out_features=1, num_cells=[16]), ["observation"]),
+        num_qvalue_nets=2,
+    )
+    iql.make_value_estimator(gamma=0.99)
+    actor_loss = WeightedMAPActorLoss.from_iql(actor, iql, temperature=3.0)
+    critic_params = [
+        *iql.qvalue_network_params.values(True, True),
+        *iql.value_network_params.values(True, True),
+    ]
+    stepper = CriticActorStepper(
+        iql_critic_loss(iql),
+        actor_loss,
+        torch.optim.Adam(critic_params, lr=3e-4),
+        torch.optim.Adam(actor_loss.parameters(), lr=3e-4),
+        target_update=SoftUpdate(iql, tau=0.005),
+    )
+    policy = make_dual_policy(
+        actor, env.action_spec, transition_model=TransitionModel.frozen_copy(model), num_samples=3
+    )
+    offline = ReplayBuffer(storage=LazyTensorStorage(len(transitions)))
+    offline.extend(transitions.select(*KEYS))
+    replay = OfflineToOnlineReplayBuffer(
+        offline, online_capacity=200, offline_fraction=0.5, batch_size=16
+    )
+    ensemble = policy[0]
+    runs = {"pretrain": 0, "laplace_fit": 0}
+
+    def pretrain():
+        runs["pretrain"] += 1
+        for _ in range(3):
+            stepper.update(offline.sample(16))
+
+    def laplace_fit():
+        runs["laplace_fit"] += 1
+        ensemble.fit_laplace([offline[:]], weight_fn=actor_loss.advantage_weights)
+
+    collector = dual_collector(env, policy, frames_per_batch=20, total_frames=total_frames)
+    trainer = Trainer(
+        collector=collector,
+        total_frames=total_frames,
+        frame_skip=1,
+        optim_steps_per_batch=2,
+        loss_module=actor_loss,
+        optimization_stepper=stepper,
+        progress_bar=False,
+        save_trainer_file=save_file,
+        save_trainer_interval=1,
+    )
+    trainer.register_module("policy", policy)
+    trainer.register_module("iql", iql)
+    if log is not None:  # stands for the weight push, registered before the refit hook
+        trainer.register_op("post_steps", lambda: log.append("push"))
+    UpdateWeights(collector, update_weights_interval=1).register(trainer)
+    OfflineToOnlineReplayBufferHook(replay, batch_size=16).register(trainer)
+    stages = OfflineStagesHook([("pretrain", pretrain), ("laplace_fit", laplace_fit)])
+    stages.register(trainer)
+    refit = LaplaceRefitHook(
+        ensemble,
+        lambda: [offline[:], replay.online_buffer[:]],
+        refit_interval,
+        weight_fn=actor_loss.advantage_weights,
+    )
+    refit.register(trainer)
+    if log is not None:
+        fit = ensemble.fit_laplace
+
+        def logged_fit(*args, **kwargs):
+            log.append("refit")
+            return fit(*args, **kwargs)
+
+        ensemble.fit_laplace = logged_fit
+    return trainer, runs, stages, refit

@@ -1,0 +1,25 @@
+"""DUAL inside TorchRL's own trainer stack (:class:`torchrl.trainers.Trainer`).
+
+Hooks any TorchRL trainer accepts (:class:`OfflineStagesHook`, :class:`LaplaceRefitHook`)
+and the critic-then-actor optimization step DUAL's two optimizers need
+(:class:`CriticActorStepper`). TorchRL marks its trainer APIs experimental; the one
+work-arounds they need are :func:`register_before_weight_update` and
+:func:`dual_collector`.
+"""
+
+from torchrl_dual.trainers.collector import dual_collector
+from torchrl_dual.trainers.hooks import (
+    LaplaceRefitHook,
+    OfflineStagesHook,
+    register_before_weight_update,
+)
+from torchrl_dual.trainers.stepper import CriticActorStepper, iql_critic_loss
+
+__all__ = [
+    "CriticActorStepper",
+    "dual_collector",
+    "LaplaceRefitHook",
+    "OfflineStagesHook",
+    "iql_critic_loss",
+    "register_before_weight_update",
+]

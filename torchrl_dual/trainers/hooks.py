@@ -1,0 +1,158 @@
+"""DUAL's trainer hooks: the offline stages and the periodic Laplace refit.
+
+Both are :class:`~torchrl.trainers.TrainerHookBase` subclasses, so any TorchRL
+:class:`~torchrl.trainers.Trainer` accepts them (``hook.register(trainer)``), registers
+them as trainer modules, and saves their progress in its checkpoint.
+
+* :class:`OfflineStagesHook` runs Algorithm 1's offline phase (lines 1-9: the planner of
+  Eq. 3, progressive distillation, actor-critic pre-training with Eq. 7's actor, the
+  last-layer Laplace fit of Eq. 8) at the trainer's ``setup`` stage, once: the names of
+  the finished stages are its ``state_dict``, so a trainer resumed from its checkpoint
+  skips them.
+* :class:`LaplaceRefitHook` refits the last-layer Laplace (Eq. 8) on
+  ``D_offline ∪ D_online`` every ``interval`` optimizer steps (Algorithm 1, line 17), at
+  the ``post_steps`` stage *before* the weight update that pushes the policy to the
+  collector, so the collector acts with the refitted ensemble of Eq. 9.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Sequence
+from typing import Any
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.trainers import Trainer, TrainerHookBase
+
+__all__ = ["LaplaceRefitHook", "OfflineStagesHook", "register_before_weight_update"]
+
+
+def register_before_weight_update(trainer: Trainer, op: Callable[[], None]) -> None:
+    """Registers ``op`` at ``post_steps``, ahead of every op already there.
+
+    TorchRL runs ``post_steps`` ops in registration order and has no priority argument;
+    ``UpdateWeights`` (the push of the policy to the collector) is a ``post_steps`` op
+    too, often registered first. This is the one place that reorders the trainer's
+    private list; ``tests/trainers/test_hooks.py`` fails if TorchRL changes it.
+    """
+    trainer.register_op("post_steps", op)
+    ops = trainer._post_steps_ops
+    ops.insert(0, ops.pop())
+
+
+class OfflineStagesHook(TrainerHookBase):
+    """Runs named offline stages once, in order, before training (Alg. 1, lines 1-9).
+
+    Args:
+        stages: ``(name, callable)`` pairs, run in order; each callable takes no
+            argument. A stage that was interrupted is run again from its start.
+
+    Example:
+        >>> from torchrl_dual.trainers import OfflineStagesHook
+        >>> log = []
+        >>> hook = OfflineStagesHook([("planner", lambda: log.append("p")),
+        ...                           ("laplace", lambda: log.append("l"))])
+        >>> hook()
+        >>> hook.load_state_dict(hook.state_dict())
+        >>> hook()  # finished stages are not run again
+        >>> log
+        ['p', 'l']
+    """
+
+    def __init__(self, stages: Sequence[tuple[str, Callable[[], Any]]]) -> None:
+        names = [name for name, _ in stages]
+        if len(set(names)) != len(names):
+            raise ValueError(f"stage names must be unique, got {names}")
+        self.stages = list(stages)
+        self.done: list[str] = []
+
+    def __call__(self) -> None:
+        for name, stage in self.stages:
+            if name in self.done:
+                continue
+            stage()
+            self.done.append(name)
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"done": list(self.done)}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        known = {name for name, _ in self.stages}
+        unknown = [name for name in state_dict["done"] if name not in known]
+        if unknown:
+            raise ValueError(f"checkpoint lists unknown offline stages {unknown}")
+        self.done = list(state_dict["done"])
+
+    def register(self, trainer: Trainer, name: str = "offline_stages") -> None:
+        trainer.register_module(name, self)
+        trainer.register_op("setup", self)
+
+
+class LaplaceRefitHook(TrainerHookBase):
+    """Refits the last-layer Laplace (Eq. 8) every ``interval`` optimizer steps (Alg. 1 l. 17).
+
+    Args:
+        ensemble: the :class:`~torchrl_dual.modules.LaplaceEnsembleActor` (Eq. 9) whose
+            posterior is refitted.
+        batches_fn: returns the batches to fit on, e.g. the offline and online storages
+            of the replay buffer (``lambda: [offline[:], online[:]]``).
+        interval: optimizer steps between refits (the trainer's optimizer-step count).
+        weight_fn: the Eq. 7 weights ``w_i`` of each sample, e.g.
+            ``WeightedMAPActorLoss.advantage_weights``; uniform when ``None``.
+
+    The step of the last refit is the hook's ``state_dict``.
+
+    Example:
+        >>> from torchrl_dual.trainers import LaplaceRefitHook
+        >>> class Counting:  # stands in for a LaplaceEnsembleActor
+        ...     fits = 0
+        ...     def fit_laplace(self, batches, weight_fn=None):
+        ...         self.fits += 1
+        >>> class FakeTrainer:
+        ...     _optim_count = 0
+        >>> ensemble, trainer = Counting(), FakeTrainer()
+        >>> hook = LaplaceRefitHook(ensemble, lambda: [], interval=100)
+        >>> hook._trainer = trainer
+        >>> for count in (50, 100, 150, 250):
+        ...     trainer._optim_count = count
+        ...     hook()
+        >>> ensemble.fits
+        2
+    """
+
+    def __init__(
+        self,
+        ensemble: Any,
+        batches_fn: Callable[[], Iterable[TensorDictBase]],
+        interval: int,
+        weight_fn: Callable[[TensorDictBase], torch.Tensor] | None = None,
+    ) -> None:
+        if interval < 1:
+            raise ValueError(f"interval must be >= 1, got {interval}")
+        self.ensemble = ensemble
+        self.batches_fn = batches_fn
+        self.interval = interval
+        self.weight_fn = weight_fn
+        self.last_refit_step = 0
+        self.num_refits = 0
+        self._trainer: Any = None
+
+    def __call__(self) -> None:
+        step = self._trainer._optim_count
+        if step // self.interval > self.last_refit_step // self.interval:
+            with torch.no_grad():
+                self.ensemble.fit_laplace(self.batches_fn(), weight_fn=self.weight_fn)
+            self.last_refit_step = step
+            self.num_refits += 1
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"last_refit_step": self.last_refit_step, "num_refits": self.num_refits}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self.last_refit_step = int(state_dict["last_refit_step"])
+        self.num_refits = int(state_dict["num_refits"])
+
+    def register(self, trainer: Trainer, name: str = "laplace_refit") -> None:
+        self._trainer = trainer
+        trainer.register_module(name, self)
+        register_before_weight_update(trainer, self)
