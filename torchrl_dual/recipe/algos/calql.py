@@ -13,7 +13,6 @@ is :class:`~torchrl_dual.recipe.O2ORun`'s.
 
 from __future__ import annotations
 
-import torch
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
 
@@ -24,6 +23,7 @@ from torchrl_dual.recipe.o2o.loop import run_o2o
 from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.parts.critics import make_critic
 from torchrl_dual.recipe.parts.mc_labels import MonteCarloLabels
+from torchrl_dual.recipe.parts.optim import adam
 from torchrl_dual.recipe.settings.baselines import MLPActorSettings
 from torchrl_dual.recipe.settings.rules import as_settings
 
@@ -42,7 +42,7 @@ class CalQLLearner(Learner):
         self.critic = make_critic(cfg, run.data.obs_dim, run.data.action_dim, actor=self.actor)
         self.labels = MonteCarloLabels(run)  # D_offline's bound; D_online's per episode
         loss = self.critic.loss
-        self.actor_optimizer = torch.optim.Adam(
+        self.actor_optimizer = adam(
             [*loss.actor_network_params.values(True, True), loss.log_alpha], lr=s.lr
         )
         self.evaluation_policy = self.actor

@@ -17,7 +17,6 @@ evaluated with its deterministic action (the Gaussian's mean; ``tanh(loc)`` for 
 
 from __future__ import annotations
 
-import torch
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
 from tensordict.nn import (
@@ -37,6 +36,7 @@ from torchrl_dual.recipe.o2o.learner import Learner, RunContext
 from torchrl_dual.recipe.o2o.loop import run_o2o
 from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.parts.critics import make_critic
+from torchrl_dual.recipe.parts.optim import adam
 from torchrl_dual.recipe.settings.baselines import (
     ACTOR_DISTRIBUTIONS,
     IQLActorSettings,
@@ -123,7 +123,7 @@ class IQLLearner(Learner):
             actor=self.actor,
             temperature=s.temperature,
         )
-        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=s.lr)
+        self.actor_optimizer = adam(self.actor.parameters(), lr=s.lr)
         self.evaluation_policy = self.actor
         self.exploration_policy = projected_policy(cfg, self.actor)
 

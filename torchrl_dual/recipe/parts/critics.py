@@ -27,6 +27,7 @@ from torchrl.objectives import IQLLoss, SoftUpdate
 
 from torchrl_dual.modules.actors.action_box import ClippedNormal, box_bounds
 from torchrl_dual.objectives import CalQLLoss, SO2QLoss
+from torchrl_dual.recipe.parts.optim import adam
 from torchrl_dual.recipe.settings.parts import (
     CRITICS,
     CalQLCriticSettings,
@@ -73,7 +74,7 @@ class Critic:
         """Every builder's tail: Adam over ``params`` at ``critic.lr`` and the soft target
         update at ``critic.target_update_tau`` around ``loss`` (``options``: the fields
         after :attr:`terms`)."""
-        optimizer = torch.optim.Adam(params, lr=settings.lr)
+        optimizer = adam(params, lr=settings.lr)
         updater = SoftUpdate(loss, tau=settings.target_update_tau)
         return cls(loss, optimizer, updater, terms, **options)
 
