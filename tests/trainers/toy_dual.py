@@ -18,6 +18,7 @@ from torchrl_dual.modules import PlannerActor, TransitionModel, make_dual_policy
 from torchrl_dual.objectives import WeightedMAPActorLoss
 from torchrl_dual.trainers import (
     CriticActorStepper,
+    DUALTrainer,
     LaplaceRefitHook,
     OfflineStagesHook,
     dual_collector,
@@ -33,8 +34,8 @@ class _NoActor(nn.Module):
         raise RuntimeError("DUAL's actor loss is WeightedMAPActorLoss (Eq. 7)")
 
 
-def toy_trainer(save_file, *, total_frames: int = 40, refit_interval: int = 4, log=None):
-    """A Trainer with DUAL's stepper and hooks; ``log`` records the post_steps order."""
+def toy_parts():
+    """DUAL's parts at toy scale: policy, stepper, replay buffer and offline stages."""
     torch.manual_seed(0)
     env = GymEnv("Pendulum-v1").append_transform(PreviousTransition())
     env.set_seed(0)
@@ -91,6 +92,14 @@ def toy_trainer(save_file, *, total_frames: int = 40, refit_interval: int = 4, l
         runs["laplace_fit"] += 1
         ensemble.fit_laplace([offline[:]], weight_fn=actor_loss.advantage_weights)
 
+    stages = [("pretrain", pretrain), ("laplace_fit", laplace_fit)]
+    return env, policy, stepper, replay, stages, runs, actor_loss, iql
+
+
+def toy_trainer(save_file, *, total_frames: int = 40, refit_interval: int = 4, log=None):
+    """A plain Trainer with DUAL's stepper and hooks; ``log`` records the post_steps order."""
+    env, policy, stepper, replay, stage_list, runs, actor_loss, iql = toy_parts()
+    offline, ensemble = replay.offline_buffer, policy[0]
     collector = dual_collector(env, policy, frames_per_batch=20, total_frames=total_frames)
     trainer = Trainer(
         collector=collector,
@@ -109,7 +118,7 @@ def toy_trainer(save_file, *, total_frames: int = 40, refit_interval: int = 4, l
         trainer.register_op("post_steps", lambda: log.append("push"))
     UpdateWeights(collector, update_weights_interval=1).register(trainer)
     OfflineToOnlineReplayBufferHook(replay, batch_size=16).register(trainer)
-    stages = OfflineStagesHook([("pretrain", pretrain), ("laplace_fit", laplace_fit)])
+    stages = OfflineStagesHook(stage_list)
     stages.register(trainer)
     refit = LaplaceRefitHook(
         ensemble,
@@ -127,3 +136,24 @@ def toy_trainer(save_file, *, total_frames: int = 40, refit_interval: int = 4, l
 
         ensemble.fit_laplace = logged_fit
     return trainer, runs, stages, refit
+
+
+def toy_dual_trainer(save_file, *, total_frames: int = 40):
+    """The same run through ``DUALTrainer``."""
+    env, policy, stepper, replay, stages, runs, actor_loss, _ = toy_parts()
+    trainer = DUALTrainer(
+        collector=dual_collector(env, policy, frames_per_batch=20, total_frames=total_frames),
+        policy=policy,
+        stepper=stepper,
+        replay_buffer=replay,
+        offline_stages=stages,
+        total_frames=total_frames,
+        optim_steps_per_batch=2,
+        refit_interval=4,
+        weight_fn=actor_loss.advantage_weights,
+        batch_size=16,
+        progress_bar=False,
+        save_trainer_file=save_file,
+        save_trainer_interval=1,
+    )
+    return trainer, runs

@@ -2,12 +2,14 @@
 
 Hooks any TorchRL trainer accepts (:class:`OfflineStagesHook`, :class:`LaplaceRefitHook`)
 and the critic-then-actor optimization step DUAL's two optimizers need
-(:class:`CriticActorStepper`). TorchRL marks its trainer APIs experimental; the one
+(:class:`CriticActorStepper`), and :class:`DUALTrainer`, which wires them into one
+TorchRL trainer. TorchRL marks its trainer APIs experimental; the one
 work-arounds they need are :func:`register_before_weight_update` and
 :func:`dual_collector`.
 """
 
 from torchrl_dual.trainers.collector import dual_collector
+from torchrl_dual.trainers.dual_trainer import DUALTrainer
 from torchrl_dual.trainers.hooks import (
     LaplaceRefitHook,
     OfflineStagesHook,
@@ -17,6 +19,7 @@ from torchrl_dual.trainers.stepper import CriticActorStepper, iql_critic_loss
 
 __all__ = [
     "CriticActorStepper",
+    "DUALTrainer",
     "dual_collector",
     "LaplaceRefitHook",
     "OfflineStagesHook",

@@ -1,0 +1,106 @@
+"""``DUALTrainer``: Algorithm 1 on TorchRL's :class:`~torchrl.trainers.Trainer`.
+
+Built on the plain :class:`~torchrl.trainers.Trainer` rather than TorchRL's
+:class:`~torchrl.trainers.algorithms.OfflineToOnlineTrainer`, because the latter is a
+:class:`~torchrl.trainers.algorithms.SACTrainer`: it does not take an
+``optimization_stepper`` (DUAL steps two optimizers, IQL's critics then Eq. 7's actor)
+and it anneals the offline share of each batch to zero, where DUAL keeps a fixed share.
+What it adds over :class:`~torchrl.trainers.Trainer` for an offline-to-online buffer,
+TorchRL's ``OfflineToOnlineReplayBufferHook``, is reused here without its annealing hook.
+
+Registered, in this order (``Trainer`` runs each stage's ops in registration order):
+
+* the :class:`~torchrl_dual.trainers.CriticActorStepper` (its optimizers in the
+  checkpoint);
+* ``policy``: DUAL's whole acting policy (Eq. 9's ensemble with its Laplace posterior and
+  Eq. 10's :class:`~torchrl_dual.modules.ShiftAwareNoise`), so the checkpoint saves it;
+* TorchRL's ``OfflineToOnlineReplayBufferHook`` (online data in the checkpoint);
+* :class:`~torchrl_dual.trainers.OfflineStagesHook` at ``setup`` (Alg. 1, lines 1-9);
+* :class:`~torchrl_dual.trainers.LaplaceRefitHook` (Eq. 8 on ``D_offline ∪ D_online``
+  every ``refit_interval`` optimizer steps, Alg. 1 line 17), then TorchRL's
+  ``UpdateWeights``, which pushes the refitted policy to the collector.
+
+Build the collector with :func:`~torchrl_dual.trainers.dual_collector`: the posterior
+does not exist before the offline stages run. ``tests/trainers/test_dual_trainer.py``
+trains a toy run through :meth:`~torchrl.trainers.Trainer.train` and resumes it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.data import OfflineToOnlineReplayBuffer
+from torchrl.trainers import Trainer, UpdateWeights
+from torchrl.trainers.algorithms.offline_to_online import OfflineToOnlineReplayBufferHook
+
+from torchrl_dual.trainers.hooks import LaplaceRefitHook, OfflineStagesHook
+from torchrl_dual.trainers.stepper import CriticActorStepper
+
+__all__ = ["DUALTrainer"]
+
+
+class DUALTrainer(Trainer):
+    """DUAL's offline stages, then online collection with critic-then-actor updates.
+
+    Args:
+        collector: a TorchRL collector running ``policy`` (see ``dual_collector``).
+        policy: DUAL's acting policy, ``make_dual_policy(...)``: its first module is the
+            :class:`~torchrl_dual.modules.LaplaceEnsembleActor` that is refitted.
+        stepper: the critic-then-actor update.
+        replay_buffer: the offline-to-online buffer (fixed offline share per batch).
+        offline_stages: ``(name, callable)`` pairs run once before collection.
+        total_frames: online frames to collect.
+        optim_steps_per_batch: updates per collected batch (the update-to-data ratio).
+        refit_interval: optimizer steps between Laplace refits (Alg. 1 line 17).
+        weight_fn: Eq. 7's per-sample weights for the refit, e.g.
+            ``WeightedMAPActorLoss.advantage_weights``.
+        batch_size: replay batch size (defaults to the buffer's).
+        **trainer_kwargs: the rest of :class:`~torchrl.trainers.Trainer`'s arguments
+            (``save_trainer_file``, ``logger``, ``progress_bar``, ...).
+    """
+
+    def __init__(
+        self,
+        *,
+        collector: Any,
+        policy: Any,
+        stepper: CriticActorStepper,
+        replay_buffer: OfflineToOnlineReplayBuffer,
+        offline_stages: Sequence[tuple[str, Callable[[], Any]]],
+        total_frames: int,
+        optim_steps_per_batch: int,
+        refit_interval: int,
+        weight_fn: Callable[[TensorDictBase], torch.Tensor] | None = None,
+        batch_size: int | None = None,
+        **trainer_kwargs: Any,
+    ) -> None:
+        trainer_kwargs.setdefault("frame_skip", 1)
+        super().__init__(
+            collector=collector,
+            total_frames=total_frames,
+            optim_steps_per_batch=optim_steps_per_batch,
+            loss_module=stepper.actor_loss_fn,
+            optimization_stepper=stepper,
+            **trainer_kwargs,
+        )
+        self.policy = policy
+        self.register_module("policy", policy)
+        OfflineToOnlineReplayBufferHook(replay_buffer, batch_size=batch_size).register(self)
+        self.offline_stages = OfflineStagesHook(offline_stages)
+        self.offline_stages.register(self)
+        self.laplace_refit = LaplaceRefitHook(
+            policy[0],
+            lambda: [
+                b[:] for b in (replay_buffer.offline_buffer, replay_buffer.online_buffer) if len(b)
+            ],
+            refit_interval,
+            weight_fn=weight_fn,
+        )
+        # the refit is registered before the push, so no reordering is needed here
+        self.laplace_refit._trainer = self
+        self.register_module("laplace_refit", self.laplace_refit)
+        self.register_op("post_steps", self.laplace_refit)
+        UpdateWeights(collector, update_weights_interval=1).register(self)
