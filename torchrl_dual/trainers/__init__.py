@@ -9,6 +9,7 @@ work-arounds they need are :func:`register_before_weight_update` and
 """
 
 from torchrl_dual.trainers.collector import dual_collector
+from torchrl_dual.trainers.configs import register_configs
 from torchrl_dual.trainers.dual_trainer import DUALTrainer
 from torchrl_dual.trainers.hooks import (
     LaplaceRefitHook,
@@ -24,5 +25,6 @@ __all__ = [
     "LaplaceRefitHook",
     "OfflineStagesHook",
     "iql_critic_loss",
+    "register_configs",
     "register_before_weight_update",
 ]

@@ -1,0 +1,151 @@
+"""DUAL's parts in TorchRL's Hydra ``ConfigStore`` (``torchrl.trainers.algorithms.configs``).
+
+:func:`register_configs` stores dataclass configs with ``_target_`` next to TorchRL's own
+groups, so a run composed from TorchRL's groups can pick DUAL's parts:
+
+========================  ===================================================
+group=name                target
+========================  ===================================================
+``loss=dual_weighted_map``     :class:`~torchrl_dual.objectives.WeightedMAPActorLoss` (Eq. 7)
+``loss=dual_diffusion_planner``  :class:`~torchrl_dual.objectives.DiffusionPlannerLoss` (Eq. 3)
+``loss=dual_distillation``     :class:`~torchrl_dual.objectives.DistillationLoss` (Alg. 1 l. 5)
+``exploration=shift_aware_noise``  :class:`~torchrl_dual.modules.ShiftAwareNoise` (Eq. 10)
+``hook=laplace_refit``         :class:`~torchrl_dual.trainers.LaplaceRefitHook` (Eq. 8)
+``trainer=dual``               :class:`~torchrl_dual.trainers.DUALTrainer`
+========================  ===================================================
+
+Fields holding modules (the actor, the planner, the collector, ...) default to ``None``:
+modules are not config values, so build a partial from the config and complete it with
+them, ``instantiate(cfg, _partial_=True)(actor=actor, ...)``
+(``tests/trainers/test_configs.py`` trains a run built this way).
+
+Example:
+    >>> from hydra.core.config_store import ConfigStore
+    >>> from torchrl_dual.trainers import register_configs
+    >>> register_configs()
+    >>> "dual_weighted_map.yaml" in ConfigStore.instance().repo["loss"]
+    True
+    >>> "dual.yaml" in ConfigStore.instance().repo["trainer"]
+    True
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = [
+    "DUALTrainerConfig",
+    "DiffusionPlannerLossConfig",
+    "DistillationLossConfig",
+    "LaplaceRefitHookConfig",
+    "ShiftAwareNoiseConfig",
+    "WeightedMAPActorLossConfig",
+    "register_configs",
+]
+
+
+@dataclass
+class WeightedMAPActorLossConfig:
+    """:class:`~torchrl_dual.objectives.WeightedMAPActorLoss`: Eq. 7's weighted MAP actor."""
+
+    actor: Any = None
+    qvalue_network: Any = None
+    value_network: Any = None
+    weighting: str = "advantage"
+    temperature: float = 3.0
+    max_weight: float = 100.0
+    entropy_coef: float = 0.2
+    reduction: str = "mean"
+    _target_: str = "torchrl_dual.objectives.WeightedMAPActorLoss"
+    _partial_: bool = False
+
+
+@dataclass
+class DiffusionPlannerLossConfig:
+    """:class:`~torchrl_dual.objectives.DiffusionPlannerLoss`: Eq. 3 on H-step windows."""
+
+    model: Any = None
+    action_condition_prob: float = 0.5
+    reduction: str = "mean"
+    _target_: str = "torchrl_dual.objectives.DiffusionPlannerLoss"
+    _partial_: bool = False
+
+
+@dataclass
+class DistillationLossConfig:
+    """:class:`~torchrl_dual.objectives.DistillationLoss`: one progressive-distillation round."""
+
+    student: Any = None
+    teacher: Any = None
+    action_condition_prob: float = 0.5
+    reduction: str = "mean"
+    _target_: str = "torchrl_dual.objectives.DistillationLoss"
+    _partial_: bool = False
+
+
+@dataclass
+class ShiftAwareNoiseConfig:
+    """:class:`~torchrl_dual.modules.ShiftAwareNoise`: Eq. 10's shift-aware variance."""
+
+    spec: Any = None
+    shift_weight: float = 0.5
+    shift_floor: float = 0.0
+    extra_variance: float = 0.0
+    _target_: str = "torchrl_dual.modules.ShiftAwareNoise"
+    _partial_: bool = False
+
+
+@dataclass
+class LaplaceRefitHookConfig:
+    """:class:`~torchrl_dual.trainers.LaplaceRefitHook`: Eq. 8 every ``interval`` steps."""
+
+    ensemble: Any = None
+    batches_fn: Any = None
+    interval: int = 5000
+    weight_fn: Any = None
+    _target_: str = "torchrl_dual.trainers.LaplaceRefitHook"
+    _partial_: bool = False
+
+
+@dataclass
+class DUALTrainerConfig:
+    """:class:`~torchrl_dual.trainers.DUALTrainer`: Algorithm 1 on TorchRL's ``Trainer``."""
+
+    collector: Any = None
+    policy: Any = None
+    stepper: Any = None
+    replay_buffer: Any = None
+    offline_stages: Any = None
+    total_frames: int = 8000
+    optim_steps_per_batch: int = 1000
+    refit_interval: int = 5000
+    weight_fn: Any = None
+    batch_size: int | None = None
+    progress_bar: bool = True
+    save_trainer_file: Any = None
+    save_trainer_interval: int = 10000
+    log_interval: int = 10000
+    logger: Any = None
+    _target_: str = "torchrl_dual.trainers.DUALTrainer"
+    _partial_: bool = False
+
+
+_ENTRIES = (
+    ("loss", "dual_weighted_map", WeightedMAPActorLossConfig),
+    ("loss", "dual_diffusion_planner", DiffusionPlannerLossConfig),
+    ("loss", "dual_distillation", DistillationLossConfig),
+    ("exploration", "shift_aware_noise", ShiftAwareNoiseConfig),
+    ("hook", "laplace_refit", LaplaceRefitHookConfig),
+    ("trainer", "dual", DUALTrainerConfig),
+)
+
+
+def register_configs() -> None:
+    """Registers TorchRL's config groups, then DUAL's entries in them (idempotent)."""
+    import torchrl.trainers.algorithms.configs  # noqa: F401  (stores TorchRL's groups on import)
+    from hydra.core.config_store import ConfigStore
+
+    store = ConfigStore.instance()
+    for group, name, node in _ENTRIES:
+        store.store(group=group, name=name, node=node)
