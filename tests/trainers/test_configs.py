@@ -56,3 +56,11 @@ def test_stored_configs_instantiate_and_train(tmp_path):
     trainer.train()
     assert runs == {"pretrain": 1, "laplace_fit": 1}
     assert trainer.collected_frames == 20 and trainer.laplace_refit.num_refits == 1
+
+
+def test_the_store_is_restored_for_the_recipe_after_these_tests():
+    """The recipe composes after a test here registered TorchRL's configs (conftest)."""
+    from torchrl_dual.recipe import CONFIG_DIR, compose_checked
+
+    assert "loss" not in ConfigStore.instance().repo  # restored after the tests above
+    assert compose_checked(CONFIG_DIR, ["budget=smoke"]).algo == "dual"
