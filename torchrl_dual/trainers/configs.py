@@ -19,6 +19,12 @@ modules are not config values, so build a partial from the config and complete i
 them, ``instantiate(cfg, _partial_=True)(actor=actor, ...)``
 (``tests/trainers/test_configs.py`` trains a run built this way).
 
+TorchRL's groups share names with the recipe's (``logger=csv``): once they are stored,
+Hydra validates the recipe's ``logger/csv.yaml`` against TorchRL's schema and composing
+the recipe's config fails. Compose the recipe's config before calling
+:func:`register_configs`, or in another process; ``tests/trainers/conftest.py`` restores
+the store after each test.
+
 Example:
     >>> from hydra.core.config_store import ConfigStore
     >>> from torchrl_dual.trainers import register_configs
