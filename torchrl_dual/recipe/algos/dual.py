@@ -31,6 +31,7 @@ from torchrl_dual.recipe.parts.critics import Critic, make_critic, policy_view
 from torchrl_dual.recipe.parts.laplace_refits import RefitSchedule, ensemble_signals
 from torchrl_dual.recipe.parts.mc_labels import MonteCarloLabels
 from torchrl_dual.recipe.parts.networks import make_planner, make_policy, student_like
+from torchrl_dual.recipe.parts.optim import adam
 from torchrl_dual.recipe.parts.planner_augment import augment_capacity, make_augmenter
 from torchrl_dual.recipe.parts.planner_stage import offline_windows, pretrain_planner
 from torchrl_dual.recipe.settings.dual import ActorSettings, DualSections
@@ -128,7 +129,7 @@ class DualLearner(Learner):
         self.labels = MonteCarloLabels(run) if cfg.critic.name == "calql" else None
         entropy_coef = cfg.critic.get("entropy_coef")  # SO2's α
         self.actor_loss = make_actor_loss(s.actor, self.actor, self.critic, spec, entropy_coef)
-        self.actor_optimizer = torch.optim.Adam(self.actor_loss.parameters(), lr=s.actor.lr)
+        self.actor_optimizer = adam(self.actor_loss.parameters(), lr=s.actor.lr, fuse=False)
         self.policy = make_policy(  # Eq. 9 + Eq. 10
             s.laplace,
             self.actor,

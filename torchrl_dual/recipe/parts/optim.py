@@ -14,10 +14,17 @@ from collections.abc import Iterable
 import torch
 
 
-def adam(params: Iterable[torch.Tensor], lr: float) -> torch.optim.Adam:
-    """``torch.optim.Adam(params, lr)``, fused when every parameter is a floating-point
-    tensor on the CPU or CUDA (else PyTorch's default implementation)."""
+def adam(params: Iterable[torch.Tensor], lr: float, *, fuse: bool = True) -> torch.optim.Adam:
+    """``torch.optim.Adam(params, lr)``, fused when ``fuse`` and every parameter is a
+    floating-point tensor on the CPU or CUDA, else PyTorch's ``foreach`` implementation
+    (one multi-tensor call per operation instead of one per parameter).
+
+    ``fuse=False``: DUAL's actor optimizer; fused, the resumed run of
+    ``tests/recipe/test_algorithm_contract.py`` differs from the whole run in its state
+    (not understood yet); ``foreach`` resumes bitwise."""
     params = list(params)
+    if not fuse:
+        return torch.optim.Adam(params, lr=lr, foreach=True)
     fused = bool(params) and all(
         p.device.type in ("cpu", "cuda") and p.is_floating_point() for p in params
     )
