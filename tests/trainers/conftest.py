@@ -4,10 +4,10 @@
 Hydra's process-wide ``ConfigStore``; Hydra then validates the recipe's own
 ``logger/csv.yaml`` against TorchRL's schema of the same name and composing the recipe
 fails ("Error merging 'logger/csv' with schema"). Each test here gets the store back as
-it found it, so a pytest worker that runs the recipe's tests afterwards is unaffected.
+it found it (less the groups a test added; Hydra's own ``hydra`` entries, stored once per
+process, are kept), so a pytest worker that runs the recipe's tests afterwards is
+unaffected.
 """
-
-import copy
 
 import pytest
 from hydra.core.config_store import ConfigStore
@@ -16,6 +16,7 @@ from hydra.core.config_store import ConfigStore
 @pytest.fixture(autouse=True)
 def _restore_config_store():
     store = ConfigStore.instance()
-    saved = copy.deepcopy(store.repo)
+    before = set(store.repo)
     yield
-    store.repo = saved
+    for key in set(store.repo) - before - {"hydra"}:
+        del store.repo[key]

@@ -149,9 +149,13 @@ _ENTRIES = (
 
 def register_configs() -> None:
     """Registers TorchRL's config groups, then DUAL's entries in them (idempotent)."""
-    import torchrl.trainers.algorithms.configs  # noqa: F401  (stores TorchRL's groups on import)
     from hydra.core.config_store import ConfigStore
+    from torchrl.trainers.algorithms import configs as torchrl_configs
 
     store = ConfigStore.instance()
+    # TorchRL stores its groups when the module is first imported, not again: a store
+    # emptied since (tests/trainers/conftest.py) is refilled by its private registrar
+    if "iql.yaml" not in store.repo.get("loss", {}):
+        torchrl_configs._register_configs()
     for group, name, node in _ENTRIES:
         store.store(group=group, name=name, node=node)

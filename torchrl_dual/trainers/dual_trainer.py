@@ -33,11 +33,10 @@ from typing import Any
 import torch
 from tensordict import TensorDictBase
 from torchrl.data import OfflineToOnlineReplayBuffer
-from torchrl.trainers import Trainer, UpdateWeights
+from torchrl.trainers import OptimizationStepper, Trainer, UpdateWeights
 from torchrl.trainers.algorithms.offline_to_online import OfflineToOnlineReplayBufferHook
 
 from torchrl_dual.trainers.hooks import LaplaceRefitHook, OfflineStagesHook
-from torchrl_dual.trainers.stepper import CriticActorStepper
 
 __all__ = ["DUALTrainer"]
 
@@ -49,7 +48,9 @@ class DUALTrainer(Trainer):
         collector: a TorchRL collector running ``policy`` (see ``dual_collector``).
         policy: DUAL's acting policy, ``make_dual_policy(...)``: its first module is the
             :class:`~torchrl_dual.modules.LaplaceEnsembleActor` that is refitted.
-        stepper: the critic-then-actor update.
+        stepper: the critic-then-actor update, a
+            :class:`~torchrl_dual.trainers.CriticActorStepper` or any TorchRL
+            ``OptimizationStepper`` (then pass ``loss_module``, e.g. the actor loss).
         replay_buffer: the offline-to-online buffer (fixed offline share per batch).
         offline_stages: ``(name, callable)`` pairs run once before collection.
         total_frames: online frames to collect.
@@ -58,6 +59,8 @@ class DUALTrainer(Trainer):
         weight_fn: Eq. 7's per-sample weights for the refit, e.g.
             ``WeightedMAPActorLoss.advantage_weights``.
         batch_size: replay batch size (defaults to the buffer's).
+        loss_module: the trainer's ``loss_module`` (saved in its checkpoint); defaults
+            to the stepper's actor loss.
         **trainer_kwargs: the rest of :class:`~torchrl.trainers.Trainer`'s arguments
             (``save_trainer_file``, ``logger``, ``progress_bar``, ...).
     """
@@ -67,7 +70,7 @@ class DUALTrainer(Trainer):
         *,
         collector: Any,
         policy: Any,
-        stepper: CriticActorStepper,
+        stepper: OptimizationStepper,
         replay_buffer: OfflineToOnlineReplayBuffer,
         offline_stages: Sequence[tuple[str, Callable[[], Any]]],
         total_frames: int,
@@ -75,6 +78,7 @@ class DUALTrainer(Trainer):
         refit_interval: int,
         weight_fn: Callable[[TensorDictBase], torch.Tensor] | None = None,
         batch_size: int | None = None,
+        loss_module: Any | None = None,
         **trainer_kwargs: Any,
     ) -> None:
         trainer_kwargs.setdefault("frame_skip", 1)
@@ -82,7 +86,7 @@ class DUALTrainer(Trainer):
             collector=collector,
             total_frames=total_frames,
             optim_steps_per_batch=optim_steps_per_batch,
-            loss_module=stepper.actor_loss_fn,
+            loss_module=stepper.actor_loss_fn if loss_module is None else loss_module,
             optimization_stepper=stepper,
             **trainer_kwargs,
         )
