@@ -29,9 +29,7 @@ from omegaconf import DictConfig, OmegaConf
 from torchrl.data import LazyTensorStorage, OfflineToOnlineReplayBuffer, ReplayBuffer
 from torchrl.trainers import OptimizationStepper
 
-from torchrl_dual.recipe import CONFIG_DIR, compose_checked
-from torchrl_dual.recipe.algos.dual import DualLearner
-from torchrl_dual.recipe.o2o.run import O2ORun
+from torchrl_dual.recipe import CONFIG_DIR, DualLearner, O2ORun, compose_checked
 from torchrl_dual.trainers import dual_collector, register_configs
 
 
