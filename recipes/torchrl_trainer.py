@@ -104,7 +104,7 @@ def build_trainer(cfg: DictConfig):
         },
     )
     total = int(trainer_cfg.total_frames)
-    return instantiate(trainer_cfg, _partial_=True)(
+    trainer = instantiate(trainer_cfg, _partial_=True)(
         collector=dual_collector(
             run.env,
             learner.policy,
@@ -118,6 +118,10 @@ def build_trainer(cfg: DictConfig):
         weight_fn=learner.actor_loss.advantage_weights,
         loss_module=learner.actor_loss,
     )
+    # the learner's weights and optimizers (teacher, critics, ...) in the trainer checkpoint
+    for name, module in learner.modules().items():
+        trainer.register_module(f"dual_{name}", module)
+    return trainer
 
 
 @hydra.main(version_base=None, config_name="torchrl_trainer")

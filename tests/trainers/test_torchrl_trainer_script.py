@@ -47,6 +47,10 @@ def test_script_trains_dual_on_umaze_and_resumes_offline_stages(tmp_path):
     for i, (name, _stage) in enumerate(resumed.offline_stages.stages):
         resumed.offline_stages.stages[i] = (name, lambda n=name: calls.append(n))
     resumed.load_from_file(save)
+    teacher, restored = trainer._modules["dual_teacher"], resumed._modules["dual_teacher"]
+    for key, value in teacher.state_dict().items():  # the trained planner came back
+        if value.is_floating_point():
+            assert value.equal(restored.state_dict()[key]), key
     assert resumed.offline_stages.done == trainer.offline_stages.done
     resumed.train()
     assert calls == []  # every offline stage came back finished from the checkpoint
