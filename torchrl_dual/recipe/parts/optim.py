@@ -16,15 +16,16 @@ import torch
 
 def adam(params: Iterable[torch.Tensor], lr: float, *, fuse: bool = True) -> torch.optim.Adam:
     """``torch.optim.Adam(params, lr)``, fused when ``fuse`` and every parameter is a
-    floating-point tensor on the CPU or CUDA, else PyTorch's ``foreach`` implementation
-    (one multi-tensor call per operation instead of one per parameter).
+    floating-point tensor on the CPU or CUDA, else PyTorch's default implementation.
 
-    ``fuse=False``: DUAL's actor optimizer; fused, the resumed run of
+    ``fuse=False``: DUAL's actor optimizer. Fused, the resumed run of
     ``tests/recipe/test_algorithm_contract.py`` differs from the whole run in its state
-    (not understood yet); ``foreach`` resumes bitwise."""
+    (not understood yet); ``foreach=True`` resumes bitwise but fails under
+    ``compile.compile=true`` (Dynamo: "Expected scalars to be on CPU, got meta" in
+    ``_foreach_addcdiv_``, ``tests/recipe/test_compile_recipe.py``)."""
     params = list(params)
     if not fuse:
-        return torch.optim.Adam(params, lr=lr, foreach=True)
+        return torch.optim.Adam(params, lr=lr)
     fused = bool(params) and all(
         p.device.type in ("cpu", "cuda") and p.is_floating_point() for p in params
     )
