@@ -88,7 +88,7 @@ def test_reference_pairs_show_offline_final_and_auc_verdicts():
         "iql": "iql_d3rlpy",
         "calql": "calql_d3rlpy",
         "iql_sparse": "iql_d3rlpy_sparse",
-        "calql_sparse": "calql_d3rlpy_sparse",
+        "calql_sparse_no_bound": "calql_d3rlpy_sparse",
     }
     ours = [_run(s, 10.0 + s, 50.0 + 4 * s, 40.0) for s in range(3)]
     ref = [_run(s, 10.0, 50.0, 40.0 + s) for s in range(4)]  # seed 3: no pair
