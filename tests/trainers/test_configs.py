@@ -64,3 +64,15 @@ def test_the_store_is_restored_for_the_recipe_after_these_tests():
 
     assert "loss" not in ConfigStore.instance().repo  # restored after the tests above
     assert compose_checked(CONFIG_DIR, ["budget=smoke"]).algo == "dual"
+
+
+def test_the_recipe_composes_while_torchrl_s_configs_are_stored():
+    """compose_checked hides the store's entries named like the recipe's groups (TorchRL's
+    ``logger/csv`` schema would reject the recipe's) and puts them back afterwards."""
+    from torchrl_dual.recipe import CONFIG_DIR, compose_checked
+
+    register_configs()
+    store = ConfigStore.instance().repo
+    assert "csv.yaml" in store["logger"]  # TorchRL's logger/csv, a name the recipe uses too
+    assert compose_checked(CONFIG_DIR, ["budget=smoke", "logger=csv"]).algo == "dual"
+    assert "csv.yaml" in store["logger"]  # restored

@@ -15,7 +15,7 @@ from __future__ import annotations
 import contextlib
 import io
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -109,7 +109,7 @@ def compose_checked(config_dir: str | Path, overrides: Sequence[str], config_nam
             raise ConfigError(
                 override.key_or_group, value, "unknown option; choose one of " + ", ".join(options)
             )
-    with initialize_config_dir(config_dir=str(config_dir), version_base="1.3"):
+    with _own_groups_only(config_dir), initialize_config_dir(str(config_dir), version_base="1.3"):
         try:
             base = compose(config_name, [o.input_line for o in groups])
             known = _dotted_keys(OmegaConf.to_container(base, resolve=False))
@@ -129,6 +129,25 @@ def compose_checked(config_dir: str | Path, overrides: Sequence[str], config_nam
             raise ConfigError(None, None, str(err).splitlines()[0]) from err
     OmegaConf.set_struct(cfg, True)
     return validate_config(cfg)
+
+
+@contextlib.contextmanager
+def _own_groups_only(config_dir: Path) -> Iterator[None]:
+    """Hides the entries of Hydra's process-wide ``ConfigStore`` named like a group of
+    ``config_dir`` while the recipe composes: Hydra would otherwise validate the recipe's
+    ``logger/csv.yaml`` against, e.g., TorchRL's ``logger/csv`` schema, stored once
+    ``torchrl.trainers.algorithms.configs`` (or :func:`torchrl_dual.trainers.register_configs`)
+    ran in the process ("Error merging 'logger/csv' with schema"). The store is as it was
+    afterwards (``tests/trainers/test_configs.py`` composes the recipe next to TorchRL's)."""
+    from hydra.core.config_store import ConfigStore
+
+    repo = ConfigStore.instance().repo
+    ours = {path.name for path in config_dir.iterdir() if path.is_dir()}
+    hidden = {key: repo.pop(key) for key in list(repo) if key in ours}
+    try:
+        yield
+    finally:
+        repo.update(hidden)
 
 
 def _debug(overrides: Sequence[str]) -> bool:
