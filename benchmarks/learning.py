@@ -70,7 +70,7 @@ def build_queue(cells: list[str], variants: list[str] | None, seeds: list[int] |
             if algo not in ALGORITHMS:
                 notes.append(f"skipped {cell_name}/{variant}: algo={algo} is not in ALGORITHMS")
                 continue
-            for seed in range(cell.seeds_of(variant)):
+            for seed in cell.seed_range(variant):
                 if seeds is None or seed in seeds:
                     runs.append(Run(cell_name, variant, seed, cell.overrides + VARIANTS[variant]))
     return order_for_sharing(runs), notes
@@ -250,7 +250,10 @@ def seeds_text(cell: Cell) -> str:
         '5 (`b`: 7)'
     """
     more = ", ".join(f"`{variant}`: {n}" for variant, n in cell.more_seeds)
-    return f"{cell.seeds} ({more})" if more else str(cell.seeds)
+    count = f"{cell.seeds} ({more})" if more else str(cell.seeds)
+    if cell.first_seed:
+        count += f", seeds {cell.first_seed}-{cell.first_seed + cell.seeds - 1}"
+    return count
 
 
 def header_text(budget: str) -> str:

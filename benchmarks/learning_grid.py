@@ -168,10 +168,22 @@ class Cell:
     more_seeds: tuple[tuple[str, int], ...] = ()
     """``(variant, seeds)`` for variants run at more seeds than :attr:`seeds` (a pair
     whose difference 5 seeds left undecided)."""
+    first_seed: int = 0
+    """The first seed the cell runs: a cell of fresh seeds (no tuning saw them) starts past
+    the seeds its twin cell used."""
 
     def seeds_of(self, variant: str) -> int:
-        """How many seeds (0, 1, ...) ``variant`` runs in this cell."""
+        """How many seeds ``variant`` runs in this cell."""
         return dict(self.more_seeds).get(variant, self.seeds)
+
+    def seed_range(self, variant: str) -> range:
+        """The seeds ``variant`` runs in this cell.
+
+        Examples:
+            >>> list(Cell((), ("a",), 3, "", first_seed=5).seed_range("a"))
+            [5, 6, 7]
+        """
+        return range(self.first_seed, self.first_seed + self.seeds_of(variant))
 
 
 CELLS: dict[str, Cell] = {
@@ -231,6 +243,14 @@ CELLS: dict[str, Cell] = {
     "umaze_online": Cell(
         ("env=pointmaze_umaze",), ONLINE_TUNING_VARIANTS, 5,
         "PointMaze U-maze: DUAL with offline share 0.75 or UTD 0.25 online (`dual`: 0.5 and 0.5)",
+    ),
+    # issue 41: the README's U-maze comparison on seeds 5-9, which no tuning saw (DUAL's
+    # budget split was chosen on `umaze` seeds 0-2), on one machine in one sitting, on the
+    # code after fused Adam (issue 40)
+    "umaze_fresh": Cell(
+        ("env=pointmaze_umaze",), ("dual", "iql", "iql_d3rlpy", "iql_equal_time"), 5,
+        "PointMaze U-maze, fresh seeds 5-9 (no tuning saw them), one machine, one sitting",
+        first_seed=5,
     ),
     # its own `dual` runs: the online-only ablations (latent UQ, and DUAL + EDIS below) ran
     # on another machine than `umaze`'s (docs/results.md), so they pair with these, which
