@@ -141,7 +141,7 @@ def test_the_penalty_equals_the_logsumexp_of_clipped_policy_q_computed_by_hand(b
 def test_with_the_bound_at_minus_inf_the_torchrl_layout_gives_cqllosss_outputs_exactly(
     weight, temperature
 ):
-    kwargs = {"min_q_weight": weight, "temperature": temperature}
+    kwargs = {"min_q_weight": weight, "temperature": temperature, "loss_function": "l2"}
     cal = _mock_loss(penalty_layout="torchrl", **kwargs)
     cql = _mock_loss(CQLLoss, **kwargs)
     batch = _mock_batch(-math.inf)
@@ -152,6 +152,27 @@ def test_with_the_bound_at_minus_inf_the_torchrl_layout_gives_cqllosss_outputs_e
     for key in out_cql.keys():
         torch.testing.assert_close(out_cal[key], out_cql[key], rtol=1e-6, atol=1e-6)
     assert out_cal["bound_rate"] == 0
+
+
+@pytest.mark.parametrize("scale", [1.0, 100.0])
+def test_the_bellman_loss_is_the_references_squared_error_not_cqlloss_s_huber(scale):
+    """Cal-QL's, CQL's, CORL's and d3rlpy's code regress Q by squared error; TorchRL's
+    CQLLoss defaults to smooth-L1. Scaling the TD errors by k scales the squared error by
+    k², the Huber loss (errors beyond 1) by about k only."""
+    batch = _mock_batch(-math.inf)
+    batch["next", "reward"] = batch["next", "reward"] * scale
+    losses = {}
+    for name, cls, kwargs in (
+        ("calql", CalQLLoss, {}),
+        ("l2", CQLLoss, {"loss_function": "l2"}),
+        ("huber", CQLLoss, {}),
+    ):
+        torch.manual_seed(3)
+        losses[name] = _mock_loss(cls, **kwargs).q_loss(batch.clone())[0]
+    torch.testing.assert_close(losses["calql"], losses["l2"])
+    assert _mock_loss().loss_function == "l2"
+    if scale > 1:  # errors far beyond 1: the squared error is ≫ the Huber loss
+        assert losses["calql"] > 20 * losses["huber"]
 
 
 def test_a_bound_above_the_policy_q_raises_the_penalty_and_one_below_leaves_cqls():

@@ -78,9 +78,14 @@ class CalQLLoss(CQLLoss):
         penalty_layout (str): one of :data:`PENALTY_LAYOUTS`. Defaults to ``"calql"``.
         log_alpha_prime_init (float): the initial ``log α'`` of the Lagrange form (unused
             without ``with_lagrange``). Defaults to 1.0 (Cal-QL's and CORL's code).
-        **kwargs: every keyword argument of ``CQLLoss``: ``min_q_weight`` (CQL's ``α``,
-            default 1.0), ``num_random`` (10), ``temperature`` (1.0), ``with_lagrange``
-            (False), ``lagrange_thresh``, ``alpha_init``, ``loss_function``, ``reduction`` ...
+        loss_function (str): the Bellman loss of each Q network. Defaults to ``"l2"``, the
+            squared error of the Cal-QL, CQL, CORL and d3rlpy code; TorchRL's ``CQLLoss``
+            defaults to ``"smooth_l1"``, whose gradient is capped at 1 per transition: with
+            AntMaze's ``10 r − 5`` rewards (``|Q|`` up to 500) the Q networks then move
+            orders of magnitude slower than the references'.
+        **kwargs: every other keyword argument of ``CQLLoss``: ``min_q_weight`` (CQL's
+            ``α``, default 1.0), ``num_random`` (10), ``temperature`` (1.0),
+            ``with_lagrange`` (False), ``lagrange_thresh``, ``alpha_init``, ``reduction`` ...
 
     The input needs CQLLoss's keys plus ``tensor_keys.mc_return`` (``[*B, 1]`` or ``[*B]``).
     The output has CQLLoss's entries plus ``bound_rate``, the fraction of policy Q-values
@@ -143,6 +148,7 @@ class CalQLLoss(CQLLoss):
         *,
         penalty_layout: str = "calql",
         log_alpha_prime_init: float = 1.0,
+        loss_function: str = "l2",
         **kwargs,
     ):
         if penalty_layout not in PENALTY_LAYOUTS:
@@ -151,7 +157,7 @@ class CalQLLoss(CQLLoss):
                 "follows the Cal-QL reference code, 'torchrl' reproduces CQLLoss's grouping."
             )
         self._calql_in_keys = None
-        super().__init__(actor_network, qvalue_network, **kwargs)
+        super().__init__(actor_network, qvalue_network, loss_function=loss_function, **kwargs)
         self.penalty_layout = penalty_layout
         if self.with_lagrange:
             with torch.no_grad():
