@@ -30,7 +30,7 @@ from torchrl.data import LazyTensorStorage, OfflineToOnlineReplayBuffer, ReplayB
 from torchrl.trainers import OptimizationStepper
 
 from torchrl_dual.recipe import CONFIG_DIR, DualLearner, O2ORun, compose_checked
-from torchrl_dual.trainers import dual_collector, register_configs
+from torchrl_dual.trainers import NormalizedScoreLogHook, dual_collector, register_configs
 
 
 class RunUpdateStepper(OptimizationStepper):
@@ -104,6 +104,12 @@ def build_trainer(cfg: DictConfig):
         },
     )
     total = int(trainer_cfg.total_frames)
+    # the recipe's evaluator (budget.eval_episodes deterministic episodes, its normalized
+    # score) every budget.eval_every frames, as the recipe evaluates
+    evaluation = NormalizedScoreLogHook(
+        lambda: run.evaluate_policy(learner.evaluation_policy),
+        interval=max(int(budget.eval_every) // int(budget.frames_per_batch), 1),
+    )
     trainer = instantiate(trainer_cfg, _partial_=True)(
         collector=dual_collector(
             run.env,
@@ -117,6 +123,7 @@ def build_trainer(cfg: DictConfig):
         offline_stages=learner.offline_stages(),
         weight_fn=learner.actor_loss.advantage_weights,
         loss_module=learner.actor_loss,
+        evaluation=evaluation,
     )
     # the learner's weights and optimizers (teacher, critics, ...) in the trainer checkpoint
     for name, module in learner.modules().items():

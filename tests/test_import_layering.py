@@ -7,6 +7,7 @@ and checked against the table below: a part imports only the parts listed for it
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -43,7 +44,7 @@ ALLOWED: dict[str, tuple[str, ...]] = {
     "modules": ("modules",),
     "objectives": ("objectives", "diffusion", "modules.actors", "_utils"),
     # DUAL in TorchRL's Trainer: the library's parts, not the recipe
-    "trainers": ("trainers", *LIBRARY),
+    "trainers": ("trainers", "evaluation", *LIBRARY),
     # the recipe: settings (no torch, nothing else) < kits < o2o < parts < algos
     "recipe.settings": ("recipe.settings",),
     # the entry: the schema, and the loop inside run() once the config is valid (torch-free
@@ -199,22 +200,58 @@ def test_no_import_cycles_in_the_package():
     assert _cycles(_import_graph(files, resolve)) == []
 
 
-def test_no_import_cycles_in_the_benchmarks():
-    folder = PACKAGE.parent / "benchmarks"
-    files = {p.stem: p for p in folder.glob("*.py")}
+BENCHMARKS = sorted((PACKAGE.parent / "benchmarks").rglob("*.py"))
+"""Every module of the ``benchmarks`` package and its subpackages."""
 
-    def resolve(target: str) -> str | None:  # the scripts import their siblings by name
+
+def _benchmark_module(path: Path) -> str:
+    """``benchmarks/learning/suite.py`` -> ``benchmarks.learning.suite`` (a package's
+    ``__init__.py``: the package)."""
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def test_no_import_cycles_in_the_benchmarks():
+    files = {_benchmark_module(p): p for p in BENCHMARKS}
+
+    def resolve(target: str) -> str | None:  # by package name: benchmarks.learning.cells
         return target if target in files else None
 
-    assert len(files) > 10
-    assert _cycles(_import_graph(files, resolve)) == []
+    assert len(files) > 30 and "benchmarks.learning.cells" in files
+    graph = _import_graph(files, resolve)
+    assert "benchmarks.learning.variants" in graph["benchmarks.learning.cells"]
+    assert _cycles(graph) == []
+
+
+def test_the_benchmarks_import_each_other_by_package_name():
+    """A benchmark imports another as ``benchmarks.<folder>.<name>``, never by its bare
+    name with its folder put on ``sys.path`` (and no module changes ``sys.path``)."""
+    stems = {p.stem for p in BENCHMARKS}
+    bare = []
+    for path in BENCHMARKS:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names = [node.module]
+            elif isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+            else:
+                continue
+            bare += [f"{path.name}: {n}" for n in names if n.split(".")[0] in stems]
+    assert bare == []
+    tests = sorted((PACKAGE.parent / "tests").rglob("*.py"))
+    hacks = [
+        f"{path.name}: {line.strip()}"
+        for path in [*BENCHMARKS, *tests]
+        for line in path.read_text().splitlines()
+        if re.search(r"sys\.path(\.insert|\.append|\[:0\]).*benchmarks", line)
+    ]
+    assert hacks == []
 
 
 def test_the_benchmarks_import_public_names_only():
     """No benchmark imports a private module or name of the package (a ``_`` prefix)."""
-    folder = PACKAGE.parent / "benchmarks"
     private = []
-    for path in sorted(folder.glob("*.py")):
+    for path in BENCHMARKS:
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("torchrl_dual"):
                 names = [*node.module.split("."), *(alias.name for alias in node.names)]

@@ -20,6 +20,9 @@ def test_register_configs_lists_dual_next_to_torchrl_groups():
         ("loss", "dual_distillation"),
         ("exploration", "shift_aware_noise"),
         ("hook", "laplace_refit"),
+        ("hook", "dual_signals"),
+        ("hook", "normalized_score"),
+        ("replay_buffer", "offline_to_online"),
         ("trainer", "dual"),
     ]:
         assert f"{name}.yaml" in repo[group], (group, name)

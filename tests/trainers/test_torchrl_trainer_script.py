@@ -2,6 +2,7 @@
 then its offline stages resumed from the trainer's checkpoint."""
 
 import importlib.util
+import math
 import sys
 from pathlib import Path
 
@@ -22,6 +23,12 @@ def _script():
     return module
 
 
+def cfg_eval_every(recipe: list[str]) -> int:
+    from torchrl_dual.recipe import CONFIG_DIR, compose_checked
+
+    return int(compose_checked(CONFIG_DIR, recipe).budget.eval_every)
+
+
 def test_script_trains_dual_on_umaze_and_resumes_offline_stages(tmp_path):
     script = _script()
     recipe = [*TINY_UMAZE, f"output_dir={tmp_path / 'run'}"]
@@ -40,6 +47,11 @@ def test_script_trains_dual_on_umaze_and_resumes_offline_stages(tmp_path):
     assert trainer.collected_frames == 100 and trainer._optim_count == 50
     # the refit hook runs once per collected batch, when >= 10 updates passed: 2 batches
     assert trainer.laplace_refit.num_refits == 2
+    # the recipe's evaluator, every budget.eval_every frames, its normalized score logged
+    scores = trainer._log_dict["eval/normalized_score"]
+    assert len(scores) == trainer.collected_frames // cfg_eval_every(recipe) >= 1
+    assert all(math.isfinite(score) for score in scores)
+    assert len(trainer._log_dict["dual/shift_distance"]) == 2  # one per collected batch
     assert save.exists()
 
     calls = []

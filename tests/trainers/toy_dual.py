@@ -138,8 +138,8 @@ def toy_trainer(save_file, *, total_frames: int = 40, refit_interval: int = 4, l
     return trainer, runs, stages, refit
 
 
-def toy_dual_trainer(save_file, *, total_frames: int = 40):
-    """The same run through ``DUALTrainer``."""
+def toy_dual_trainer(save_file, *, total_frames: int = 40, **trainer_kwargs):
+    """The same run through ``DUALTrainer`` (``trainer_kwargs``: its other arguments)."""
     env, policy, stepper, replay, stages, runs, actor_loss, _ = toy_parts()
     trainer = DUALTrainer(
         collector=dual_collector(env, policy, frames_per_batch=20, total_frames=total_frames),
@@ -155,5 +155,6 @@ def toy_dual_trainer(save_file, *, total_frames: int = 40):
         progress_bar=False,
         save_trainer_file=save_file,
         save_trainer_interval=1,
+        **trainer_kwargs,
     )
     return trainer, runs

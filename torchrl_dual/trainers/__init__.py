@@ -1,6 +1,7 @@
 """DUAL inside TorchRL's own trainer stack (:class:`torchrl.trainers.Trainer`).
 
-Hooks any TorchRL trainer accepts (:class:`OfflineStagesHook`, :class:`LaplaceRefitHook`)
+Hooks any TorchRL trainer accepts (:class:`OfflineStagesHook`, :class:`LaplaceRefitHook`,
+the logging hooks :class:`DUALSignalsLogHook` and :class:`NormalizedScoreLogHook`)
 and the critic-then-actor optimization step DUAL's two optimizers need
 (:class:`CriticActorStepper`), and :class:`DUALTrainer`, which wires them into one
 TorchRL trainer. TorchRL marks its trainer APIs experimental; the one
@@ -16,13 +17,16 @@ from torchrl_dual.trainers.hooks import (
     OfflineStagesHook,
     register_before_weight_update,
 )
+from torchrl_dual.trainers.logging_hooks import DUALSignalsLogHook, NormalizedScoreLogHook
 from torchrl_dual.trainers.stepper import CriticActorStepper, iql_critic_loss
 
 __all__ = [
     "CriticActorStepper",
+    "DUALSignalsLogHook",
     "DUALTrainer",
     "dual_collector",
     "LaplaceRefitHook",
+    "NormalizedScoreLogHook",
     "OfflineStagesHook",
     "iql_critic_loss",
     "register_configs",

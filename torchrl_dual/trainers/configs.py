@@ -11,6 +11,9 @@ group=name                target
 ``loss=dual_distillation``     :class:`~torchrl_dual.objectives.DistillationLoss` (Alg. 1 l. 5)
 ``exploration=shift_aware_noise``  :class:`~torchrl_dual.modules.ShiftAwareNoise` (Eq. 10)
 ``hook=laplace_refit``         :class:`~torchrl_dual.trainers.LaplaceRefitHook` (Eq. 8)
+``hook=dual_signals``          :class:`~torchrl_dual.trainers.DUALSignalsLogHook` (Eq. 9-10)
+``hook=normalized_score``      :class:`~torchrl_dual.trainers.NormalizedScoreLogHook`
+``replay_buffer=offline_to_online``  TorchRL's ``OfflineToOnlineReplayBuffer`` (fixed offline share)
 ``trainer=dual``               :class:`~torchrl_dual.trainers.DUALTrainer`
 ========================  ===================================================
 
@@ -44,7 +47,10 @@ __all__ = [
     "DUALTrainerConfig",
     "DiffusionPlannerLossConfig",
     "DistillationLossConfig",
+    "DUALSignalsLogHookConfig",
     "LaplaceRefitHookConfig",
+    "NormalizedScoreLogHookConfig",
+    "OfflineToOnlineReplayBufferConfig",
     "ShiftAwareNoiseConfig",
     "WeightedMAPActorLossConfig",
     "register_configs",
@@ -115,6 +121,42 @@ class LaplaceRefitHookConfig:
 
 
 @dataclass
+class DUALSignalsLogHookConfig:
+    """:class:`~torchrl_dual.trainers.DUALSignalsLogHook`: Eq. 9-10's signals per batch."""
+
+    prefix: str = "dual/"
+    log_pbar: bool = False
+    _target_: str = "torchrl_dual.trainers.DUALSignalsLogHook"
+    _partial_: bool = False
+
+
+@dataclass
+class NormalizedScoreLogHookConfig:
+    """:class:`~torchrl_dual.trainers.NormalizedScoreLogHook`: the evaluation's score
+    every ``interval`` collected batches (``evaluate`` is a callable: pass it in)."""
+
+    evaluate: Any = None
+    interval: int = 10
+    prefix: str = "eval/"
+    _target_: str = "torchrl_dual.trainers.NormalizedScoreLogHook"
+    _partial_: bool = False
+
+
+@dataclass
+class OfflineToOnlineReplayBufferConfig:
+    """TorchRL's ``OfflineToOnlineReplayBuffer``, which TorchRL's store lacks: each batch
+    draws ``offline_fraction`` of it from ``D_offline`` (a Minari id, or a replay buffer
+    passed in) and the rest from the online storage, a fixed share as DUAL samples."""
+
+    offline_dataset: Any = None
+    online_capacity: int = 1_000_000
+    offline_fraction: float = 0.5
+    batch_size: int = 256
+    _target_: str = "torchrl.data.OfflineToOnlineReplayBuffer"
+    _partial_: bool = False
+
+
+@dataclass
 class DUALTrainerConfig:
     """:class:`~torchrl_dual.trainers.DUALTrainer`: Algorithm 1 on TorchRL's ``Trainer``."""
 
@@ -133,6 +175,8 @@ class DUALTrainerConfig:
     save_trainer_interval: int = 10000
     log_interval: int = 10000
     logger: Any = None
+    log_signals: bool = True
+    evaluation: Any = None
     _target_: str = "torchrl_dual.trainers.DUALTrainer"
     _partial_: bool = False
 
@@ -143,6 +187,9 @@ _ENTRIES = (
     ("loss", "dual_distillation", DistillationLossConfig),
     ("exploration", "shift_aware_noise", ShiftAwareNoiseConfig),
     ("hook", "laplace_refit", LaplaceRefitHookConfig),
+    ("hook", "dual_signals", DUALSignalsLogHookConfig),
+    ("hook", "normalized_score", NormalizedScoreLogHookConfig),
+    ("replay_buffer", "offline_to_online", OfflineToOnlineReplayBufferConfig),
     ("trainer", "dual", DUALTrainerConfig),
 )
 

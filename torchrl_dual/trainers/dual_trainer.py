@@ -18,7 +18,10 @@ Registered, in this order (``Trainer`` runs each stage's ops in registration ord
 * :class:`~torchrl_dual.trainers.OfflineStagesHook` at ``setup`` (Alg. 1, lines 1-9);
 * :class:`~torchrl_dual.trainers.LaplaceRefitHook` (Eq. 8 on ``D_offline ∪ D_online``
   every ``refit_interval`` optimizer steps, Alg. 1 line 17), then TorchRL's
-  ``UpdateWeights``, which pushes the refitted policy to the collector.
+  ``UpdateWeights``, which pushes the refitted policy to the collector;
+* :class:`~torchrl_dual.trainers.DUALSignalsLogHook` (``log_signals``: Eq. 9-10's
+  signals of each collected batch) and, when given, an ``evaluation`` hook such as
+  :class:`~torchrl_dual.trainers.NormalizedScoreLogHook` (its schedule in the checkpoint).
 
 Build the collector with :func:`~torchrl_dual.trainers.dual_collector`: the posterior
 does not exist before the offline stages run. ``tests/trainers/test_dual_trainer.py``
@@ -37,6 +40,7 @@ from torchrl.trainers import OptimizationStepper, Trainer, UpdateWeights
 from torchrl.trainers.algorithms.offline_to_online import OfflineToOnlineReplayBufferHook
 
 from torchrl_dual.trainers.hooks import LaplaceRefitHook, OfflineStagesHook
+from torchrl_dual.trainers.logging_hooks import DUALSignalsLogHook
 
 __all__ = ["DUALTrainer"]
 
@@ -61,6 +65,11 @@ class DUALTrainer(Trainer):
         batch_size: replay batch size (defaults to the buffer's).
         loss_module: the trainer's ``loss_module`` (saved in its checkpoint); defaults
             to the stepper's actor loss.
+        log_signals: log Eq. 9-10's signals of each collected batch
+            (:class:`~torchrl_dual.trainers.DUALSignalsLogHook`). Defaults to ``True``.
+        evaluation: a hook with a ``register(trainer)`` method run after each batch's
+            updates, e.g. :class:`~torchrl_dual.trainers.NormalizedScoreLogHook`; none
+            by default.
         **trainer_kwargs: the rest of :class:`~torchrl.trainers.Trainer`'s arguments
             (``save_trainer_file``, ``logger``, ``progress_bar``, ...).
     """
@@ -79,6 +88,8 @@ class DUALTrainer(Trainer):
         weight_fn: Callable[[TensorDictBase], torch.Tensor] | None = None,
         batch_size: int | None = None,
         loss_module: Any | None = None,
+        log_signals: bool = True,
+        evaluation: Any | None = None,
         **trainer_kwargs: Any,
     ) -> None:
         trainer_kwargs.setdefault("frame_skip", 1)
@@ -108,3 +119,7 @@ class DUALTrainer(Trainer):
         self.register_module("laplace_refit", self.laplace_refit)
         self.register_op("post_steps", self.laplace_refit)
         UpdateWeights(collector, update_weights_interval=1).register(self)
+        if log_signals:
+            DUALSignalsLogHook().register(self)
+        if evaluation is not None:  # after the refit and the push: it scores the new policy
+            evaluation.register(self)

@@ -21,14 +21,14 @@ from torchrl.data.tensor_specs import TensorSpec
 
 from torchrl_dual import PlannerActor, TransitionModel, WeightedMAPActorLoss
 from torchrl_dual.diffusion import TrajectoryDiffusion
-from torchrl_dual.modules import ShiftAwareNoise
+from torchrl_dual.modules import ShiftAwareNoise, exploration_signals
 from torchrl_dual.objectives import progressive_distillation
 from torchrl_dual.recipe.kits.build import env_kit
 from torchrl_dual.recipe.o2o.learner import Learner, RunContext
 from torchrl_dual.recipe.o2o.loop import run_o2o
 from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.parts.critics import Critic, make_critic, policy_view
-from torchrl_dual.recipe.parts.laplace_refits import RefitSchedule, ensemble_signals
+from torchrl_dual.recipe.parts.laplace_refits import RefitSchedule
 from torchrl_dual.recipe.parts.mc_labels import MonteCarloLabels
 from torchrl_dual.recipe.parts.networks import make_planner, make_policy, student_like
 from torchrl_dual.recipe.parts.optim import adam
@@ -244,14 +244,10 @@ class DualLearner(Learner):
             self.augmenter.after_updates()
 
     def batch_metrics(self, batch: TensorDictBase) -> dict:
-        """d_t, the ensemble's epistemic std and share of the executed variance
-        (:func:`~torchrl_dual.recipe.parts.laplace_refits.ensemble_signals`) and the executed
-        action's std sqrt(σ² + λ d_t) (Eq. 10), each over the collected batch."""
-        return {
-            "shift_distance": float(batch["shift_distance"].mean()),
-            **ensemble_signals(batch),
-            "exploration_std": float(batch["exploration_scale"].mean()),
-        }
+        """d_t, the ensemble's epistemic std and share of the executed variance and the
+        executed action's std sqrt(σ² + λ d_t) (Eq. 9-10), each over the collected batch
+        (:func:`~torchrl_dual.modules.exploration_signals`)."""
+        return exploration_signals(batch)
 
     # ------------------------------------------------------------------ offline stages
     def pretrain_planner(self) -> None:

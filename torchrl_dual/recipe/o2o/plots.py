@@ -21,14 +21,14 @@ import matplotlib.pyplot as plt  # noqa: E402  (after choosing the file-only bac
 
 ONLINE_SIGNALS: dict[str, str] = {
     "epistemic_std": "epistemic std",
-    "epistemic_share": "epistemic share",  # of the executed variance (ensemble_signals)
+    "epistemic_share": "epistemic share",  # of the executed variance (exploration_signals)
     "shift_distance": "shift distance $d_t$",
     "exploration_std": "executed action std",
 }
 """Per-batch metrics of the online phase that the plot draws (key: panel label)."""
 RECORDED_ONLY: tuple[str, ...] = ("reward_per_step",)
 """Per-batch metrics kept with the signals but not drawn: the collected reward (whether
-exploration found any, ``benchmarks/online_reward.py``)."""
+exploration found any, ``benchmarks/studies/online_reward.py``)."""
 
 
 def online_signals(frames: int, metrics: dict) -> dict | None:

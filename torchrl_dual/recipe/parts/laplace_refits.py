@@ -22,33 +22,12 @@ import torch
 from tensordict import TensorDictBase
 from torch import nn
 
-from torchrl_dual.modules import LaplaceEnsembleActor, LastLayerActor
+from torchrl_dual.modules import LaplaceEnsembleActor, LastLayerActor, exploration_signals
 from torchrl_dual.recipe.kits.build import env_kit
 from torchrl_dual.recipe.o2o.learner import RunContext
 from torchrl_dual.recipe.parts.networks import make_policy
 from torchrl_dual.recipe.settings.dual import EnsembleSettings
 from torchrl_dual.recipe.settings.rules import as_settings
-
-
-def ensemble_signals(batch: TensorDictBase) -> dict[str, float]:
-    """Of one collected batch: ``epistemic_std``, the root of the ensemble's mean epistemic
-    variance (Eq. 9's ``Var_m[μ_m(s)]``), and ``epistemic_share``, that mean variance over
-    the mean executed variance ``σ̄² + Var_m + v_c + λ d_t`` (Eq. 9-10; the square of
-    ``exploration_scale``), i.e. the part of the exploration noise the posterior makes.
-
-    Examples:
-        >>> import torch
-        >>> from tensordict import TensorDict
-        >>> batch = TensorDict(epistemic_variance=torch.full((4, 2), 0.01),
-        ...                    exploration_scale=torch.full((4, 2), 0.5), batch_size=[4])
-        >>> {k: round(v, 4) for k, v in ensemble_signals(batch).items()}
-        {'epistemic_std': 0.1, 'epistemic_share': 0.04}
-    """
-    epistemic = batch["epistemic_variance"].mean()
-    signals = {"epistemic_std": float(epistemic.sqrt())}
-    if "exploration_scale" in batch.keys():
-        signals["epistemic_share"] = float(epistemic / batch["exploration_scale"].square().mean())
-    return signals
 
 
 class RefitSchedule:
@@ -176,7 +155,7 @@ class LaplaceRefits:
             self.refit()
 
     def batch_metrics(self, batch: TensorDictBase) -> dict[str, float]:
-        return {**super().batch_metrics(batch), **ensemble_signals(batch)}
+        return {**super().batch_metrics(batch), **exploration_signals(batch)}
 
     def state_dict(self) -> dict[str, Any]:
         return {**super().state_dict(), "updates_since_refit": self.refits.since}
