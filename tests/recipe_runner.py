@@ -7,7 +7,8 @@ composition and checks, then :func:`hydra_task`), which saves each run the ≈ 8
 of starting Python and importing torch, TorchRL and Hydra. ``cli=True`` runs the real
 ``python recipes/o2o.py`` instead, so ``@hydra.main`` stays under test
 (``test_o2o.py``'s PointMaze smoke run, ``test_config_errors.py``'s command-line tests).
-``run_script`` runs a benchmark script in this process the same way. ``succeeded`` and
+``run_script`` and ``run_module`` run a script (``python <path>``) or a benchmark
+(``python -m benchmarks.<group>.<name>``) in this process the same way. ``succeeded`` and
 ``failed`` assert on how a run ended (``failed``: exit 2, one
 ``error:`` line, no traceback). ``TINY`` is a cut-down smoke budget for in-process runs of
 every algorithm, ``checkpoint_state`` reads a run's checkpoint and ``WALL_CLOCK`` names
@@ -23,6 +24,7 @@ import random
 import runpy
 import subprocess
 import sys
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -115,16 +117,47 @@ def run_script(script: str, *args: str) -> subprocess.CompletedProcess:
     with ``sys.argv`` and ``sys.path[0]`` as Python would set them) to save the start-up
     of a new interpreter; the exit code comes from ``SystemExit``."""
     path = REPO / script
-    argv, sys_path, code = sys.argv, list(sys.path), 0
-    sys.argv, sys.path[:0] = [str(path), *args], [str(path.parent)]
+    return _run_main(
+        [script, *args],
+        [str(path), *args],
+        str(path.parent),
+        lambda: runpy.run_path(str(path), run_name="__main__"),
+    )
+
+
+def run_module(module: str, *args: str) -> subprocess.CompletedProcess:
+    """``python -m <module> <args>`` from the repo root (a benchmark:
+    ``benchmarks.speed.latency``), run in this process as :func:`run_script` runs a
+    script (``sys.path[0]`` the repo root, as ``-m`` sets it)."""
+    return _run_main(
+        ["-m", module, *args],
+        [module, *args],
+        str(REPO),
+        lambda: _run_module_quietly(module),
+    )
+
+
+def _run_module_quietly(module: str) -> None:
+    """``runpy.run_module`` as ``-m`` runs it, without the warning that the test's own
+    import of the module (``from benchmarks.speed import families``) would give."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "'.*' found in sys.modules", RuntimeWarning)
+        runpy.run_module(module, run_name="__main__", alter_sys=True)
+
+
+def _run_main(command: list[str], argv: list[str], path0: str, run) -> subprocess.CompletedProcess:
+    """Runs ``run()`` with ``sys.argv = argv`` and ``path0`` first on ``sys.path``, in the
+    repo root, output captured; both restored after."""
+    saved_argv, sys_path, code = sys.argv, list(sys.path), 0
+    sys.argv, sys.path[:0] = argv, [path0]
     try:
         with _in_repo_captured() as (stdout, stderr):
-            runpy.run_path(str(path), run_name="__main__")
+            run()
     except SystemExit as exit_:
         code = _exit_code(exit_)
     finally:
-        sys.argv, sys.path[:] = argv, sys_path
-    return subprocess.CompletedProcess([script, *args], code, stdout.getvalue(), stderr.getvalue())
+        sys.argv, sys.path[:] = saved_argv, sys_path
+    return subprocess.CompletedProcess(command, code, stdout.getvalue(), stderr.getvalue())
 
 
 @contextlib.contextmanager

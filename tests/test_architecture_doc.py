@@ -62,7 +62,7 @@ def test_every_recipe_module_is_listed_once():
 
 def test_the_checks_see_a_missing_module():
     assert not _exists("recipe/no_such_module.py")
-    assert _exists("recipe/o2o/run.py") and _exists("benchmarks/learning.py")
+    assert _exists("recipe/o2o/run.py") and _exists("benchmarks/learning/suite.py")
 
 
 def test_one_dual_update_reads_through_at_most_five_files_each_calling_the_next():

@@ -4,20 +4,25 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import statistics
 import sys
 from pathlib import Path
 
 import pytest
-from recipe_runner import run_script
+from recipe_runner import run_module
+
+from benchmarks.learning import report as lr
+from benchmarks.learning import suite as learning
+from benchmarks.speed import commit_speed, families, so2_cost
 
 REPO = Path(__file__).resolve().parents[1]
 
 
 def test_latency_benchmark_times_every_candidate_and_writes_json(tmp_path):
     out = tmp_path / "latency.json"
-    proc = run_script(
-        "benchmarks/latency.py",
+    proc = run_module(
+        "benchmarks.speed.latency",
         *("--reps", "20", "--warmup", "2", "--rounds", "2"),
         *("--hidden", "32", "--depth", "1", "--teacher-steps", "4"),
         *("--json", str(out)),
@@ -44,21 +49,41 @@ def test_latency_benchmark_times_every_candidate_and_writes_json(tmp_path):
 
 
 def test_every_benchmark_script_is_listed_in_the_benchmarks_readme():
-    readme = (REPO / "benchmarks" / "README.md").read_text()
-    scripts = [*(REPO / "benchmarks").glob("*.py"), *(REPO / "benchmarks").glob("*.sh")]
-    missing = [p.name for p in scripts if f"`{p.name}`" not in readme]
+    """Each module of ``benchmarks/<folder>/`` has a row in the README's section of its
+    folder (``## `<folder>/` ...``), and the top level holds only the packages."""
+    folder = REPO / "benchmarks"
+    readme = (folder / "README.md").read_text()
+    sections = {
+        part.split("`", 1)[0]: part for part in readme.split("\n## `")[1:] if "/`" in part[:40]
+    }
+    scripts = [
+        p
+        for p in sorted([*folder.rglob("*.py"), *folder.rglob("*.sh")])
+        if p.name not in ("__init__.py", "__main__.py") and "results" not in p.parts
+    ]
+    assert len(scripts) > 30 and not [p for p in scripts if p.parent == folder]
+    listed = {  # folder -> the names in the first column of its section's table rows
+        name: {n for row in text.splitlines() if row.startswith("| `") for n in
+               re.findall(r"`([^`]+)`", row.split(" | ")[0])}
+        for name, text in sections.items()
+    }  # fmt: skip
+    missing = [
+        str(p.relative_to(folder))
+        for p in scripts
+        if p.name not in listed.get(f"{p.parent.name}/", set())
+    ]
     assert not missing, f"add a row to benchmarks/README.md for {missing}"
 
 
 def test_the_gpu_check_script_parses_and_refuses_a_machine_without_cuda(tmp_path):
-    """``benchmarks/gpu_check.sh`` runs on a GPU machine only; here: its syntax, and that
-    it stops at once (exit 2) where there is no CUDA device."""
+    """``benchmarks/speed/gpu_check.sh`` runs on a GPU machine only; here: its syntax, and
+    that it stops at once (exit 2) where there is no CUDA device."""
     import os
     import subprocess
 
     import torch
 
-    script = REPO / "benchmarks" / "gpu_check.sh"
+    script = REPO / "benchmarks" / "speed" / "gpu_check.sh"
     assert subprocess.run(["bash", "-n", str(script)]).returncode == 0
     if not torch.cuda.is_available():
         env = {**os.environ, "OUT": str(tmp_path / "out")}
@@ -67,8 +92,7 @@ def test_the_gpu_check_script_parses_and_refuses_a_machine_without_cuda(tmp_path
 
 
 def test_online_reward_counts_the_batches_with_reward_and_the_positive_evaluations(tmp_path):
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    import online_reward
+    from benchmarks.studies import online_reward
 
     summary = {"history": [
         {"label": "offline", "return": 0.0}, {"label": "online", "return": 0.0},
@@ -99,11 +123,8 @@ def test_online_reward_counts_the_batches_with_reward_and_the_positive_evaluatio
 
 
 # ---------------------------------------------------------------- learning suite
-# benchmarks/learning.py (grid, resume) and benchmarks/learning_report.py (statistics,
-# the generated section of docs/results.md); the scripts' directory is not a package.
-sys.path.insert(0, str(REPO / "benchmarks"))
-import learning  # noqa: E402
-import learning_report as lr  # noqa: E402
+# benchmarks/learning/suite.py (grid, resume) and benchmarks/learning/report.py
+# (statistics, the generated section of docs/results.md).
 
 pytestmark = pytest.mark.long_running(seconds=40)  # starts first under xdist
 HAND_WRITTEN = "# Learning results\n\nIntro written by hand.\n\n## Older runs\n\nkept as is.\n"
@@ -325,7 +346,6 @@ def test_a_failed_run_prints_its_stderr_tail_and_the_suite_exits_nonzero(
 
 
 # ---------------------------------------------------------------- env families
-import families  # noqa: E402
 
 
 def test_paper_projection_multiplies_each_cost_by_the_paper_budget():
@@ -359,7 +379,7 @@ def test_paper_projection_multiplies_each_cost_by_the_paper_budget():
 def test_families_benchmark_runs_on_a_stand_in_data_set(tmp_path):
     out = tmp_path / "families.json"
     args = ["--families", "hopper", "--updates", "5", "--steps", "20", "--json", str(out)]
-    proc = run_script("benchmarks/families.py", *args)
+    proc = run_module("benchmarks.speed.families", *args)
     assert proc.returncode == 0, proc.stderr[-3000:]
     (row,) = json.loads(out.read_text())
     assert (row["family"], row["obs_dim"], row["action_dim"]) == ("hopper", 11, 3)
@@ -371,13 +391,12 @@ def test_families_benchmark_runs_on_a_stand_in_data_set(tmp_path):
 
 def test_ant_controller_cost_projects_minaris_budget():
     args = ["--updates", "2", "--steps", "20", "--width", "32", "--depth", "1"]
-    proc = run_script("benchmarks/ant_controller_cost.py", *args, "--batch-size", "16")
+    proc = run_module("benchmarks.speed.ant_controller_cost", *args, "--batch-size", "16")
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "| Minari's train_ant.py | 30,000,000 | 1,875,000 |" in proc.stdout
 
 
 # ---------------------------------------------------------------- SO2 + balanced replay cost
-import so2_cost  # noqa: E402
 
 
 def test_so2_cost_prints_the_three_updates_and_the_ratio(monkeypatch, capsys):
@@ -407,7 +426,7 @@ def test_shift_cells_report_the_offline_score_without_the_shift():
 
 
 def test_dual_against_its_base_critic_is_a_paired_difference_over_common_seeds():
-    import learning_pairs
+    from benchmarks.learning import pairs as learning_pairs
 
     def runs(variant, scores, seeds):
         return [_result(variant, s, [0.0, v, v]) for s, v in zip(seeds, scores, strict=True)]
@@ -444,8 +463,8 @@ def test_collectors_benchmark_times_single_and_a_worker_collector(tmp_path):
     # multi_async only: a spawned worker costs ≈ 10 s here, Ray ≈ 20 s more (its runtime
     # and one actor); the recipe's collector=ray has its own test (test_ray_collector.py)
     out = tmp_path / "collectors.json"
-    proc = run_script(
-        "benchmarks/collectors.py",
+    proc = run_module(
+        "benchmarks.speed.collectors",
         *("--envs", "pointmaze", "--policies", "random", "--workers", "1"),
         *("--frames", "40", "--batch", "20", "--collectors", "multi_async"),
         *("--json", str(out)),
@@ -459,13 +478,10 @@ def test_collectors_benchmark_times_single_and_a_worker_collector(tmp_path):
 
 def test_ensemble_eval_benchmark_checks_equality_and_prints_the_ratio():
     args = ("--members", "2", "3", "--reps", "2", "--rounds", "1", "--width", "16")
-    proc = run_script("benchmarks/ensemble_eval.py", *args)
+    proc = run_module("benchmarks.speed.ensemble_eval", *args)
     assert proc.returncode == 0, proc.stderr[-3000:]
     rows = [line for line in proc.stdout.splitlines() if line.startswith("| 2 |")]
     assert len(rows) == 1 and rows[0].endswith("x |")
-
-
-import commit_speed  # noqa: E402
 
 
 def test_commit_speed_imports_each_side_from_its_own_exported_tree(tmp_path):
@@ -480,7 +496,7 @@ def test_commit_speed_imports_each_side_from_its_own_exported_tree(tmp_path):
 def test_config_error_time_measures_the_bad_value_and_its_floor(monkeypatch):
     """The benchmark's commands behave as it expects (exit 2 and one error line for the
     bad value); timed once, without the heavy imports."""
-    import config_error_time
+    from benchmarks.speed import config_error_time
 
     commands = {k: config_error_time.COMMANDS[k] for k in ("bad value", "python")}
     monkeypatch.setattr(config_error_time, "COMMANDS", commands)
@@ -494,8 +510,9 @@ def test_mutation_testing_mutates_the_targets_only_and_counts_per_file(monkeypat
     are counted per source file (class methods and functions alike)."""
     import subprocess as sp
 
-    import mutation_testing
     import tomllib
+
+    from benchmarks.robustness import mutation_testing
 
     table = tomllib.loads(
         mutation_testing.mutmut_config(
@@ -520,9 +537,10 @@ def test_mutation_testing_mutates_the_targets_only_and_counts_per_file(monkeypat
 
 # ---------------------------------------------------------------- kill -9 and resume
 def test_resume_kill_benchmark_kills_resumes_and_finds_the_runs_equal(tmp_path):
-    """``benchmarks/resume_kill.py`` on IQL / Frozen-Lake at a tiny budget: the run is
-    SIGKILLed after its online evaluation at 100 frames, resumed, and ends bitwise as the
-    uninterrupted run (issue 31; the contract test checks every algorithm in-process)."""
+    """``python -m benchmarks.robustness.resume_kill`` on IQL / Frozen-Lake at a tiny
+    budget: the run is SIGKILLed after its online evaluation at 100 frames, resumed, and
+    ends bitwise as the uninterrupted run (issue 31; the contract test checks every
+    algorithm in-process)."""
     out = tmp_path / "resume_kill.json"
     tiny = [
         "env=frozenlake",
@@ -535,8 +553,8 @@ def test_resume_kill_benchmark_kills_resumes_and_finds_the_runs_equal(tmp_path):
         "budget.eval_episodes=1",
         "budget.checkpoint_every=50",
     ]
-    proc = run_script(
-        "benchmarks/resume_kill.py",
+    proc = run_module(
+        "benchmarks.robustness.resume_kill",
         *("--algo", "iql", "--kill-after", "100", "--kill-delay", "0"),
         *("--out", str(tmp_path / "runs"), "--json", str(out), "--", *tiny),
     )
@@ -583,8 +601,8 @@ def test_the_cell_table_reports_each_variant_s_epistemic_share():
 
 def test_collection_speed_times_each_env_count_and_its_ratio(tmp_path):
     out = tmp_path / "collection_speed.json"
-    proc = run_script(
-        "benchmarks/collection_speed.py",
+    proc = run_module(
+        "benchmarks.speed.collection_speed",
         *("--envs", "pointmaze", "--num-envs", "1", "2", "--batch", "4"),
         *("--frames", "8", "--rounds", "2", "--json", str(out)),
     )
@@ -599,8 +617,8 @@ def test_collection_speed_times_each_env_count_and_its_ratio(tmp_path):
 def test_update_speed_times_ours_and_d3rlpys_updates_and_profiles_them(tmp_path):
     out = tmp_path / "update_speed.json"
     with_d3rlpy = (REPO / ".venv-reference" / "bin" / "python").exists()
-    proc = run_script(
-        "benchmarks/update_speed.py",
+    proc = run_module(
+        "benchmarks.speed.update_speed",
         *("--width", "16", "--batch", "8", "--batches", "2", "--warmup", "1"),
         *("--updates", "2", "--rounds", "2", "--profile", "2", "--json", str(out)),
         *(() if with_d3rlpy else ("--no-d3rlpy",)),

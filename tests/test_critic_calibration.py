@@ -1,18 +1,17 @@
-"""``benchmarks/critic_calibration.py``: a finished run's critic against its data's
+"""``benchmarks/studies/critic_calibration.py``: a finished run's critic against its data's
 Monte-Carlo returns."""
 
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import torch
 from recipe_runner import run_recipe
 
+from benchmarks.studies import critic_calibration
+
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "benchmarks"))  # the scripts' directory is not a package
-import critic_calibration  # noqa: E402
 
 from torchrl_dual.data import monte_carlo_returns  # noqa: E402
 

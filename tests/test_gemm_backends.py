@@ -1,17 +1,15 @@
-"""``benchmarks/gemm_backends.py``: MKL's log is read into shapes and times, and the two
+"""``benchmarks/speed/gemm_backends.py``: MKL's log is read into shapes and times, and the two
 GEMM backends are compared on the same products (no timing is asserted)."""
 
 from __future__ import annotations
 
 import json
-import sys
 
 import pytest
 import torch
-from recipe_runner import REPO, run_script
+from recipe_runner import run_module
 
-sys.path.insert(0, str(REPO / "benchmarks"))  # the scripts' directory is not a package
-import gemm_backends  # noqa: E402
+from benchmarks.speed import gemm_backends
 
 LOG = """\
 MKL_VERBOSE oneMKL 2024.0 Update 2 Product build 20240605 for Intel(R) 64 architecture
@@ -69,7 +67,7 @@ def test_script_traces_a_recipe_update_and_writes_json(tmp_path):
         "--update-rounds",
         "1",
     )
-    proc = run_script("benchmarks/gemm_backends.py", *args, "--json", str(out))
+    proc = run_module("benchmarks.speed.gemm_backends", *args, "--json", str(out))
     assert proc.returncode == 0, proc.stderr[-3000:]
     result = json.loads(out.read_text())
     assert result["gemm_calls_per_update"] > 0

@@ -1,18 +1,14 @@
-"""``benchmarks/gpu_throughput.py`` at tiny sizes on the CPU: every figure measured, the
+"""``benchmarks/speed/gpu_throughput.py`` at tiny sizes on the CPU: every figure measured, the
 JSON written, the projection built from the rates, and merged reports."""
 
 from __future__ import annotations
 
 import json
 import math
-import sys
-from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-
-import gpu_throughput  # noqa: E402
+from benchmarks.speed import gpu_throughput
 
 
 def test_a_tiny_eager_run_writes_every_figure_and_the_paper_projection(tmp_path):

@@ -1,4 +1,4 @@
-"""``benchmarks/learning_backends.run_recipe`` on this machine: what a suite run's files show
+"""``benchmarks.learning.backends.run_recipe`` on this machine: what a suite run's files show
 while it runs."""
 
 from __future__ import annotations
@@ -8,9 +8,9 @@ import threading
 import time
 from pathlib import Path
 
+from benchmarks.learning import backends as learning_backends
+
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "benchmarks"))  # the scripts' directory is not a package
-import learning_backends  # noqa: E402
 
 # prints a line, then waits (at most 30 s) for the test to answer through a file
 _CHILD = """

@@ -1,15 +1,14 @@
-"""``benchmarks/learning_cost.py``: the learning suite's queue priced from its finished runs."""
+"""``benchmarks/learning/cost.py``: the learning suite's queue priced from its finished runs."""
 
 from __future__ import annotations
 
 import doctest
-import sys
 from pathlib import Path
 from types import SimpleNamespace
 
+from benchmarks.learning import cost as learning_cost
+
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "benchmarks"))  # the scripts' directory is not a package
-import learning_cost  # noqa: E402
 
 UMAZE = ("env=pointmaze_umaze", "algo=dual")
 

@@ -1,19 +1,18 @@
-"""``benchmarks/learning_grid.py``: every cell and variant of the learning suite is a valid
-recipe config, and the suite's offline-sharing groups are the recipe's offline-cache keys."""
+"""``benchmarks/learning/cells.py`` and ``variants.py``: every cell and variant of the
+learning suite is a valid recipe config, and the suite's offline-sharing groups are the
+recipe's offline-cache keys."""
 
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import pytest
 
+from benchmarks.learning import suite as learning
 from torchrl_dual.recipe import CONFIG_DIR as RECIPE_CONFIG_DIR
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "benchmarks"))  # the scripts' directory is not a package
-import learning  # noqa: E402
 
 
 def test_every_cell_and_variant_of_the_grid_is_a_valid_recipe_config(tmp_path):
@@ -37,7 +36,7 @@ def test_every_cell_and_variant_of_the_grid_is_a_valid_recipe_config(tmp_path):
 
 
 def test_runs_the_suite_groups_for_sharing_have_one_recipe_offline_key(tmp_path):
-    """The queue's ``sharing_key`` (from ``learning_grid.ONLINE_ONLY``) puts two runs in one
+    """The queue's ``sharing_key`` (from ``variants.ONLINE_ONLY``) puts two runs in one
     group exactly when the recipe's offline cache gives them one key (U-maze, seed 0)."""
     from torchrl_dual.recipe import ALGORITHMS, compose_checked
     from torchrl_dual.recipe.o2o.offline_cache import offline_key_config
@@ -67,14 +66,14 @@ def test_dual_variants_and_their_dual_cells_are_derived_from_the_grid():
     paired with the ``dual`` of the cell with the same env overrides."""
     import doctest
 
-    import learning_grid
+    from benchmarks.learning import cells, variants
 
-    assert doctest.testmod(learning_grid).failed == 0
-    variants = learning_grid.dual_variants()
-    assert {"dual_no_uq", "dual_lambda0", "dual_utd025", "dual_latent_uq"} <= set(variants)
-    assert {"dual_no_planner", "dual_no_distillation", "dual_augment"} <= set(variants)
-    assert not {"dual", "dual_calql", "dual_so2", "iql", "iql_la"} & set(variants)
-    pairs = learning_grid.dual_cells()
+    assert doctest.testmod(cells).failed == 0 and doctest.testmod(variants).failed == 0
+    dual = variants.dual_variants()
+    assert {"dual_no_uq", "dual_lambda0", "dual_utd025", "dual_latent_uq"} <= set(dual)
+    assert {"dual_no_planner", "dual_no_distillation", "dual_augment"} <= set(dual)
+    assert not {"dual", "dual_calql", "dual_so2", "iql", "iql_la"} & set(dual)
+    pairs = cells.dual_cells()
     assert pairs["umaze"] == "umaze" and pairs["umaze_online"] == "umaze"
     assert pairs["umaze_ablations"] == "umaze_ablations"  # its own `dual` (another machine)
     assert pairs["umaze_baselines"] == "umaze_ablations"  # Cell.reference
@@ -87,17 +86,17 @@ def test_dual_variants_and_their_dual_cells_are_derived_from_the_grid():
 def test_a_cell_reference_must_run_dual_with_the_same_overrides(monkeypatch):
     """A :attr:`Cell.reference` pointing at a cell without ``dual``, or with other
     overrides, is a grid error, not a silent pairing with unrelated runs."""
-    import learning_grid
+    from benchmarks.learning import cells
 
     bad = {
-        **learning_grid.CELLS,
-        "umaze_baselines": learning_grid.Cell(
+        **cells.CELLS,
+        "umaze_baselines": cells.Cell(
             ("env=pointmaze_umaze",), ("dual_augment",), 3, "x", reference="medium"
         ),
     }
-    monkeypatch.setattr(learning_grid, "CELLS", bad)
+    monkeypatch.setattr(cells, "CELLS", bad)
     with pytest.raises(ValueError, match="reference 'medium' must run `dual`"):
-        learning_grid.dual_cells()
+        cells.dual_cells()
 
 
 def test_a_retired_cell_is_queued_only_when_named_and_stays_in_the_report(tmp_path, capsys):

@@ -1,16 +1,15 @@
-"""``benchmarks/learning_pairs.py``: DUAL's variants paired with DUAL by seed."""
+"""``benchmarks/learning/pairs.py``: DUAL's variants paired with DUAL by seed."""
 
 from __future__ import annotations
 
 import doctest
-import sys
 from pathlib import Path
 
 import pytest
 
+from benchmarks.learning import pairs as learning_pairs
+
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "benchmarks"))  # the scripts' directory is not a package
-import learning_pairs  # noqa: E402
 
 
 def _run(seed: int, offline: float, final: float, auc: float | None = None) -> dict:
@@ -55,7 +54,7 @@ def test_every_baseline_pairs_with_the_dual_runs_of_its_reference_cell():
     """The paper's main claim, seed by seed: each non-DUAL variant against the `dual` of
     its own cell, or of the cell ``dual_from`` names (umaze_baselines: umaze_ablations);
     DUAL's own variants and cells without a reference have no row."""
-    import learning_grid
+    from benchmarks.learning import variants
 
     dual = [_run(0, 20.0, 50.0, 40.0), _run(1, 30.0, 60.0, 50.0), _run(2, 25.0, 55.0, 45.0)]
     cells = {
@@ -78,5 +77,5 @@ def test_every_baseline_pairs_with_the_dual_runs_of_its_reference_cell():
     # DUAL − iql: +20, +19 (t(1) = 12.706, sd 1/√2); DUAL − edis: +5, +6, +7 (sd 1)
     assert rows[0].split(" | ")[6] == f"+19.5 ± {12.706 * 0.5:.1f} ▲"
     assert rows[1].split(" | ")[6] == f"+6.0 ± {4.3027 / 3**0.5:.1f} ▲"
-    assert set(learning_grid.baseline_variants()) >= {"iql", "diffuser", "dacer", "edis"}
-    assert not {"dual", "dual_no_uq", "dual_calql"} & set(learning_grid.baseline_variants())
+    assert set(variants.baseline_variants()) >= {"iql", "diffuser", "dacer", "edis"}
+    assert not {"dual", "dual_no_uq", "dual_calql"} & set(variants.baseline_variants())

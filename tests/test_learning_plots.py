@@ -1,17 +1,16 @@
-"""``benchmarks/learning_plots.py`` and the online signals of the suite's per-run JSONs."""
+"""``benchmarks/learning/plots.py`` and the online signals of the suite's per-run JSONs."""
 
 from __future__ import annotations
 
 import struct
-import sys
 from pathlib import Path
 
 import pytest
 
+from benchmarks.learning import plots as lp
+from benchmarks.learning import report as lr
+
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "benchmarks"))  # the scripts' directory is not a package
-import learning_plots as lp  # noqa: E402
-import learning_report as lr  # noqa: E402
 
 
 def _summary(seed: int, shift_distance: list[float] | None) -> dict:

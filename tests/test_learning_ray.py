@@ -1,4 +1,4 @@
-"""``benchmarks/learning.py --backend ray`` on a local Ray runtime started here: the same
+"""``python -m benchmarks.learning --backend ray`` on a local Ray runtime started here: the same
 runs and the same results table as ``--backend local``, and a task lost with its worker is
 retried and resumes from the run's checkpoint."""
 
@@ -14,10 +14,10 @@ from pathlib import Path
 
 import pytest
 
+from benchmarks.learning import backends as learning_backends
+from benchmarks.learning import suite as learning
+
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "benchmarks"))  # the scripts' directory is not a package
-import learning  # noqa: E402
-import learning_backends  # noqa: E402
 
 # budget=smoke shrunk further, as in test_benchmarks.py's end-to-end suite test
 pytestmark = [
@@ -54,7 +54,7 @@ def ray_runtime(request):
 
 
 def suite_flags(root: Path, *flags: str) -> list[str]:
-    """``learning.py`` flags writing everything under ``root``."""
+    """``python -m benchmarks.learning`` flags writing everything under ``root``."""
     return [
         *flags,
         *("--out", str(root / "out"), "--results", str(root / "results")),

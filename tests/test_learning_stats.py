@@ -1,4 +1,4 @@
-"""``benchmarks/learning_stats.py``: the 90 % t quantiles and the equivalence test (TOST)
+"""``benchmarks/learning/stats.py``: the 90 % t quantiles and the equivalence test (TOST)
 of paired differences, and where the report shows its verdict."""
 
 from __future__ import annotations
@@ -6,15 +6,14 @@ from __future__ import annotations
 import doctest
 import math
 import random
-import sys
 from pathlib import Path
 
 import pytest
 
+from benchmarks.learning import pairs as learning_pairs
+from benchmarks.learning import stats as learning_stats
+
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "benchmarks"))  # the scripts' directory is not a package
-import learning_pairs  # noqa: E402
-import learning_stats  # noqa: E402
 
 stats = pytest.importorskip("scipy.stats")
 

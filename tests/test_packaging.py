@@ -79,6 +79,7 @@ def test_the_wheel_holds_the_configs_the_typing_marker_and_the_license(wheel):
     assert "torchrl_dual/recipe/config/algo/dual.yaml" in names
     assert "torchrl_dual/recipe/__main__.py" in names and "torchrl_dual/py.typed" in names
     assert any(n.endswith(".dist-info/LICENSE") or "/licenses/" in n for n in names)
+    assert not [n for n in names if n.startswith(("benchmarks/", "tests/", "recipes/"))]
     entry_points = next(n for n in names if n.endswith("entry_points.txt"))
     assert (
         "torchrl-dual = torchrl_dual.recipe:main"

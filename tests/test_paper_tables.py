@@ -1,4 +1,4 @@
-"""``benchmarks/paper_tables.py``: the paper's Tables 1-3 as data, the learning-suite cells
+"""``benchmarks/learning/paper_tables.py``: the paper's Tables 1-3 as data, the learning-suite cells
 that rerun them (``--dry-run`` lists 5 seeds x the paper's methods per row with projected
 GPU hours), and the suite run end to end on data sets written here, its report setting our
 numbers next to the paper's."""
@@ -7,17 +7,16 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import sys
 from pathlib import Path
 
 import pytest
 
+from benchmarks.learning import paper_tables
+from benchmarks.learning import suite as learning
+
 pytest.importorskip("h5py", reason="Minari's storage needs h5py: pip install 'minari[hdf5]'")
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "benchmarks"))  # the scripts' directory is not a package
-import learning  # noqa: E402
-import paper_tables  # noqa: E402
 
 from torchrl_dual.data.minari_standins import STANDINS, write_standin_dataset  # noqa: E402
 from torchrl_dual.recipe import CONFIG_DIR, compose_checked  # noqa: E402
@@ -145,7 +144,7 @@ def test_the_paper_cells_run_end_to_end_on_stand_ins_and_the_report_shows_ours_n
 
 def test_the_docs_tables_are_the_committed_results():
     """docs/reproducing.md's tables regenerate exactly from benchmarks/results/paper/."""
-    from learning_report import load_results
+    from benchmarks.learning.report import load_results
 
     results_dir = REPO / "benchmarks/results/paper"
     results = load_results(results_dir) if results_dir.exists() else {}

@@ -1,5 +1,6 @@
-"""``benchmarks/reference_d3rlpy.py``: d3rlpy's IQL as a learner of the recipe's run, in its
-own virtual environment, and the learning suite's ``iql_d3rlpy`` / ``calql_d3rlpy`` runs.
+"""``python -m benchmarks.learning.reference_d3rlpy``: d3rlpy's IQL as a learner of the
+recipe's run, in its own virtual environment, and the learning suite's ``iql_d3rlpy`` /
+``calql_d3rlpy`` runs.
 
 The end-to-end test builds the reference venv (d3rlpy from PyPI, the project's packages
 through a ``.pth``) in a temporary folder and runs the smoke budget through it, as the
@@ -18,10 +19,11 @@ from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "benchmarks"))  # the scripts' directory is not a package
-import learning  # noqa: E402
+from benchmarks.learning import suite as learning
 
+REPO = Path(__file__).resolve().parents[1]
+
+REFERENCE = "benchmarks.learning.reference_d3rlpy"  # run as python -m from the repo root
 pytestmark = pytest.mark.long_running(seconds=60)  # starts first under xdist
 
 
@@ -31,9 +33,10 @@ def test_the_suite_runs_reference_variants_with_the_reference_script(tmp_path):
     reference = learning.Run("umaze", "iql_d3rlpy", 0, ("algo=iql",))
     recipe = learning.Run("umaze", "iql", 0, ("algo=iql",))
     ours, theirs = suite.command(recipe), suite.command(reference)
-    assert (ours[1], theirs[1]) == ("recipes/o2o.py", "benchmarks/reference_d3rlpy.py")
-    differ = [(a, b) for a, b in zip(ours, theirs, strict=True) if a != b]
-    assert [a.split("=")[0] for a, _ in differ] == ["recipes/o2o.py", "output_dir"]
+    assert ours[1] == "recipes/o2o.py"
+    assert theirs[1:3] == ["-m", REFERENCE]
+    differ = [(a, b) for a, b in zip(ours[2:], theirs[3:], strict=True) if a != b]
+    assert [a.split("=")[0] for a, _ in differ] == ["output_dir"]
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +45,7 @@ def reference_env(tmp_path_factory) -> dict[str, str]:
     venv = tmp_path_factory.mktemp("reference") / "venv"
     env = {**os.environ, "TORCHRL_DUAL_REFERENCE_VENV": str(venv), "OMP_NUM_THREADS": "1"}
     setup = subprocess.run(
-        [sys.executable, "benchmarks/reference_d3rlpy.py", "--setup"],
+        [sys.executable, "-m", REFERENCE, "--setup"],
         cwd=REPO, env=env, capture_output=True, text=True, timeout=600,
     )  # fmt: skip
     assert setup.returncode == 0, setup.stderr[-4000:]
@@ -54,7 +57,7 @@ def test_d3rlpy_s_iql_runs_the_recipe_s_smoke_budget_in_its_own_venv(tmp_path, r
     out = tmp_path / "run"
     proc = subprocess.run(
         [
-            sys.executable, "benchmarks/reference_d3rlpy.py", "algo=iql", "budget=smoke",
+            sys.executable, "-m", REFERENCE, "algo=iql", "budget=smoke",
             "budget.offline_updates=50", "budget.online_frames=100",
             "budget.frames_per_batch=50", "budget.eval_every=100", "budget.eval_episodes=2",
             f"output_dir={out}", f"data_cache_dir={tmp_path / 'data'}", "progress=false",
@@ -74,7 +77,7 @@ def test_d3rlpy_s_iql_runs_the_recipe_s_smoke_budget_in_its_own_venv(tmp_path, r
 
 def test_an_algorithm_without_a_reference_is_refused_in_one_line(tmp_path, reference_env):
     proc = subprocess.run(
-        [sys.executable, "benchmarks/reference_d3rlpy.py", "algo=dual", f"output_dir={tmp_path}"],
+        [sys.executable, "-m", REFERENCE, "algo=dual", f"output_dir={tmp_path}"],
         cwd=REPO, env=reference_env, capture_output=True, text=True, timeout=300,
     )  # fmt: skip
     assert proc.returncode == 2 and proc.stderr.strip().splitlines()[-1] == (

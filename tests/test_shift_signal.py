@@ -1,19 +1,18 @@
-"""``benchmarks/shift_signal.py``: a DUAL run's shift signal ``d_t`` on its offline data,
+"""``benchmarks/studies/shift_signal.py``: a DUAL run's shift signal ``d_t`` on its offline data,
 online without a shift and under each shift."""
 
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import torch
 from recipe_runner import run_recipe
 
+from benchmarks.studies import shift_signal
+from benchmarks.studies.critic_calibration import load_run
+
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "benchmarks"))  # the scripts' directory is not a package
-import shift_signal  # noqa: E402
-from critic_calibration import load_run  # noqa: E402
 
 TINY = ("budget.offline_updates=10", "budget.online_frames=100", "budget.frames_per_batch=50")
 TINY += ("budget.eval_every=100", "budget.eval_episodes=1", "env.max_episode_steps=40")

@@ -136,7 +136,7 @@ def state_differences(a: Any, b: Any, ignore: Sequence[str] = ()) -> list[str]:
     in dtype, shape and every element (``NaN`` equals ``NaN`` at the same place), other
     leaves by ``==``. A key in ``ignore`` (e.g. ``stage_seconds``, ``logger``: wall times
     and log paths) is skipped wherever it occurs. Used to check that a resumed run ends
-    exactly as an uninterrupted one (``benchmarks/resume_kill.py``).
+    exactly as an uninterrupted one (``benchmarks/robustness/resume_kill.py``).
 
     Examples:
         >>> import torch

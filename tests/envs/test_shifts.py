@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from recipe_runner import run_script
+from recipe_runner import run_module
 
 from torchrl_dual.envs import (
     SHIFTS,
@@ -221,7 +221,7 @@ def test_the_torchrl_frozenlake_env_carries_the_shift():
 
 
 def test_the_shift_benchmark_prints_both_tables():
-    proc = run_script("benchmarks/shifts.py", "--episodes", "1", "--shifts", "rotation:90")
+    proc = run_module("benchmarks.studies.shifts", "--episodes", "1", "--shifts", "rotation:90")
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "| rotation:90 |" in proc.stdout
     assert "| offline-optimal (data: 3/4, symmetric slip) | 0.9343 | 0.0000 |" in proc.stdout

@@ -25,7 +25,7 @@ Which side matters depends on the map: on ``8x8`` the policy optimal for the off
 data succeeds 0.934 online without a shift, 0.0 under ``biased_slip`` and 0.977 under
 ``biased_slip_cw`` (the optimum is 1.0 under both); on ``4x4`` it is the other way round
 (0.692 -> 0.0 under ``biased_slip_cw``, 1.0 under ``biased_slip``). Measured by
-``benchmarks/shifts.py`` (``docs/recipe.md``).
+``benchmarks/studies/shifts.py`` (``docs/recipe.md``).
 """
 
 from __future__ import annotations

@@ -60,7 +60,7 @@ class ShiftAwareNoise(TensorDictModuleBase):
     **Beyond the paper: a floor for** ``d_t``. A learned transition model is never exact,
     so ``d_t`` is positive on the very dynamics it was fitted on (measured on PointMaze
     U-maze: 0.27 on ``D_offline``, 0.31 online without a shift, 0.39-0.47 under the
-    shifts of ``env.shift``; ``benchmarks/shift_signal.py``). With ``shift_floor`` ``d_0``
+    shifts of ``env.shift``; ``benchmarks/studies/shift_signal.py``). With ``shift_floor`` ``d_0``
     the variance is ``σ² + λ max(d_t − d_0, 0)``: the model's in-distribution error no
     longer adds noise everywhere, only the excess does. ``d_0 = 0`` (the default) is Eq. 10;
     ``shift_distance`` stays the raw ``d_t`` either way.

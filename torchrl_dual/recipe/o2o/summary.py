@@ -1,6 +1,6 @@
 """``summary.json``: what a finished recipe run measured, for the learning suite.
 
-One small file per run (``benchmarks/learning.py`` collects them): the evaluation history,
+One small file per run (``python -m benchmarks.learning`` collects them): the evaluation history,
 the online signals per collected batch (DUAL's epistemic std and shift distance), the wall time of every stage and of the online phase, whether the offline stages came from
 a shared offline phase, and the resolved config.
 """
