@@ -285,6 +285,7 @@ def make_calql_critic(
         temperature=c.temperature,
         with_lagrange=c.lagrange_gap is not None,
         lagrange_thresh=0.0 if c.lagrange_gap is None else c.lagrange_gap,
+        loss_function=c.bellman_loss,
         action_spec=actor.spec,
     ).to(device)
     loss.make_value_estimator(gamma=c.discount)

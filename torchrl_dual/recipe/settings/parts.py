@@ -40,6 +40,12 @@ class IQLCriticSettings(CriticSettings):
     expectile: float = key(Real(0, 1, low_open=True, high_open=True), "IQL expectile τ")
 
 
+BELLMAN_LOSSES = ("l2", "smooth_l1")
+"""``critic.bellman_loss`` of Cal-QL: the squared error of the Cal-QL, CQL, CORL and d3rlpy
+code (default) or TorchRL ``CQLLoss``'s default ``smooth_l1``, whose gradient is capped at 1
+per transition."""
+
+
 @dataclass
 class CalQLCriticSettings(CriticSettings):
     """``critic/calql.yaml``: Cal-QL's twin Q networks (TorchRL ``CQLLoss`` + MC bound;
@@ -55,6 +61,10 @@ class CalQLCriticSettings(CriticSettings):
     lagrange_gap: Any = key(
         Maybe(Real()),
         "target gap τ of the penalty's Lagrange multiplier (Cal-QL AntMaze: 0.8); null: a fixed weight",
+    )
+    bellman_loss: str = key(
+        Choice(BELLMAN_LOSSES),
+        "loss of each Q network's TD error: l2 (the references') or smooth_l1 (CQLLoss's default)",
     )
 
 
