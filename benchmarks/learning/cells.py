@@ -51,6 +51,10 @@ class Cell:
     more_seeds: tuple[tuple[str, int], ...] = ()
     """``(variant, seeds)`` for variants run at more seeds than :attr:`seeds` (a pair
     whose difference 5 seeds left undecided)."""
+    dual_variant: str = "dual"
+    """The DUAL variant this cell's baselines are set against in the report's "DUAL
+    against every baseline" table: a cell whose baselines change their reward or critic
+    settings (``umaze_sparse``) pairs them with its DUAL run under the same settings."""
     first_seed: int = 0
     """The first seed the cell runs: a cell of fresh seeds (no tuning saw them) starts past
     the seeds its twin cell used."""
@@ -122,6 +126,7 @@ CELLS: dict[str, Cell] = {
         ("env=pointmaze_umaze",), SPARSE_REWARD_VARIANTS, 3,
         "PointMaze U-maze, each reference's sparse-maze reward transform (Cal-QL 10 r − 5, "
         "IQL and DUAL r − 1)",
+        dual_variant="dual_sparse",
     ),
     "umaze_online": Cell(
         ("env=pointmaze_umaze",), ONLINE_TUNING_VARIANTS, 5,
@@ -224,6 +229,26 @@ def active_cells() -> list[str]:
     (False, True)
     """
     return [name for name, cell in CELLS.items() if not cell.retired]
+
+
+def baseline_duals() -> dict[str, tuple[str, str]]:
+    """Cell -> ``(cell, variant)`` of the DUAL runs its baselines are set against: the
+    cell's own :attr:`Cell.dual_variant` when it is not ``dual``, else :func:`dual_cells`'
+    cell and its ``dual``.
+
+        >>> baseline_duals()["umaze_sparse"], baseline_duals()["umaze_baselines"]
+        (('umaze_sparse', 'dual_sparse'), ('umaze_ablations', 'dual'))
+    """
+    out = {name: (reference, "dual") for name, reference in dual_cells().items()}
+    for name, cell in CELLS.items():
+        if cell.dual_variant != "dual":
+            if cell.dual_variant not in cell.variants:
+                raise ValueError(
+                    f"cell {name!r}: its dual_variant {cell.dual_variant!r} is not one of its "
+                    "variants"
+                )
+            out[name] = (name, cell.dual_variant)
+    return out
 
 
 def dual_cells() -> dict[str, str]:

@@ -207,11 +207,14 @@ def baseline_pairs_table(
     order: Sequence[str],
     dual_from: dict[str, str] | None = None,
     baselines: Sequence[str] | None = None,
+    dual_runs: dict[str, tuple[str, str]] | None = None,
 ) -> str:
     """Markdown rows ``cell | baseline | n | DUAL's cell | baseline final | DUAL final |
     paired DUAL − baseline: final and AUC | their equivalence verdicts`` for every baseline run of a cell (default
     :func:`benchmarks.learning.variants.baseline_variants`) against the ``dual`` runs of
-    ``dual_from[cell]`` (default: the cell itself), on the seeds both ran.
+    ``dual_from[cell]`` (default: the cell itself), or against the ``(cell, variant)`` runs
+    ``dual_runs`` names for it (:func:`benchmarks.learning.cells.baseline_duals`), on the
+    seeds both ran.
 
     Examples:
         >>> run = lambda s, fin: {"seed": s, "final_score": fin, "auc": fin / 2}
@@ -228,11 +231,17 @@ def baseline_pairs_table(
         f"| DUAL − baseline: final | DUAL − baseline: AUC | {_WITHIN}: final / AUC |",
         "|---|---|---:|---|---|---|---|---|---|",
     ]
+    dual_runs = dual_runs or {}
     for cell, reference, base, runs, dual in _against_dual(cells, order, dual_from, baselines):
+        source = reference
+        if cell in dual_runs:
+            reference, variant = dual_runs[cell]
+            dual = cells.get(reference, {}).get(variant, [])
+            source = reference if variant == "dual" else f"{reference} (`{variant}`)"
         pair = _pair_cells(dual, runs)
         if pair is not None:
             n, values = pair
-            lines.append(f"| {cell} | `{base}` | {n} | {reference} | " + " | ".join(values) + " |")
+            lines.append(f"| {cell} | `{base}` | {n} | {source} | " + " | ".join(values) + " |")
     return "\n".join(lines)
 
 
@@ -294,6 +303,7 @@ def pairs_sections(
     cells: dict[str, dict[str, list[dict]]],
     order: Sequence[str],
     dual_from: dict[str, str] | None = None,
+    dual_runs: dict[str, tuple[str, str]] | None = None,
 ) -> list[str]:
     """The report's paired comparisons, each a heading, what it measures and its table
     (those with no pair yet are left out)."""
@@ -305,10 +315,12 @@ def pairs_sections(
             "Diffuser, DACER and EDIS, on the suite's runs: each baseline against the "
             "`dual` runs of the same env settings (*`dual` of*: the cell they come from; "
             "a cell without its own `dual` uses the one its `Cell.reference` or its "
-            "overrides name), on the seeds both ran, which share data and env seeds. "
+            "overrides name; a cell whose baselines change the reward pairs them with its "
+            "own DUAL under the same change, named in brackets), on the seeds both ran, "
+            "which share data and env seeds. "
             "*DUAL − baseline*: the mean of the per-seed differences ± its 95 % t "
             "half-width; ▲ / ▼ when that interval excludes 0, ≈ when it holds 0.",
-            baseline_pairs_table(cells, order, dual_from),
+            baseline_pairs_table(cells, order, dual_from, dual_runs=dual_runs),
         ),
         (
             "DUAL's variants against DUAL, seed by seed",

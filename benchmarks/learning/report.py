@@ -303,11 +303,13 @@ def render_section(
     date: str,
     machine: str,
     dual_from: dict[str, str] | None = None,
+    dual_runs: dict[str, tuple[str, str]] | None = None,
 ) -> str:
     """The markdown between the markers: ``header`` (what the cells are, how to run),
     one table per cell (in the order of ``cell_about``: name -> title), the
     equal-compute comparison, the paired comparisons (``dual_from``: cell -> the cell
-    whose ``dual`` its DUAL variants pair with) and the figures (``figures``: cell or
+    whose ``dual`` its DUAL variants pair with; ``dual_runs``: cell -> the ``(cell, variant)``
+    its baselines are set against) and the figures (``figures``: cell or
     ``"latency"`` -> path relative to the docs file)."""
     cell_order = list(cell_about)
     everything = [r for variants in cells.values() for rs in variants.values() for r in rs]
@@ -365,7 +367,7 @@ def render_section(
             "stage under heavy load, against ×2.9 in wall time).",
             table,
         ]
-    parts += pairs_sections(cells, cell_order, dual_from)
+    parts += pairs_sections(cells, cell_order, dual_from, dual_runs)
     if "latency" in figures:
         parts += [
             "### Action latency vs final score",

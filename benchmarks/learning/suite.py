@@ -40,6 +40,7 @@ from benchmarks.learning.cells import (
     Cell,
     Run,
     active_cells,
+    baseline_duals,
     cell_of,
     dual_cells,
     paper_cells,
@@ -226,6 +227,7 @@ def report(args: argparse.Namespace, command: str) -> None:
             for name, cell in {**CELLS, **paper_cells()}.items()
         },
         dual_from=dual_cells(),
+        dual_runs=baseline_duals(),
         variant_order=list(VARIANTS),
         figures=figures,
         command=command,
