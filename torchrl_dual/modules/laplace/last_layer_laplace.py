@@ -1,4 +1,13 @@
-"""Closed-form last-layer Laplace approximation of the DUAL actor (Eq. 8, Thm. 3.3)."""
+"""Closed-form last-layer Laplace approximation of the DUAL actor (Eq. 8, Thm. 3.3).
+
+:class:`LastLayerLaplace` is the posterior ``N(θ*, Σ_j)`` of the linear head: its buffers,
+the fit of Eq. 8 (one eigendecomposition of the Gram matrix), the covariance, sampling
+``θ_j = θ*_j + S_j ε`` for the ensemble of Eq. 9, and the closed-form predictive variance.
+Two concepts it is built from live beside it, as mixins over the same buffers:
+``modules/laplace/_curvature.py`` (``LaplaceCurvature``: accumulating the weighted Gram
+matrix, the Hessian of Eq. 8) and ``modules/laplace/_evidence.py`` (``LaplaceEvidence``:
+the prior precision chosen by the evidence of Thm. 3.3, and the temperature).
+"""
 
 from __future__ import annotations
 
@@ -8,20 +17,17 @@ from collections.abc import Callable
 import torch
 from torch import Tensor, nn
 
-from torchrl_dual.modules.laplace._checks import (
-    checked_features_and_weights,
-    checked_head,
-    checked_output_jacobian,
-    word_or_positive,
-)
-from torchrl_dual.modules.laplace._numerics import evidence_maximiser, psd_eigh
+from torchrl_dual.modules.laplace._checks import checked_head
+from torchrl_dual.modules.laplace._curvature import LaplaceCurvature
+from torchrl_dual.modules.laplace._evidence import LaplaceEvidence
+from torchrl_dual.modules.laplace._numerics import psd_eigh
 
 __all__ = ["LastLayerLaplace"]
 
 _F64 = torch.float64
 
 
-class LastLayerLaplace(nn.Module):
+class LastLayerLaplace(LaplaceCurvature, LaplaceEvidence, nn.Module):
     r"""Last-layer Laplace approximation for a linear-Gaussian policy head (DUAL Eq. 8).
 
     The policy mean of DUAL's actor ends in a linear head ``y = W φ + b``
@@ -180,36 +186,6 @@ class LastLayerLaplace(nn.Module):
         """Build an (unfitted) approximation sized for ``linear``; kwargs go to ``__init__``."""
         return cls(linear.in_features, linear.out_features, **kwargs)
 
-    @staticmethod
-    def _check_prior_config(prior_precision: str | float) -> str | float:
-        return word_or_positive(
-            prior_precision,
-            "prior_precision",
-            "evidence",
-            f"a fixed prior_precision must be a positive finite float, got {prior_precision}; "
-            "use prior_precision='evidence' to choose it from the data.",
-        )
-
-    @staticmethod
-    def _check_temperature(temperature: str | float) -> str | float:
-        return word_or_positive(
-            temperature,
-            "temperature",
-            "data",
-            "temperature must be a positive finite float (1.0: the summed-loss posterior) "
-            f"or 'data' (the mean loss's), got {temperature}.",
-        )
-
-    def _likelihood_scale(self) -> Tensor:
-        """``κ`` of ``P_j = κ G/σ_j² + λ I``: ``1/N`` for ``temperature="data"``, else 1."""
-        if self.temperature == "data":
-            return 1.0 / self.count.clamp_min(1.0)
-        return torch.ones((), dtype=_F64, device=self.G_raw.device)
-
-    def _covariance_scale(self) -> float:
-        """``T`` of ``Σ_j = T·P_j^{-1}`` (1 for ``temperature="data"``)."""
-        return 1.0 if self.temperature == "data" else float(self.temperature)
-
     def extra_repr(self) -> str:
         return (
             f"in_features={self.in_features}, out_features={self.out_features}, "
@@ -234,71 +210,7 @@ class LastLayerLaplace(nn.Module):
 
         return super()._apply(keep_f64, recurse)
 
-    # ------------------------------------------------------------------ accumulation
-    @torch.no_grad()
-    def reset(self) -> None:
-        """Drop all accumulated statistics and the fit."""
-        self.G_raw.zero_()
-        self.sum_weights.zero_()
-        self.count.zero_()
-        self.fitted.fill_(False)
-        self._fitted_value = False
-
-    @torch.no_grad()
-    def accumulate(
-        self, features: Tensor, weights: Tensor | None = None, jacobian: Tensor | None = None
-    ) -> None:
-        """Add ``Σ_i w_i φ̃_i φ̃_iᵀ`` of a batch to the float64 Gram buffer (``O(B d²)``), or
-        ``Σ_i w_i J_ij² φ̃_i φ̃_iᵀ`` to each output's with ``per_output_jacobian=True``.
-
-        Args:
-            features: head inputs ``φ`` of shape ``[B, d]`` (any leading batch shape).
-            weights: non-negative per-sample loss weights (e.g. IQL ``exp(β A)``) of shape
-                ``[B]`` (the leading shape of ``features``); ``None`` means all ones. They
-                are normalised to mean 1 over everything accumulated at :meth:`fit` time.
-            jacobian: ``J [B, out]``, the derivative of each mean action component in its
-                head output at the MAP (required with ``per_output_jacobian=True``, refused
-                otherwise). It scales the Gram matrices, not the weight normalisation.
-        """
-        phi, w = checked_features_and_weights(features, weights, self.in_features)
-        phi = phi.to(self.G_raw.device)
-        w = None if w is None else w.to(self.G_raw.device)
-        if self.per_output_jacobian:
-            J = checked_output_jacobian(jacobian, features, self.out_features)
-            J = J.to(self.G_raw.device)
-        elif jacobian is not None:
-            raise ValueError(
-                "jacobian given to a LastLayerLaplace with one shared Gram matrix; build it "
-                "with per_output_jacobian=True for a squashed mean."
-            )
-        if phi.shape[0] == 0:
-            return
-        phi = torch.cat([phi, phi.new_ones(phi.shape[0], 1)], dim=1)
-        if self.per_output_jacobian:
-            wJ2 = J.square() if w is None else J.square() * w[:, None]
-            self.G_raw.add_(torch.einsum("bo,bp,bq->opq", wJ2, phi, phi))
-            self.sum_weights.add_(phi.shape[0] if w is None else w.sum())
-        elif w is None:
-            self.G_raw.add_(phi.T @ phi)
-            self.sum_weights.add_(phi.shape[0])
-        else:
-            self.G_raw.add_((phi * w[:, None]).T @ phi)
-            self.sum_weights.add_(w.sum())
-        self.count.add_(phi.shape[0])
-
-    def gram(self) -> Tensor:
-        """Weighted Gram matrix ``G`` with weights normalised to mean 1, float64 ``[d+1, d+1]``
-        (``[out, d+1, d+1]``, one ``G_j`` per output, with ``per_output_jacobian=True``)."""
-        if self.count.item() == 0:
-            raise RuntimeError("no features accumulated; call accumulate() before fit().")
-        if self.sum_weights.item() <= 0:
-            raise RuntimeError(
-                "all accumulated weights are zero, so the weighted likelihood is empty; "
-                "accumulate samples with positive weights."
-            )
-        G = self.G_raw * (self.count / self.sum_weights)
-        return 0.5 * (G + G.transpose(-1, -2))
-
+    # ---------------------------------- accumulation: reset, accumulate, gram (_curvature.py)
     # ------------------------------------------------------------------ fit
     @torch.no_grad()
     def fit(
@@ -349,27 +261,6 @@ class LastLayerLaplace(nn.Module):
         self._fitted_value = True
         return self
 
-    def _bases(self) -> tuple[Tensor, Tensor]:
-        """``(g [K, d+1], U [K, d+1, d+1])`` with ``K = out`` per output or ``1`` shared."""
-        if self.per_output_jacobian:
-            return self.eigenvalues, self.eigenvectors
-        return self.eigenvalues[None], self.eigenvectors[None]
-
-    def _likelihood_eigenvalues(self) -> Tensor:
-        """``κ g_jk/σ_j²``, ``[out, d+1]``."""
-        g = self._bases()[0]
-        return self._likelihood_scale() * g / self.noise_variance[:, None]
-
-    def _precision_eigenvalues(self, lam: Tensor) -> Tensor:
-        """Eigenvalues ``κ g_k/σ_j² + λ`` of ``P_j``; ``lam`` of shape ``[*L]`` -> ``[*L, out, d+1]``."""
-        return self._likelihood_eigenvalues() + lam[..., None, None]
-
-    def _evidence_argmax(self) -> Tensor:
-        """The evidence-maximising ``λ`` for the current fit (see :func:`evidence_maximiser`)."""
-        h = self._likelihood_eigenvalues()
-        lam = evidence_maximiser(h, self.theta_map.square().sum(), self.prior_precision_bounds)
-        return torch.tensor(lam, dtype=_F64, device=self.G_raw.device)
-
     @property
     def is_fitted(self) -> bool:
         """Whether :meth:`fit` has run (the ``fitted`` buffer, read from a host copy)."""
@@ -383,27 +274,7 @@ class LastLayerLaplace(nn.Module):
             )
 
     # ------------------------------------------------------------------ diagnostics
-    def log_evidence(self, prior_precision: Tensor | float, log_likelihood: float = 0.0) -> Tensor:
-        """Laplace log evidence ``log Z(λ)`` of Thm. 3.3 for the fitted ``θ*`` and ``σ²``.
-
-        ``log Z(λ) = log p(D|θ*) + (P/2) log λ - (λ/2)‖θ*‖² - ½ Σ_j log det P_j(λ)`` (exact;
-        the ``2π`` terms cancel). ``log p(D|θ*)`` does not depend on ``λ`` and is not
-        stored; pass it as ``log_likelihood`` for the absolute value.
-
-        Args:
-            prior_precision: ``λ`` (float, or a tensor of any shape for a vectorised sweep).
-            log_likelihood: the weighted log-likelihood ``log p(D|θ*)``; 0 by default.
-
-        Returns:
-            float64 tensor of the shape of ``prior_precision``.
-        """
-        self._check_fitted("log_evidence")
-        lam = torch.as_tensor(prior_precision, dtype=_F64, device=self.G_raw.device)
-        n_params = self.theta_map.numel()
-        logdet = self._precision_eigenvalues(lam).log().sum(dim=(-2, -1))
-        sq = self.theta_map.square().sum()
-        return log_likelihood + 0.5 * n_params * lam.log() - 0.5 * lam * sq - 0.5 * logdet
-
+    # (log_evidence of Thm. 3.3 and the eigenvalues of P_j: _evidence.py)
     def posterior_precision(self) -> Tensor:
         """``Σ_j^{-1} = (κ G/σ_j² + λ I) / T`` as float64 ``[out, d+1, d+1]`` (``κ = T = 1``
         at the default temperature)."""
