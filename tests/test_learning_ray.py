@@ -19,7 +19,7 @@ from benchmarks.learning import suite as learning
 
 REPO = Path(__file__).resolve().parents[1]
 
-# budget=smoke shrunk further, as in test_benchmarks.py's end-to-end suite test
+# budget=smoke shrunk further, as in test_learning_suite.py's end-to-end suite test
 pytestmark = [
     pytest.mark.usefixtures("ray_exclusive"),
     pytest.mark.long_running(seconds=40),
