@@ -37,8 +37,9 @@ SCRIPT = REPO / "recipes" / "torchrl_trainer.py"
 RESULTS = REPO / "benchmarks" / "results"
 
 
-def _script():
-    """``recipes/torchrl_trainer.py`` as a module (it is a script, not a package)."""
+def load_trainer_script():
+    """``recipes/torchrl_trainer.py`` as a module (it is a script, not a package); its
+    test loads it through here too."""
     spec = importlib.util.spec_from_file_location("torchrl_trainer", SCRIPT)
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module  # its dataclasses resolve their annotations there
@@ -51,7 +52,7 @@ def run_seed(cell: str, budget: str, seed: int, output_dir: Path) -> dict:
     evaluation, and its CPU seconds."""
     from hydra import compose, initialize
 
-    script = _script()
+    script = load_trainer_script()
     recipe = [
         *CELLS[cell].overrides,
         "algo=dual",

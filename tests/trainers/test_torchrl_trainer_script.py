@@ -1,26 +1,15 @@
 """recipes/torchrl_trainer.py: DUAL on PointMaze U-maze (tiny data) through Trainer.train(),
 then its offline stages resumed from the trainer's checkpoint."""
 
-import importlib.util
 import math
-import sys
-from pathlib import Path
 
 from hydra import compose, initialize
 
+from benchmarks.studies.trainer_vs_recipe import load_trainer_script
 from tests.recipe_runner import TINY
 
-SCRIPT = Path(__file__).resolve().parents[2] / "recipes" / "torchrl_trainer.py"
 # the recipe tests' cut-down smoke budget, on PointMaze U-maze
 TINY_UMAZE = [*(o for o in TINY if not o.startswith("env=")), "env=pointmaze_umaze"]
-
-
-def _script():
-    spec = importlib.util.spec_from_file_location("torchrl_trainer", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses resolve their annotations there
-    spec.loader.exec_module(module)
-    return module
 
 
 def cfg_eval_every(recipe: list[str]) -> int:
@@ -30,7 +19,7 @@ def cfg_eval_every(recipe: list[str]) -> int:
 
 
 def test_script_trains_dual_on_umaze_and_resumes_offline_stages(tmp_path):
-    script = _script()
+    script = load_trainer_script()
     recipe = [*TINY_UMAZE, f"output_dir={tmp_path / 'run'}"]
     save = tmp_path / "trainer.pt"
     overrides = [
