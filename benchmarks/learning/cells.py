@@ -136,7 +136,7 @@ CELLS: dict[str, Cell] = {
     # budget split was chosen on `umaze` seeds 0-2), on one machine in one sitting, on the
     # code after fused Adam (issue 40)
     "umaze_fresh": Cell(
-        ("env=pointmaze_umaze",), ("dual", "iql", "iql_d3rlpy", "iql_equal_time"), 5,
+        ("env=pointmaze_umaze",), ("dual", "iql", "iql_d3rlpy", "iql_equal_time_24k"), 5,
         "PointMaze U-maze, fresh seeds 5-9 (no tuning saw them), one machine, one sitting",
         first_seed=5,
     ),
@@ -186,6 +186,16 @@ CELLS: dict[str, Cell] = {
         (*SHIFT_VARIANTS, "iql_equal_time_online", *NOISE_CONTROLS), 3,
         "PointMaze Medium, goal (6, 6), 40000 offline updates, 32000 online frames "
         "(`default`: 8000)",
+    ),
+    # issue 41: medium_goal_long's DUAL ran on the Intel Xeon (12-03), its IQL on the AMD EPYC
+    # (12-04); the pair again on one machine, in one sitting, on the code after fused Adam
+    "medium_goal_onehost": Cell(
+        (
+            "env=pointmaze_medium", "env.goal_cell=[6,6]", "budget.offline_updates=40000",
+            "budget.online_frames=32000",
+        ),
+        ("dual", "iql"), 3,
+        "medium_goal_long's DUAL and IQL again, on one machine in one sitting",
     ),
     "frozenlake8x8_slip": Cell(
         ("env=frozenlake", "env.map_name=8x8", "env.shift=biased_slip"), SHIFT_VARIANTS, 3,

@@ -33,6 +33,10 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     # 590 CPU-s per run, IQL 301 CPU-s of which 187 for its 10000 offline updates, i.e.
     # 18.7 ms per update: +16000 updates ≈ 600 CPU-s); same online frames and UTD
     "iql_equal_time": ("algo=iql", "budget.offline_updates=26000"),
+    # the same after fused Adam (issue 40), for umaze_fresh: there DUAL took 590-653 CPU-s
+    # per run, IQL 310-350 at 20.7 CPU-ms per offline update, so +14000 updates ≈ 290 CPU-s;
+    # a new name, so `iql_equal_time`'s runs keep their definition
+    "iql_equal_time_24k": ("algo=iql", "budget.offline_updates=24000"),
     # IQL given DUAL's CPU time on medium_goal_long, spent online instead (its offline phase
     # is medium_goal's): measured 2026-12-03, DUAL 1130 CPU-s offline + 150 per 8000 frames,
     # IQL 630 + 90, so IQL's 1100 CPU-s after its offline phase buy ≈ 96000 frames
@@ -113,7 +117,7 @@ REFERENCE_SCRIPTS: dict[str, tuple[str, ...]] = {
 REFERENCE_CHECKS = ("calql_d3rlpy",)
 """Reference runs checked on one cell only (``umaze_baselines``, 3 seeds): Cal-QL's."""
 
-IQL_VARIANTS = ("iql", "iql_equal_time", "iql_equal_time_online")
+IQL_VARIANTS = ("iql", "iql_equal_time", "iql_equal_time_24k", "iql_equal_time_online")
 """The IQL runs DUAL is compared with at equal steps (``iql``) and equal time (both)."""
 
 ABLATION_VARIANTS = ("dual_no_planner", "dual_no_distillation", "dual_latent_uq")
