@@ -1,54 +1,71 @@
 """Tests of ``VersionedCache`` (``torchrl_dual/_versioned_cache.py``):
-a derived value is recomputed exactly when one of its source tensors changes."""
+a derived value is recomputed exactly when one of its modules' tensors changes."""
 
 from __future__ import annotations
 
+import copy
+
+import pytest
 import torch
+from torch import nn
 
 from torchrl_dual._versioned_cache import VersionedCache
 
 
-class _Counted:
-    """``compute`` of a cache over ``holder``'s tensors: their sum, counting the calls."""
+class _Holder(nn.Module):
+    """A parameter and a buffer, the two kinds of source tensor."""
 
-    def __init__(self, holder: dict[str, torch.Tensor]) -> None:
+    def __init__(self) -> None:
+        super().__init__()
+        self.weight = nn.Parameter(torch.ones(3))
+        self.register_buffer("scale", torch.ones(2))
+
+
+class _Counted:
+    """``compute`` of a cache over a ``_Holder``: the sum of its tensors, counting calls."""
+
+    def __init__(self, holder: _Holder) -> None:
         self.holder = holder
         self.calls = 0
 
     def __call__(self) -> torch.Tensor:
         self.calls += 1
-        return sum(tensor.sum() for tensor in self.holder.values())
+        return self.holder.weight.sum() + self.holder.scale.sum()
 
 
-def _cache(holder, probe=None):
+def _cache() -> tuple[_Holder, VersionedCache, _Counted]:
+    holder = _Holder()
     compute = _Counted(holder)
-    return VersionedCache(lambda: list(holder.values()), compute, probe), compute
+    return holder, VersionedCache([holder], compute), compute
 
 
 def test_the_value_is_computed_once_until_a_source_is_modified_in_place():
-    holder = {"a": torch.ones(3), "b": torch.ones(2)}
-    cache, compute = _cache(holder)
+    holder, cache, compute = _cache()
     first = cache.get()
     assert cache.get() is first and compute.calls == 1
-    holder["b"].mul_(4.0)  # bumps b's version counter
+    holder.scale.mul_(4.0)  # a buffer: bumps its version counter
     assert cache.get() == 3.0 + 8.0 and compute.calls == 2
     assert cache.get() == 11.0 and compute.calls == 2
+    with torch.no_grad():
+        holder.weight.add_(1.0)  # a parameter, as an optimizer step does
+    assert cache.get() == 6.0 + 8.0 and compute.calls == 3
 
 
 def test_a_replaced_source_tensor_is_noticed_by_identity_even_at_the_same_version():
-    holder = {"a": torch.ones(3)}
-    cache, compute = _cache(holder)
+    holder, cache, compute = _cache()
     cache.get()
-    replacement = torch.full((3,), 2.0)
-    assert replacement._version == holder["a"]._version  # the version alone cannot tell
-    holder["a"] = replacement  # what .to() or load_state_dict(assign=True) do
-    assert cache.get() == 6.0 and compute.calls == 2
+    replacement = nn.Parameter(torch.full((3,), 2.0))
+    assert replacement._version == holder.weight._version  # the version alone cannot tell
+    holder.weight = replacement  # what load_state_dict(assign=True) does
+    assert cache.get() == 6.0 + 2.0 and compute.calls == 2
+    holder.load_state_dict({"weight": torch.zeros(3), "scale": torch.zeros(2)}, assign=True)
+    assert cache.get() == 0.0 and compute.calls == 3
 
 
 def test_a_parameter_converted_in_place_by_module_to_is_noticed_by_its_storage():
-    layer = torch.nn.Linear(2, 2)
+    layer = nn.Linear(2, 2)
     weight = layer.weight
-    cache = VersionedCache(lambda: [layer.weight], lambda: layer.weight.sum())
+    cache = VersionedCache([layer], lambda: layer.weight.sum())
     assert cache.get().dtype == torch.float32
     version = weight._version
     layer.double()  # same Parameter object, same version counter, new storage
@@ -56,31 +73,42 @@ def test_a_parameter_converted_in_place_by_module_to_is_noticed_by_its_storage()
     assert cache.get().dtype == torch.float64
 
 
-def test_with_a_probe_only_the_probed_tensors_are_checked_by_identity():
-    holder = {"a": torch.ones(3), "b": torch.ones(2)}
-    probed = {"a": holder["a"]}
-    cache, compute = _cache(holder, probe=lambda: list(probed.values()))
+def test_only_the_listed_modules_are_watched_not_their_submodules():
+    outer = nn.Sequential(nn.Linear(2, 2))
+    calls = []
+    cache = VersionedCache([outer], lambda: calls.append(1) or outer[0].weight.sum())
     cache.get()
-    holder["b"] = torch.full((2,), 5.0)  # replaced but not probed: the documented blind spot
-    assert cache.get() == 5.0 and compute.calls == 1
-    probed["a"] = holder["a"] = torch.full((3,), 2.0)  # the probe sees the replacement
-    assert cache.get() == 6.0 + 10.0 and compute.calls == 2
-    holder["b"].add_(1.0)  # an in-place edit of any source is still noticed
-    assert cache.get() == 6.0 + 12.0 and compute.calls == 3
+    with torch.no_grad():
+        outer[0].weight.add_(1.0)  # a submodule's tensor: the documented blind spot
+    cache.get()
+    assert len(calls) == 1
+    watched = VersionedCache([outer[0]], lambda: calls.append(1) or outer[0].weight.sum())
+    watched.get()
+    with torch.no_grad():
+        outer[0].weight.add_(1.0)
+    watched.get()
+    assert len(calls) == 3
 
 
-def test_a_probe_of_another_length_forces_a_rebuild():
-    holder = {"a": torch.ones(1)}
-    probes = [holder["a"]]
-    cache = VersionedCache(lambda: list(holder.values()), lambda: holder["a"] * 1, lambda: probes)
-    first = cache.get()
-    probes.append(torch.zeros(1))
-    assert cache.get() is not first
+def test_a_deep_copy_recomputes_from_its_own_tensors():
+    """A policy copied for a collector carries its cache along: the copy must not serve
+    the original's value once either side changes."""
+    holder, cache, _ = _cache()
+    cache.get()
+    twin_holder, twin_cache = copy.deepcopy((holder, cache))
+    with torch.no_grad():
+        twin_holder.weight.mul_(3.0)
+    assert twin_cache.get() == 9.0 + 2.0
+    assert cache.get() == 3.0 + 2.0
 
 
 def test_the_value_is_computed_without_autograd():
-    weight = torch.nn.Parameter(torch.ones(3))
-    cache = VersionedCache(lambda: [weight], lambda: weight * 2.0)
+    holder, cache, _ = _cache()
     value = cache.get()
     assert not value.requires_grad and value.grad_fn is None
-    torch.testing.assert_close(value, torch.full((3,), 2.0))
+    torch.testing.assert_close(value, torch.tensor(5.0))
+
+
+def test_a_tensor_instead_of_a_module_is_refused_with_the_fix():
+    with pytest.raises(TypeError, match="pass the module that holds the tensor"):
+        VersionedCache([torch.ones(2)], lambda: None)

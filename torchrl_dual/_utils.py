@@ -1,11 +1,11 @@
 """Helpers every module of the package shares: reading a required tensordict entry (for
-any reader, and for a loss with its ``set_keys`` fix) and asking whether the current
-exploration mode is deterministic."""
+any reader, and for a loss with its ``set_keys`` fix), writing one on the action path, and
+asking whether the current exploration mode is deterministic."""
 
 from __future__ import annotations
 
 import torch
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
 from tensordict.utils import NestedKey
 from torch import Tensor
 from torchrl.envs.utils import ExplorationType, exploration_type
@@ -63,7 +63,10 @@ def read_key(tensordict: TensorDictBase, key: NestedKey, reader: str, fix: str =
         ...
         KeyError: "me reads 'b', which the input lacks; it holds ['a']. Add it."
     """
-    value = tensordict.get(key, None)
+    if type(tensordict) is TensorDict and type(key) is str:  # the action path's case
+        value = tensordict._get_str(key, None)  # what get() ends in, without the key parsing
+    else:
+        value = tensordict.get(key, None)
     if value is None:
         message = (
             f"{reader} reads {key!r}, which the input lacks; it holds "
@@ -71,6 +74,37 @@ def read_key(tensordict: TensorDictBase, key: NestedKey, reader: str, fix: str =
         )
         raise KeyError(f"{message} {fix}" if fix else message)
     return value
+
+
+def write_key(tensordict: TensorDictBase, key: NestedKey, value: Tensor) -> None:
+    """``tensordict.set(key, value)``, a few times cheaper for the common case of the
+    action path: a plain ``TensorDict``, a string key and a tensor whose leading dims are
+    the batch size, on the tensordict's device (what TorchRL's env steps do with
+    ``_set_str(..., validated=True)``). Anything else, or a value that fails those checks,
+    goes through ``set`` and its validation and errors.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> td = TensorDict(batch_size=[2])
+        >>> write_key(td, "loc", torch.zeros(2, 3))
+        >>> td["loc"].shape
+        torch.Size([2, 3])
+        >>> write_key(td, "loc", torch.zeros(5, 3))  # wrong batch dims: set()'s error
+        Traceback (most recent call last):
+        ...
+        RuntimeError: batch dimension mismatch, got self.batch_size=torch.Size([2]) and value.shape=torch.Size([5, 3]).
+    """
+    if (
+        type(tensordict) is TensorDict
+        and type(key) is str
+        and isinstance(value, Tensor)
+        and value.shape[: tensordict.batch_dims] == tensordict.batch_size
+        and (tensordict.device is None or value.device == tensordict.device)
+    ):
+        tensordict._set_str(key, value, inplace=False, validated=True)
+    else:
+        tensordict.set(key, value)
 
 
 def read_loss_input(tensordict: TensorDictBase, key: NestedKey, role: str) -> Tensor:

@@ -1,77 +1,96 @@
-"""A value derived from tensors, recomputed only when one of them changes."""
+"""A value derived from modules' tensors, recomputed only when one of them changes."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Generic, TypeVar
 
 import torch
-from torch import Tensor
+from torch import Tensor, nn
 
 T = TypeVar("T")
 
+_Slot = tuple[dict, str, Tensor, int, int]
+"""``(table, name, tensor, storage address, version)`` of one source tensor, ``table`` the
+``_parameters`` or ``_buffers`` dict of its module."""
+
 
 class VersionedCache(Generic[T]):
-    """Caches ``compute()`` until one of the tensors of ``sources()`` is modified or replaced.
+    """Caches ``compute()`` until a parameter or buffer of ``modules`` is modified or replaced.
 
-    A tensor is modified when its version counter moves (every in-place operation bumps
-    it: optimizer steps, ``copy_`` in ``load_state_dict``, ...). Replacement (``.to()``
-    to another device or dtype, ``load_state_dict(..., assign=True)``) is detected by
-    identity and storage on the tensors ``probe()`` returns (a parameter converted by
-    ``Module.double()`` or ``.to()`` keeps its identity but gets new storage), all of
-    ``sources()`` by default; pass a
-    few representative tensors (e.g. the first and last weights of a network) when
-    ``sources()`` is long, since the check runs at every call. ``compute`` runs without
-    autograd: use the cache on inference paths only. Under ``torch.compile`` the check
-    (a host-side comparison) is not traced: ``compute`` runs inside the compiled graph,
-    from the current tensors (so a captured CUDA graph replays it too).
+    The sources are the direct parameters and buffers of each module of ``modules`` (not
+    their submodules': list those too). A source is
+
+    * modified when its version counter moves (every in-place operation bumps it:
+      optimizer steps, ``copy_`` in ``load_state_dict``, ...; not an edit through
+      ``tensor.data``, which has a counter of its own);
+    * replaced when its module's table holds another tensor under its name
+      (``load_state_dict(..., assign=True)``, ``module.weight = nn.Parameter(...)``) or
+      when its storage moves (``Module.double()`` and ``.to()`` keep a parameter's
+      identity and version but give it new storage).
+
+    Modules keep their identity through all of these, so the check reads each module's
+    tables directly (no ``nn.Module.__getattr__``): it runs at every call, on the action
+    path. A parameter or buffer *registered* after the value was computed is not seen
+    until the next recompute. ``compute`` runs without autograd: use the cache on
+    inference paths only. Under ``torch.compile`` the check (a host-side comparison) is
+    not traced: ``compute`` runs inside the compiled graph, from the current tensors (so
+    a captured CUDA graph replays it too).
 
     Examples:
         >>> import torch
-        >>> weight = torch.ones(3)
+        >>> layer = torch.nn.Linear(3, 1)
         >>> calls = []
-        >>> cache = VersionedCache(lambda: [weight], lambda: calls.append(1) or weight * 2)
+        >>> cache = VersionedCache([layer], lambda: calls.append(1) or layer.weight * 2)
         >>> _ = cache.get(); _ = cache.get()
         >>> len(calls)
         1
-        >>> _ = weight.add_(1.0)  # an in-place change: recomputed
-        >>> cache.get(), len(calls)
-        (tensor([4., 4., 4.]), 2)
+        >>> with torch.no_grad():  # an in-place change (an optimizer step): recomputed
+        ...     _ = layer.weight.add_(1.0)
+        >>> _ = cache.get(); len(calls)
+        2
     """
 
-    def __init__(
-        self,
-        sources: Callable[[], list[Tensor]],
-        compute: Callable[[], T],
-        probe: Callable[[], list[Tensor]] | None = None,
-    ) -> None:
-        self.sources = sources
+    def __init__(self, modules: Iterable[nn.Module], compute: Callable[[], T]) -> None:
+        self.modules = tuple(modules)
+        for module in self.modules:
+            if not isinstance(module, nn.Module):
+                raise TypeError(
+                    f"VersionedCache watches modules' parameters and buffers, got a "
+                    f"{type(module).__name__}; pass the module that holds the tensor."
+                )
         self.compute = compute
-        self.probe = probe or sources
-        self._tensors: list[Tensor] = []
-        self._probed: list[tuple[Tensor, int]] = []
-        self._versions: list[int] | None = None
+        self._slots: list[_Slot] | None = None
         self._value: T | None = None
 
+    def _capture(self) -> list[_Slot]:
+        return [
+            (table, name, tensor, tensor.data_ptr(), tensor._version)
+            for module in self.modules
+            for table in (module._parameters, module._buffers)
+            for name, tensor in table.items()
+            if tensor is not None
+        ]
+
     def _valid(self) -> bool:
-        if self._versions is None:
+        slots = self._slots
+        if slots is None:
             return False
-        probed = self.probe()
-        if len(probed) != len(self._probed) or any(
-            a is not b or a.data_ptr() != ptr
-            for a, (b, ptr) in zip(probed, self._probed, strict=True)
-        ):
-            return False
-        return [t._version for t in self._tensors] == self._versions
+        for table, name, tensor, address, version in slots:
+            current = table.get(name)
+            if current is not tensor or current._version != version:
+                return False
+            if current.data_ptr() != address:
+                return False
+        return True
 
     def get(self) -> T:
+        """The cached value, recomputed first if a source changed."""
         if torch.compiler.is_compiling():
             with torch.no_grad():
                 return self.compute()
         if not self._valid():
-            self._tensors = list(self.sources())
-            self._probed = [(t, t.data_ptr()) for t in self.probe()]
             with torch.no_grad():
                 self._value = self.compute()
-            self._versions = [t._version for t in self._tensors]
+            self._slots = self._capture()
         return self._value

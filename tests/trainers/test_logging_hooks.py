@@ -26,19 +26,29 @@ def test_exploration_signals_are_the_batch_means_of_eq_9_and_10_by_hand():
     scale = 0.5 + torch.rand(5, 3, 2, generator=gen)
     shift = torch.rand(5, 3, 1, generator=gen)
     batch = TensorDict(
-        epistemic_variance=variance, exploration_scale=scale, shift_distance=shift,
+        epistemic_variance=variance,
+        exploration_scale=scale,
+        shift_distance=shift,
         batch_size=[5, 3],
     )
     signals = exploration_signals(batch)
-    assert list(signals) == ["shift_distance", "epistemic_std", "epistemic_share", "exploration_std"]
+    assert list(signals) == [
+        "shift_distance",
+        "epistemic_std",
+        "epistemic_share",
+        "exploration_std",
+    ]
     assert signals["shift_distance"] == pytest.approx(shift.double().mean().item(), rel=1e-6)
-    assert signals["epistemic_std"] == pytest.approx(variance.double().mean().sqrt().item(), rel=1e-6)
+    assert signals["epistemic_std"] == pytest.approx(
+        variance.double().mean().sqrt().item(), rel=1e-6
+    )
     share = variance.double().mean() / scale.double().square().mean()
     assert signals["epistemic_share"] == pytest.approx(share.item(), rel=1e-6)
     assert signals["exploration_std"] == pytest.approx(scale.double().mean().item(), rel=1e-6)
     # a policy without the ensemble (no epistemic key) gives no epistemic entry
     assert set(exploration_signals(batch.exclude("epistemic_variance"))) == {
-        "shift_distance", "exploration_std"
+        "shift_distance",
+        "exploration_std",
     }
 
 
@@ -86,8 +96,14 @@ def test_from_episodes_scores_the_mean_return_against_the_references():
         return gym.make("Pendulum-v1", max_episode_steps=7)
 
     hook = NormalizedScoreLogHook.from_episodes(
-        make_env, still, 3, random_return=-80.0, expert_return=-10.0, interval=1,
-        observation_fn=lambda o: o, seed=4,
+        make_env,
+        still,
+        3,
+        random_return=-80.0,
+        expert_return=-10.0,
+        interval=1,
+        observation_fn=lambda o: o,
+        seed=4,
     )
     out = hook(None)
     mean = evaluate_episodes(make_env, still, 3, observation_fn=lambda o: o, seed=4).mean()
@@ -109,8 +125,9 @@ def test_the_stored_offline_to_online_buffer_samples_its_fixed_offline_share():
     cfg = OmegaConf.structured(node)
     offline = ReplayBuffer(storage=LazyTensorStorage(100))
     offline.extend(TensorDict(observation=torch.zeros(100, 2), batch_size=[100]))
-    buffer = instantiate(cfg, online_capacity=50, batch_size=40, offline_fraction=0.25,
-                         _partial_=True)(offline_dataset=offline)
+    buffer = instantiate(
+        cfg, online_capacity=50, batch_size=40, offline_fraction=0.25, _partial_=True
+    )(offline_dataset=offline)
     assert isinstance(buffer, OfflineToOnlineReplayBuffer)
     buffer.extend(TensorDict(observation=torch.ones(50, 2), batch_size=[50]))
     batch = buffer.sample()

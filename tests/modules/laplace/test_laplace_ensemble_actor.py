@@ -105,6 +105,30 @@ def test_inference_members_follow_resampling_and_optimizer_steps(kind, make_mode
 
 
 @pytest.mark.parametrize("kind", ACTOR_KINDS)
+def test_the_acting_scale_follows_each_update_of_the_aleatoric_std(kind, make_model):
+    """σ̄² is cached on the action path (no autograd) and must follow ``log_std``."""
+    policy = _fitted_policy(kind, make_model, num_samples=3)
+    td = _obs_td(4)
+
+    def scale_without_and_with_autograd():
+        with torch.no_grad():
+            cached = policy(td.clone())["scale"]
+        fresh = policy(td.clone())["scale"]
+        assert fresh.requires_grad  # with autograd, σ̄ stays differentiable in log σ̄
+        return cached, fresh.detach()
+
+    before, fresh = scale_without_and_with_autograd()
+    torch.testing.assert_close(before, fresh)
+    optimizer = torch.optim.SGD([policy.actor.log_std], lr=1.0)
+    policy.actor.log_std.grad = -torch.ones_like(policy.actor.log_std)
+    optimizer.step()  # log σ̄ + 1, in place
+    after, fresh = scale_without_and_with_autograd()
+    torch.testing.assert_close(after, fresh)
+    epistemic = policy(td.clone())["epistemic_variance"].detach()
+    torch.testing.assert_close(after**2 - epistemic, (before**2 - epistemic) * torch.e**2)
+
+
+@pytest.mark.parametrize("kind", ACTOR_KINDS)
 def test_members_are_centred_on_the_current_head_between_refits(kind, make_model):
     policy = _fitted_policy(kind, make_model, num_samples=6)
     observation = _obs_td(5)["observation"]

@@ -46,20 +46,14 @@ class OneStepFold:
         self.next_state_rows = next_state_rows
         denoiser = model.denoiser
         # The modules whose tensors the folded ones derive from. Modules keep their
-        # identity through .to() / load_state_dict; their tensors are read at every call.
-        self._sources = (
+        # identity through .to() / load_state_dict; their tensors are checked at every call.
+        sources = (
+            model.normalizer,
             denoiser.input_layer,
             *(m for m in denoiser.time_embedding.modules() if isinstance(m, torch.nn.Linear)),
             denoiser.head,
         )
-        self._cache = VersionedCache(self._source_tensors, self._fold)
-
-    def _source_tensors(self) -> list[Tensor]:
-        norm = self.model.normalizer
-        tensors = [norm.obs_mean, norm.obs_std, norm.action_mean, norm.action_std]
-        for module in self._sources:
-            tensors += (module.weight, module.bias)
-        return tensors
+        self._cache = VersionedCache(sources, self._fold)
 
     def tensors(self) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
         """``(W_s [H, S], W_a [H, A], c [2, H], W_next [S, H], b_next [S])``, ``c[0]`` for

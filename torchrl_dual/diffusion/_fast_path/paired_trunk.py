@@ -48,28 +48,16 @@ class PairedTrunk:
         self.denoisers = (first, second)
         self._eps = first.trunk_layers()[1].eps
         # Modules keep their identity through .to() / load_state_dict (their tensors do
-        # not): the layer lists are read once, the tensors at every call.
+        # not): the layer lists are read once, the layers' tensors checked at every call.
         self._layers = [self._trunk_layers(denoiser) for denoiser in self.denoisers]
-        self._probe_layers = [layer for layers in self._layers for layer in (layers[1], layers[-1])]
-        self._cache = VersionedCache(self._sources, self._stack, self._probe)
-
-    def _probe(self) -> list[Tensor]:
-        """Tensors whose replacement (``.to()``, ``assign=True`` loads) forces a rebuild:
-        the first linear and the output norm's weight of each trunk."""
-        return [layer.weight for layer in self._probe_layers]
+        self._cache = VersionedCache(
+            [layer for layers in self._layers for layer in layers], self._stack
+        )
 
     @staticmethod
     def _trunk_layers(denoiser: ResidualMLPDenoiser) -> list[nn.Module]:
         blocks, output_norm = denoiser.trunk_layers()
         return [layer for block in blocks for layer in block] + [output_norm]
-
-    def _sources(self) -> list[Tensor]:
-        return [
-            tensor
-            for layers in self._layers
-            for layer in layers
-            for tensor in (layer.weight, layer.bias)
-        ]
 
     def _stack(self) -> list[Tensor]:
         """Per layer: LayerNorm scale and shift ``[2, 1, H]``; linear ``Wᵀ [2, in, out]``

@@ -10,7 +10,7 @@ from tensordict.nn import TensorDictModuleBase
 from torch import Tensor
 from torchrl.data.tensor_specs import BoundedContinuous, Composite, TensorSpec
 
-from torchrl_dual._utils import is_deterministic, read_key
+from torchrl_dual._utils import is_deterministic, read_key, write_key
 from torchrl_dual.modules._gaussian import gaussian_log_prob
 
 DEFAULT_SHIFT_WEIGHT = 0.5
@@ -307,13 +307,13 @@ class ShiftAwareNoise(TensorDictModuleBase):
                 "got a scalar. Fix: unsqueeze(-1) the actor output."
             )
         if is_deterministic():  # a_t = μ: no noise, d_t not used
-            tensordict.set(self.action_key, self._project(loc))
-            tensordict.set(self.shift_key, loc.new_zeros(*loc.shape[:-1], 1))
-            tensordict.set(self.exploration_scale_key, torch.zeros_like(loc))
+            write_key(tensordict, self.action_key, self._project(loc))
+            write_key(tensordict, self.shift_key, loc.new_zeros(*loc.shape[:-1], 1))
+            write_key(tensordict, self.exploration_scale_key, torch.zeros_like(loc))
             if self.return_log_prob:  # the policy's N(μ, σ²) density at its mode
                 scale = read_key(tensordict, self.scale_key, "ShiftAwareNoise (σ(s))")
                 action = tensordict.get(self.action_key)
-                tensordict.set(self.log_prob_key, gaussian_log_prob(action, loc, scale))
+                write_key(tensordict, self.log_prob_key, gaussian_log_prob(action, loc, scale))
             return tensordict
         scale = read_key(
             tensordict,
@@ -345,19 +345,19 @@ class ShiftAwareNoise(TensorDictModuleBase):
             shift = torch.linalg.vector_norm(expected - observation, dim=-1, keepdim=True)
             if shift.dtype != loc.dtype:
                 shift = shift.to(loc.dtype)
-            tensordict.set(self.shift_key, shift)  # d_t
+            write_key(tensordict, self.shift_key, shift)  # d_t
             excess = (shift - self.shift_floor).clamp_min(0.0)  # d_t itself when d_0 = 0
             variance = torch.addcmul(variance, excess, self.shift_weight)  # Eq. (10)
         else:  # λ = 0: no ŝ_t, d_t written as 0
-            tensordict.set(self.shift_key, loc.new_zeros(*loc.shape[:-1], 1))
+            write_key(tensordict, self.shift_key, loc.new_zeros(*loc.shape[:-1], 1))
         if self.extra_variance:
             variance = variance + self.extra_variance
         std = variance.clamp_min(self._MIN_VARIANCE).sqrt()
         action = self._project(torch.addcmul(loc, std, torch.randn_like(loc)))
-        tensordict.set(self.action_key, action)
-        tensordict.set(self.exploration_scale_key, std)
+        write_key(tensordict, self.action_key, action)
+        write_key(tensordict, self.exploration_scale_key, std)
         if self.return_log_prob:
-            tensordict.set(self.log_prob_key, gaussian_log_prob(action, loc, std))
+            write_key(tensordict, self.log_prob_key, gaussian_log_prob(action, loc, std))
         return tensordict
 
     def __repr__(self) -> str:

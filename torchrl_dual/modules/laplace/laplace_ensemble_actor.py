@@ -10,7 +10,7 @@ from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import NestedKey
 from torchrl.modules import IndependentNormal
 
-from torchrl_dual._utils import is_deterministic, read_key
+from torchrl_dual._utils import is_deterministic, read_key, write_key
 from torchrl_dual._versioned_cache import VersionedCache
 from torchrl_dual.modules._gaussian import gaussian_log_prob
 from torchrl_dual.modules.actors.last_layer_actor import LastLayerActor
@@ -156,7 +156,9 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         self.register_buffer("bias_deviation", torch.zeros(num_samples, actor.action_dim))
         self.action_low, self.action_high = action_low, action_high
         self.transition_model = transition_model
-        self._member_head_cache = VersionedCache(self._member_head_sources, self._member_heads)
+        # the sources of the stacked heads: the actor's head and this module's deviations
+        self._member_head_cache = VersionedCache((actor.head, self), self._member_heads)
+        self._aleatoric_cache = VersionedCache((actor,), lambda: actor.std**2)  # σ̄² (log σ̄)
         self.in_keys = [observation_key]
         self.out_keys = [loc_key, scale_key, epistemic_key, action_key]
         if sample_action:  # else the noise module that follows samples (and scores) it
@@ -225,10 +227,6 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         weight = (map_weight + self.weight_deviation).flatten(0, 1)
         return weight, (map_bias + self.bias_deviation).flatten()
 
-    def _member_head_sources(self) -> list[torch.Tensor]:
-        head = self.actor.head
-        return [head.weight, head.bias, self.weight_deviation, self.bias_deviation]
-
     def _members(self, features: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
         if self.resample_each_call:
             self.resample()
@@ -280,15 +278,36 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         out = self(tensordict.copy())
         return IndependentNormal(out.get(self.out_keys[0]), out.get(self.out_keys[1]))
 
+    def _aleatoric_variance(self) -> torch.Tensor:
+        """``σ̄²``, the actor's (cached between its updates when no gradient is taken)."""
+        if torch.is_grad_enabled():
+            return self.actor.std**2
+        return self._aleatoric_cache.get()
+
+    def _write(
+        self,
+        tensordict: TensorDictBase,
+        loc: torch.Tensor,
+        scale: torch.Tensor,
+        epistemic: torch.Tensor,
+        action: torch.Tensor,
+    ) -> None:
+        """Writes ``loc``, ``scale``, ``epistemic_variance`` and ``action``."""
+        loc_key, scale_key, epistemic_key, action_key = self.out_keys[:4]
+        write_key(tensordict, loc_key, loc)
+        write_key(tensordict, scale_key, scale)
+        write_key(tensordict, epistemic_key, epistemic)
+        write_key(tensordict, action_key, action)
+
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         observation = read_key(tensordict, self.in_keys[0], "LaplaceEnsembleActor")
-        aleatoric = self.actor.std**2
+        aleatoric = self._aleatoric_variance()
         if is_deterministic():
             if self.transition_model is not None:  # no exploration: ŝ_t = s_t, d_t = 0
-                tensordict.set(self.transition_model.out_keys[0], observation)
+                write_key(tensordict, self.transition_model.out_keys[0], observation)
             loc = self.actor(observation)
             epistemic = torch.zeros_like(loc)
-            variance = aleatoric.expand_as(loc)
+            scale = aleatoric.expand_as(loc).sqrt()
             action = self._clamp(loc)
         else:
             if self.num_samples == 0:  # no epistemic UQ: the MAP mean, σ̄ only
@@ -303,21 +322,12 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
             else:
                 members = self._members(*self._encode(tensordict, observation))
                 epistemic, loc = torch.var_mean(members, 0, correction=0)
-            variance = epistemic + aleatoric
+            scale = (epistemic + aleatoric).sqrt()
             if not self.sample_action:  # the next module (ShiftAwareNoise) samples
-                loc_key, scale_key, epistemic_key, action_key = self.out_keys[:4]
-                tensordict.set(loc_key, loc)
-                tensordict.set(scale_key, variance.sqrt())
-                tensordict.set(epistemic_key, epistemic)
-                tensordict.set(action_key, self._clamp(loc))
+                self._write(tensordict, loc, scale, epistemic, self._clamp(loc))
                 return tensordict
-            action = self._clamp(loc + variance.sqrt() * torch.randn_like(loc))
-        scale = variance.sqrt()
-        loc_key, scale_key, epistemic_key, action_key = self.out_keys[:4]
-        tensordict.set(loc_key, loc)
-        tensordict.set(scale_key, scale)
-        tensordict.set(epistemic_key, epistemic)
-        tensordict.set(action_key, action)
+            action = self._clamp(loc + scale * torch.randn_like(loc))
+        self._write(tensordict, loc, scale, epistemic, action)
         if self.sample_action:  # out_keys[4]: the action's log-density
-            tensordict.set(self.out_keys[4], gaussian_log_prob(action, loc, scale))
+            write_key(tensordict, self.out_keys[4], gaussian_log_prob(action, loc, scale))
         return tensordict

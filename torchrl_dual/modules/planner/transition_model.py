@@ -9,7 +9,7 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import NestedKey
 
-from torchrl_dual._utils import read_key
+from torchrl_dual._utils import read_key, write_key
 from torchrl_dual.diffusion.model import LATENTS, TrajectoryDiffusion
 from torchrl_dual.modules.planner.planner_sampler import PlannerSampler
 
@@ -146,7 +146,7 @@ class TransitionModel(TensorDictModuleBase):
                 f"observations of shape {tuple(observation.shape)}; previous_observation "
                 "must have the observation's shape."
             )
-        tensordict.set(self.out_keys[0], torch.where(valid, predicted, observation))
+        write_key(tensordict, self.out_keys[0], torch.where(valid, predicted, observation))
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         observation = read_key(tensordict, self.in_keys[0], "TransitionModel")
