@@ -29,6 +29,7 @@ MUST_HAVE_EXAMPLES = (
     "torchrl_dual.data.mc_returns",
     "torchrl_dual.diffusion._fast_path.paired_trunk",
     "torchrl_dual._versioned_cache",
+    "torchrl_dual._tensordict_patch",
     "torchrl_dual.diffusion.model",
     "torchrl_dual.diffusion.trajectory_layout",
     "torchrl_dual.modules.actors.planner_actor",

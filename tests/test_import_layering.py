@@ -21,6 +21,7 @@ LIBRARY = ("data", "diffusion", "modules", "objectives", "envs", "transforms", "
 ALLOWED: dict[str, tuple[str, ...]] = {
     "_utils": (),
     "_versioned_cache": (),
+    "_tensordict_patch": (),
     "checkpoint": (),
     "evaluation": (),
     "transforms": ("transforms", "_utils"),
@@ -44,7 +45,7 @@ ALLOWED: dict[str, tuple[str, ...]] = {
     "modules": ("modules",),
     "objectives": ("objectives", "diffusion", "modules.actors", "_utils"),
     # DUAL in TorchRL's Trainer: the library's parts, not the recipe
-    "trainers": ("trainers", "evaluation", *LIBRARY),
+    "trainers": ("trainers", "evaluation", "_tensordict_patch", *LIBRARY),
     # the recipe: settings (no torch, nothing else) < kits < o2o < parts < algos
     "recipe.settings": ("recipe.settings",),
     # the entry: the schema, and the loop inside run() once the config is valid (torch-free
@@ -66,6 +67,7 @@ ALLOWED: dict[str, tuple[str, ...]] = {
         "checkpoint",
         "data",
         "objectives",
+        "_tensordict_patch",
     ),
     "recipe.parts": (
         "recipe.parts",

@@ -39,6 +39,7 @@ from torchrl.data import OfflineToOnlineReplayBuffer
 from torchrl.trainers import OptimizationStepper, Trainer, UpdateWeights
 from torchrl.trainers.algorithms.offline_to_online import OfflineToOnlineReplayBufferHook
 
+from torchrl_dual._tensordict_patch import install as install_tensordict_patch
 from torchrl_dual.trainers.hooks import LaplaceRefitHook, OfflineStagesHook
 from torchrl_dual.trainers.logging_hooks import DUALSignalsLogHook
 
@@ -92,6 +93,7 @@ class DUALTrainer(Trainer):
         evaluation: Any | None = None,
         **trainer_kwargs: Any,
     ) -> None:
+        install_tensordict_patch()  # TensorDictModule outputs without a sys.path scan each
         trainer_kwargs.setdefault("frame_skip", 1)
         super().__init__(
             collector=collector,

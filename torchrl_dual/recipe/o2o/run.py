@@ -26,6 +26,7 @@ from torchrl.collectors import BaseCollector
 from torchrl.data import LazyTensorStorage, RandomSampler, ReplayBuffer
 from tqdm.auto import tqdm
 
+from torchrl_dual._tensordict_patch import install as install_tensordict_patch
 from torchrl_dual.checkpoint import CheckpointError, RunCheckpoint, rng_state, set_rng_state
 from torchrl_dual.data import TRANSITION_KEYS
 from torchrl_dual.recipe.kits import build as env_kits
@@ -87,6 +88,7 @@ class O2ORun:
         self.cfg = cfg
         self.name = str(cfg.algo)
         torch.set_num_threads(cfg.num_threads)
+        install_tensordict_patch()  # TensorDictModule outputs without a sys.path scan each
         self.seed_everything(cfg.seed)
         self.output_dir = Path(cfg.output_dir)
         fingerprint = {
