@@ -65,8 +65,12 @@ class OneStepFold:
         obs_dim, transition_dim = layout.obs_dim, layout.transition_dim
         weight, bias = denoiser.input_layer.weight, denoiser.input_layer.bias
         flat = weight.shape[1] // 2  # input = [flattened window, flattened mask]
-        masks = torch.stack([layout.condition_mask("s0"), layout.condition_mask("s0_a0")])
-        masks = masks.flatten(1).to(device=weight.device, dtype=weight.dtype)
+        # made on the weights' device: under torch.compile this runs inside the graph, and
+        # a host tensor copied in would break a CUDA graph's capture
+        masks = torch.stack(
+            [layout.condition_mask(c, device=weight.device) for c in ("s0", "s0_a0")]
+        )
+        masks = masks.flatten(1).to(dtype=weight.dtype)
         time = denoiser.time_embedding(torch.ones(1, device=weight.device, dtype=weight.dtype))
         w_state = weight[:, :obs_dim] / norm.obs_std
         w_action = weight[:, obs_dim:transition_dim] / norm.action_std

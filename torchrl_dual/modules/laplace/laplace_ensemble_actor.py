@@ -14,11 +14,12 @@ from torchrl_dual._utils import is_deterministic, read_key, write_key
 from torchrl_dual._versioned_cache import VersionedCache
 from torchrl_dual.modules._gaussian import gaussian_log_prob
 from torchrl_dual.modules.actors.last_layer_actor import LastLayerActor
+from torchrl_dual.modules.laplace._action_bounds import ActionBounds
 from torchrl_dual.modules.laplace.last_layer_laplace import LastLayerLaplace
 from torchrl_dual.modules.planner.transition_model import TransitionModel
 
 
-class LaplaceEnsembleActor(TensorDictModuleBase):
+class LaplaceEnsembleActor(ActionBounds, TensorDictModuleBase):
     """Ensemble policy over ``M`` last-layer posterior samples, Eq. (9).
 
     With ``θ_m ∼ N(θ*, Σ)`` from the last-layer Laplace posterior (Eq. 8) and
@@ -154,7 +155,7 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
             "weight_deviation", torch.zeros(num_samples, actor.action_dim, in_features)
         )
         self.register_buffer("bias_deviation", torch.zeros(num_samples, actor.action_dim))
-        self.action_low, self.action_high = action_low, action_high
+        self._set_bounds(action_low, action_high)
         self.transition_model = transition_model
         # the sources of the stacked heads: the actor's head and this module's deviations
         self._member_head_cache = VersionedCache((actor.head, self), self._member_heads)
@@ -253,11 +254,6 @@ class LaplaceEnsembleActor(TensorDictModuleBase):
         )
         transition.write_expected(tensordict, observation, predicted, valid)
         return features, context
-
-    def _clamp(self, action: torch.Tensor) -> torch.Tensor:
-        if self.action_low is None and self.action_high is None:
-            return action
-        return action.clamp(self.action_low, self.action_high)
 
     def get_dist(self, tensordict: TensorDictBase) -> IndependentNormal:
         """Eq. 9's policy as a TorchRL distribution: ``IndependentNormal(μ(s), σ(s))`` with

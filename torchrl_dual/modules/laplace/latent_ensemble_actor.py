@@ -10,10 +10,11 @@ from tensordict.utils import NestedKey
 from torchrl_dual._utils import is_deterministic, read_key
 from torchrl_dual.modules._gaussian import gaussian_log_prob
 from torchrl_dual.modules.actors.planner_actor import PlannerActor
+from torchrl_dual.modules.laplace._action_bounds import ActionBounds
 from torchrl_dual.modules.planner.transition_model import TransitionModel
 
 
-class LatentEnsembleActor(TensorDictModuleBase):
+class LatentEnsembleActor(ActionBounds, TensorDictModuleBase):
     """Ensemble policy over ``M`` planner latents instead of ``M`` posterior heads.
 
     The paper's ablation "Ours w τ^N sampling" (Sec. 5, ablation studies) replaces the
@@ -102,7 +103,7 @@ class LatentEnsembleActor(TensorDictModuleBase):
         self.actor = actor
         self.num_samples = num_samples
         self.sample_action = sample_action
-        self.action_low, self.action_high = action_low, action_high
+        self._set_bounds(action_low, action_high)
         self.transition_model = transition_model
         self.in_keys = [observation_key]
         self.out_keys = [loc_key, scale_key, epistemic_key, action_key, log_prob_key]
@@ -113,11 +114,6 @@ class LatentEnsembleActor(TensorDictModuleBase):
     def member_actions(self, observation: torch.Tensor) -> torch.Tensor:
         """Actions of the ``M`` latent sub-policies, ``[M, *B, A]`` (fresh latents)."""
         return self.actor.sample_actions(observation, self.num_samples)
-
-    def _clamp(self, action: torch.Tensor) -> torch.Tensor:
-        if self.action_low is None and self.action_high is None:
-            return action
-        return action.clamp(self.action_low, self.action_high)
 
     def _write_expected(self, tensordict: TensorDictBase, observation: torch.Tensor) -> None:
         transition = self.transition_model
