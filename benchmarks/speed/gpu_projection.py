@@ -30,6 +30,15 @@ from __future__ import annotations
 
 import json
 
+PAPER = {
+    "planner_updates": 1_000_000, "distill_updates": [20_000] * 5, "offline_updates": 1_000_000,
+    "online_frames": 1_000_000, "frames_per_batch": 1000, "utd_ratio": 0.5,
+    "laplace_refit_every": 10_000, "eval_every": 50_000, "eval_episodes": 100,
+    "dataset_transitions": 1_000_000,
+}  # fmt: skip
+"""``budget=paper`` (``torchrl_dual/recipe/config/budget/paper.yaml``) and DUAL's online
+``utd_ratio``: what :func:`project_from_probe` multiplies the measured rates by."""
+
 UPDATES = ("planner", "distillation", "actor_critic")
 ACTING = {"act_b1": 1, "act_b64": 64}
 """The acting figures and their batch sizes (states per policy call)."""
@@ -87,3 +96,52 @@ def merge(paths: list[str], env_step_ms: float, eval_hours: float) -> dict:
     merged["best_modes"] = best_modes(results)
     merged["paper_hours"] = paper_hours(results, env_step_ms, eval_hours)
     return merged
+
+
+def project_from_probe(probe: dict) -> dict:
+    """Hours of one ``budget=paper`` AntMaze run from an end-to-end probe's figures only
+    (``e2e_probe.py``); every input is labelled with where and when it was measured.
+
+    The online phase is 1M frames at the probe's cost per frame (collection, acting and
+    its updates at ``utd_ratio``), plus the refits (a fit of ``D_offline`` after the
+    offline phase, then one every 10k online updates over 1M..1.5M transitions: 76M
+    transitions in all) and 21 evaluations of 100 episodes (after the offline phase and
+    every 50k frames), each at the probe's measured cost. A probe at another ``utd_ratio``
+    than the paper's is refused.
+
+    Examples:
+        >>> probe = {"measured": {"machine": "m", "date": "d", "command": "c"}, "rates": {
+        ...     "planner_updates_per_s": 500.0, "distill_updates_per_s": 250.0,
+        ...     "offline_updates_per_s": 400.0, "laplace_s_per_1k_transitions": 0.01,
+        ...     "evaluation_s": 30.0, "evaluation_episodes": 100,
+        ...     "online_s_per_frame": 0.002, "online_utd_ratio": 0.5}}
+        >>> hours = project_from_probe(probe)
+        >>> round(hours["planner"], 3), round(hours["total"], 2)
+        (0.556, 2.3)
+        >>> hours["inputs"]["online_s_per_frame"]["measured"]["machine"]
+        'm'
+    """
+    r, p = probe["rates"], PAPER
+    if abs(r["online_utd_ratio"] - p["utd_ratio"]) > 1e-9:
+        raise ValueError(
+            f"the probe ran online.utd_ratio={r['online_utd_ratio']}, budget=paper's DUAL "
+            f"runs {p['utd_ratio']}: rerun the probe at the paper's ratio."
+        )
+    online_updates = p["online_frames"] * p["utd_ratio"]
+    refit_transitions = p["dataset_transitions"] + (online_updates / p["laplace_refit_every"]) * (
+        p["dataset_transitions"] + p["online_frames"] / 2
+    )
+    evaluations = 1 + p["online_frames"] // p["eval_every"]
+    per_episode = r["evaluation_s"] / r["evaluation_episodes"]
+    seconds = {
+        "planner": p["planner_updates"] / r["planner_updates_per_s"],
+        "distillation": sum(p["distill_updates"]) / r["distill_updates_per_s"],
+        "actor_critic": p["offline_updates"] / r["offline_updates_per_s"],
+        "laplace": refit_transitions / 1000 * r["laplace_s_per_1k_transitions"],
+        "online": p["online_frames"] * r["online_s_per_frame"],
+        "evaluation": evaluations * p["eval_episodes"] * per_episode,
+    }
+    hours: dict = {k: v / 3600 for k, v in seconds.items()}
+    hours["total"] = sum(hours.values())
+    hours["inputs"] = {k: {"value": v, "measured": probe["measured"]} for k, v in r.items()}
+    return hours
