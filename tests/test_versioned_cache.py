@@ -8,7 +8,9 @@ import copy
 import pytest
 import torch
 from torch import nn
+from torch.optim.optimizer import register_optimizer_step_post_hook
 
+import torchrl_dual._versioned_cache as versioned_cache
 from torchrl_dual._versioned_cache import VersionedCache
 
 
@@ -112,3 +114,38 @@ def test_the_value_is_computed_without_autograd():
 def test_a_tensor_instead_of_a_module_is_refused_with_the_fix():
     with pytest.raises(TypeError, match="pass the module that holds the tensor"):
         VersionedCache([torch.ones(2)], lambda: None)
+
+
+@pytest.fixture
+def without_the_fused_step_hook():
+    versioned_cache._FUSED_STEP_HOOK.remove()
+    yield
+    versioned_cache._FUSED_STEP_HOOK = register_optimizer_step_post_hook(
+        versioned_cache.mark_fused_steps
+    )
+
+
+def test_pytorch_s_fused_adam_still_leaves_the_version_counters_alone(
+    without_the_fused_step_hook,
+):
+    """The reason for the hook. When this fails, PyTorch moves the counters itself:
+    delete ``mark_fused_steps`` and its registration."""
+    layer = nn.Linear(2, 2)
+    optimizer = torch.optim.Adam(layer.parameters(), fused=True)
+    layer(torch.ones(1, 2)).sum().backward()
+    before = layer.weight._version
+    optimizer.step()
+    assert layer.weight._version == before
+
+
+@pytest.mark.parametrize("kind", ["fused", "foreach", "for-loop"])
+def test_a_cache_follows_every_optimizer_step_fused_or_not(kind):
+    layer = nn.Linear(3, 2)
+    options = {"fused": {"fused": True}, "foreach": {"foreach": True}, "for-loop": {}}
+    optimizer = torch.optim.Adam(layer.parameters(), lr=0.1, **options[kind])
+    cache = VersionedCache([layer], lambda: layer.weight.clone())
+    for _ in range(3):
+        layer(torch.ones(4, 3)).square().sum().backward()
+        optimizer.step()
+        optimizer.zero_grad()
+        torch.testing.assert_close(cache.get(), layer.weight.detach(), rtol=0, atol=0)

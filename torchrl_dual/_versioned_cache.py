@@ -1,14 +1,50 @@
-"""A value derived from modules' tensors, recomputed only when one of them changes."""
+"""A value derived from modules' tensors, recomputed only when one of them changes.
+
+PyTorch's fused optimizers (``torch.optim.Adam(fused=True)``, as the recipe builds its
+Adams) change the parameters in place without moving their version counters (torch
+2.13). A cache that trusts those counters would keep serving values of the weights before
+the step, and did: DUAL's acting path between two Laplace refits, for an actor trained
+with fused Adam. Importing this module registers one global optimizer step hook that
+moves the counters of a fused group's parameters after its step
+(:func:`mark_fused_steps`); ``tests/test_versioned_cache.py`` fails once PyTorch moves
+them itself, so that the hook can go.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from typing import Generic, TypeVar
+from typing import Any, Generic, TypeVar
 
 import torch
 from torch import Tensor, nn
+from torch.optim.optimizer import Optimizer, register_optimizer_step_post_hook
 
 T = TypeVar("T")
+
+
+def mark_fused_steps(optimizer: Optimizer, args: Any = (), kwargs: Any = None) -> None:
+    """Moves the version counter of every parameter of ``optimizer``'s fused groups, as
+    any other in-place update does (the step hook this module registers for every
+    optimizer).
+
+    Examples:
+        >>> import torch
+        >>> weight = torch.nn.Parameter(torch.zeros(2))
+        >>> optimizer = torch.optim.Adam([weight], fused=True)
+        >>> weight.grad = torch.ones(2)
+        >>> before = weight._version
+        >>> optimizer.step()  # the hook runs after every step
+        >>> weight._version > before
+        True
+    """
+    for group in optimizer.param_groups:
+        if group.get("fused"):
+            params = [p for p in group["params"] if p.grad is not None]
+            if params:
+                torch.autograd.graph.increment_version(params)
+
+
+_FUSED_STEP_HOOK = register_optimizer_step_post_hook(mark_fused_steps)
 
 _Slot = tuple[dict, str, Tensor, int, int]
 """``(table, name, tensor, storage address, version)`` of one source tensor, ``table`` the
@@ -22,8 +58,9 @@ class VersionedCache(Generic[T]):
     their submodules': list those too). A source is
 
     * modified when its version counter moves (every in-place operation bumps it:
-      optimizer steps, ``copy_`` in ``load_state_dict``, ...; not an edit through
-      ``tensor.data``, which has a counter of its own);
+      optimizer steps, fused ones through the hook above, ``copy_`` in
+      ``load_state_dict``, ...; not an edit through ``tensor.data``, which has a counter
+      of its own);
     * replaced when its module's table holds another tensor under its name
       (``load_state_dict(..., assign=True)``, ``module.weight = nn.Parameter(...)``) or
       when its storage moves (``Module.double()`` and ``.to()`` keep a parameter's

@@ -232,3 +232,37 @@ def test_one_graph_per_phase_and_batch_shape_and_the_optimizers_made_capturable_
         == [{"in_keys": [], "out_keys": [], "warmup": CUDA_GRAPH_WARMUP}] * 2
     )
     assert adam.state[w]["step"].dtype == torch.float32
+
+
+def test_a_replayed_update_moves_the_version_counters_of_the_optimizers_parameters(
+    monkeypatch,
+):
+    """A CUDA graph's replay changes the weights without moving their version counters;
+    the acting path's caches read those counters, so the step moves them by hand."""
+    import tensordict.nn
+    from omegaconf import OmegaConf
+    from tensordict import TensorDict
+
+    class _Replay(_StandInGraph):
+        def __call__(self, td):  # the weights change, no counter moves (as a replay)
+            with torch.no_grad():
+                w.data.add_(1.0)
+            return TensorDict(loss=w.detach().sum())
+
+    monkeypatch.setattr(tensordict.nn, "CudaGraphModule", _Replay)
+    w = torch.nn.Parameter(torch.ones(3))
+
+    class Learner:
+        def __init__(self) -> None:
+            self.optimizer = torch.optim.SGD([w], lr=0.1)
+
+        def update(self, batch):
+            return {"loss": w.sum().detach()}
+
+    settings = OmegaConf.create({"compile": False, "compile_mode": None, "cudagraphs": True})
+    step = make_update_step(Learner(), settings, lambda: "offline")
+    versions = [w._version]
+    for _ in range(2):
+        step(TensorDict(x=torch.ones(2, 3), batch_size=[2]))
+        versions.append(w._version)
+    assert versions[0] < versions[1] < versions[2]

@@ -80,8 +80,9 @@ def test_member_actions_equal_explicit_per_member_heads(kind, make_model):
     assert members.std(0).min() > 0  # members really differ
 
 
+@pytest.mark.parametrize("fused", [False, True], ids=["sgd", "fused-adam"])
 @pytest.mark.parametrize("kind", ACTOR_KINDS)
-def test_inference_members_follow_resampling_and_optimizer_steps(kind, make_model):
+def test_inference_members_follow_resampling_and_optimizer_steps(kind, fused, make_model):
     """Without autograd the stacked member heads are cached; every change must show."""
     policy = _fitted_policy(kind, make_model, num_samples=4)
     observation = _obs_td(5)["observation"]
@@ -98,7 +99,10 @@ def test_inference_members_follow_resampling_and_optimizer_steps(kind, make_mode
     policy.resample()
     second = both()
     assert not torch.allclose(first, second)
-    optimizer = torch.optim.SGD(policy.actor.parameters(), lr=0.5)
+    if fused:  # as the recipe's actors train (fused Adam moves no version counter itself)
+        optimizer = torch.optim.Adam(policy.actor.parameters(), lr=0.5, fused=True)
+    else:
+        optimizer = torch.optim.SGD(policy.actor.parameters(), lr=0.5)
     (policy.actor(observation) ** 2).sum().backward()
     optimizer.step()
     assert not torch.allclose(both(), second)

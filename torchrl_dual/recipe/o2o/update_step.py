@@ -15,7 +15,10 @@ CUDA graphs (the ``compile.*`` keys, as TorchRL's sota-implementations name them
   networks' and optimizers' tensors and leaves every Python attribute as it was (its
   bookkeeping runs in :meth:`~torchrl_dual.recipe.Learner.after_update`);
   ``tests/recipe/test_graph_safe_updates.py`` checks this for every algorithm whose table
-  entry does not say why it cannot (``Algorithm.no_cuda_graph``).
+  entry does not say why it cannot (``Algorithm.no_cuda_graph``). A replay changes the
+  parameters without moving their version counters, so after each one the counters of
+  every parameter the optimizers hold are moved by hand: the acting path's caches
+  (:class:`~torchrl_dual._versioned_cache.VersionedCache`) then see the update.
 """
 
 from __future__ import annotations
@@ -45,7 +48,12 @@ def make_update_step(
         update = torch.compile(update, mode=None if mode in (None, "default") else mode)
     if settings is None or not settings.get("cudagraphs", False):
         return update
-    return GraphedUpdate(update, phase, lambda: make_capturable(optimizers_of(learner)))
+    return GraphedUpdate(
+        update,
+        phase,
+        lambda: make_capturable(optimizers_of(learner)),
+        lambda: [p for o in optimizers_of(learner) for g in o.param_groups for p in g["params"]],
+    )
 
 
 class GraphedUpdate:
@@ -55,6 +63,9 @@ class GraphedUpdate:
         update (callable): ``batch -> {name: 0-dim tensor}``, graph-safe (see the module).
         phase (callable): ``() -> hashable``, the phase the next call belongs to.
         prepare (callable): ``() -> None``, run once before the first graph is made.
+        updated (callable): ``() -> [tensors]``, what the update changes in place (the
+            optimizers' parameters), read once at the first graph: their version counters
+            are moved after every call, as an eager update would.
     """
 
     def __init__(
@@ -62,9 +73,11 @@ class GraphedUpdate:
         update: Callable[[TensorDictBase], dict],
         phase: Callable[[], Any],
         prepare: Callable[[], None] = lambda: None,
+        updated: Callable[[], list[torch.Tensor]] = list,
     ) -> None:
-        self.update, self.phase, self.prepare = update, phase, prepare
+        self.update, self.phase, self.prepare, self.updated = update, phase, prepare, updated
         self.graphs: dict[tuple, Callable] = {}
+        self._updated: list[torch.Tensor] = []
 
     def _as_tensordict(self, batch: TensorDictBase) -> TensorDict:
         return TensorDict(self.update(batch))  # CudaGraphModule returns tensordicts
@@ -76,10 +89,14 @@ class GraphedUpdate:
         if key not in self.graphs:
             if not self.graphs:
                 self.prepare()
+                self._updated = list(self.updated())
             self.graphs[key] = CudaGraphModule(
                 self._as_tensordict, in_keys=[], out_keys=[], warmup=CUDA_GRAPH_WARMUP
             )
-        return dict(self.graphs[key](batch).items())
+        out = dict(self.graphs[key](batch).items())
+        if self._updated:  # a replay moves no version counter
+            torch.autograd.graph.increment_version(self._updated)
+        return out
 
 
 def optimizers_of(learner: Learner) -> list[torch.optim.Optimizer]:

@@ -18,9 +18,15 @@ def adam(params: Iterable[torch.Tensor], lr: float, *, fuse: bool = True) -> tor
     """``torch.optim.Adam(params, lr)``, fused when ``fuse`` and every parameter is a
     floating-point tensor on the CPU or CUDA, else PyTorch's default implementation.
 
-    ``fuse=False``: DUAL's actor optimizer. Fused, the resumed run of
-    ``tests/recipe/test_algorithm_contract.py`` differs from the whole run in its state
-    (not understood yet); ``foreach=True`` resumes bitwise but fails under
+    ``fuse=False``: DUAL's actor optimizer, for now. Fused, the resumed run of
+    ``tests/recipe/test_algorithm_contract.py`` differed from the whole run: PyTorch's
+    fused Adam changes the weights without moving their version counters, so the acting
+    path's caches kept serving the weights of before the step until the next refit, while
+    a resumed run (weights loaded with ``copy_``) recomputed them. The step hook of
+    :mod:`torchrl_dual._versioned_cache` now moves the counters, and the contract and
+    compile tests pass with DUAL's actor fused (2026-12-06); it stays unfused until the
+    DUAL runs the README cites are re-run on the fused update (issue 40's rule for a
+    speed-up that changes results by rounding). ``foreach=True`` fails under
     ``compile.compile=true`` (Dynamo: "Expected scalars to be on CPU, got meta" in
     ``_foreach_addcdiv_``, ``tests/recipe/test_compile_recipe.py``)."""
     params = list(params)
