@@ -80,7 +80,7 @@ CELLS: dict[str, Cell] = {
             v for v in VARIANTS
             if v not in (*ABLATION_VARIANTS, *PAPER_BASELINES, *ONLINE_TUNING_VARIANTS,
                          *NOISE_VARIANTS, *NOISE_CONTROLS, *TEMPERATURE_VARIANTS,
-                         "iql_equal_time_online", *SPARSE_REWARD_VARIANTS,
+                         "iql_equal_time_online", "iql_equal_time_24k", *SPARSE_REWARD_VARIANTS,
                          *REFERENCE_CHECKS)
         ), 5,
         "PointMaze U-maze",
