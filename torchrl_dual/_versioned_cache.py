@@ -7,7 +7,9 @@ the step, and did: DUAL's acting path between two Laplace refits, for an actor t
 with fused Adam. Importing this module registers one global optimizer step hook that
 moves the counters of a fused group's parameters after its step
 (:func:`mark_fused_steps`); ``tests/test_versioned_cache.py`` fails once PyTorch moves
-them itself, so that the hook can go.
+them itself, so that the hook can go. A CUDA graph's replay moves no counter either and
+runs no hook: code that replays an update as a graph moves the counters itself, as the
+recipe's ``GraphedUpdate`` does.
 """
 
 from __future__ import annotations
