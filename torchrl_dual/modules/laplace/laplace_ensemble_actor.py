@@ -159,7 +159,7 @@ class LaplaceEnsembleActor(ActionBounds, TensorDictModuleBase):
         self.transition_model = transition_model
         # the sources of the stacked heads: the actor's head and this module's deviations
         self._member_head_cache = VersionedCache((actor.head, self), self._member_heads)
-        self._aleatoric_cache = VersionedCache((actor,), lambda: actor.std**2)  # σ̄² (log σ̄)
+        self._aleatoric_cache = VersionedCache((actor,), self._actor_variance)  # σ̄²
         self.in_keys = [observation_key]
         self.out_keys = [loc_key, scale_key, epistemic_key, action_key]
         if sample_action:  # else the noise module that follows samples (and scores) it
@@ -273,6 +273,9 @@ class LaplaceEnsembleActor(ActionBounds, TensorDictModuleBase):
         """
         out = self(tensordict.copy())
         return IndependentNormal(out.get(self.out_keys[0]), out.get(self.out_keys[1]))
+
+    def _actor_variance(self) -> torch.Tensor:
+        return self.actor.std**2
 
     def _aleatoric_variance(self) -> torch.Tensor:
         """``σ̄²``, the actor's (cached between its updates when no gradient is taken)."""
