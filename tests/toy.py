@@ -272,8 +272,16 @@ def linear_head_actor(obs_dim: int = 3, action_dim: int = 2, *, seed: int = 0) -
     )
 
 
-def tiny_iql_loss(obs_dim: int = 3, action_dim: int = 2, *, seed: int = 0) -> IQLLoss:
-    """A real TorchRL ``IQLLoss`` with tiny ``ValueOperator`` Q (twin) and V networks."""
+def tiny_iql_loss(
+    obs_dim: int = 3,
+    action_dim: int = 2,
+    *,
+    seed: int = 0,
+    loss_class: type[IQLLoss] = IQLLoss,
+    **kwargs,
+) -> IQLLoss:
+    """A real TorchRL ``IQLLoss`` (or ``loss_class``, with ``kwargs``) with tiny
+    ``ValueOperator`` Q (twin) and V networks: one ``seed``, the same weights."""
     torch.manual_seed(seed)
     policy = tanh_normal_actor(obs_dim, action_dim)
     qvalue = ValueOperator(
@@ -283,7 +291,7 @@ def tiny_iql_loss(obs_dim: int = 3, action_dim: int = 2, *, seed: int = 0) -> IQ
     value = ValueOperator(
         MLP(in_features=obs_dim, out_features=1, num_cells=[8]), in_keys=["observation"]
     )
-    return IQLLoss(policy, qvalue, value, num_qvalue_nets=2)
+    return loss_class(policy, qvalue, value, num_qvalue_nets=2, **kwargs)
 
 
 def observation_action_batch(

@@ -5,7 +5,9 @@ from torchrl_dual.objectives.calql import PENALTY_LAYOUTS, CalQLLoss
 from torchrl_dual.objectives.density_ratio import DensityRatioLoss, make_density_ratio_network
 from torchrl_dual.objectives.diffusion_planner import DiffusionPlannerLoss, train_planner
 from torchrl_dual.objectives.distillation import DistillationLoss, progressive_distillation
+from torchrl_dual.objectives.one_pass_iql import OnePassIQLLoss
 from torchrl_dual.objectives.so2 import SO2QLoss
+from torchrl_dual.objectives.soft_update import ForeachSoftUpdate
 from torchrl_dual.objectives.update_loop import (
     ExponentialMovingAverage,
     UpdateCheckpoints,
@@ -21,6 +23,8 @@ __all__ = [
     "DiffusionPlannerLoss",
     "DistillationLoss",
     "ExponentialMovingAverage",
+    "ForeachSoftUpdate",
+    "OnePassIQLLoss",
     "SO2QLoss",
     "UpdateCheckpoints",
     "WeightedMAPActorLoss",

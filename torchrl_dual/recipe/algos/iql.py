@@ -139,11 +139,12 @@ class IQLLearner(Learner):
 
     def update(self, batch: TensorDictBase) -> dict:
         """IQL's three losses on one batch (the actor's and V's targets are the target Q
-        networks, so no gradient crosses), one step of each optimizer, soft target update."""
+        networks, so no gradient crosses; :meth:`~torchrl_dual.objectives.OnePassIQLLoss.terms`
+        evaluates them and ``V(s)`` once for both), one step of each optimizer, soft target
+        update."""
         loss = self.critic.loss
-        q_loss, _ = loss.qvalue_loss(batch)
-        v_loss, _ = loss.value_loss(batch)
-        actor_loss, _ = loss.actor_loss(batch)
+        terms = loss.terms(batch)
+        q_loss, v_loss, actor_loss = (terms[k] for k in ("loss_qvalue", "loss_value", "loss_actor"))
         self.critic.optimizer.zero_grad(set_to_none=True)
         self.actor_optimizer.zero_grad(set_to_none=True)
         (q_loss + v_loss + actor_loss).backward()

@@ -23,10 +23,9 @@ from torch import nn
 from torchrl.data import TensorSpec
 from torchrl.data.utils import DEVICE_TYPING
 from torchrl.modules import MLP, ProbabilisticActor, ValueOperator
-from torchrl.objectives import IQLLoss, SoftUpdate
 
 from torchrl_dual.modules.actors.action_box import ClippedNormal, box_bounds
-from torchrl_dual.objectives import CalQLLoss, SO2QLoss
+from torchrl_dual.objectives import CalQLLoss, ForeachSoftUpdate, OnePassIQLLoss, SO2QLoss
 from torchrl_dual.recipe.parts.optim import adam
 from torchrl_dual.recipe.settings.parts import (
     CRITICS,
@@ -37,7 +36,7 @@ from torchrl_dual.recipe.settings.parts import (
 )
 from torchrl_dual.recipe.settings.rules import as_settings
 
-CriticLoss = IQLLoss | CalQLLoss | SO2QLoss
+CriticLoss = OnePassIQLLoss | CalQLLoss | SO2QLoss
 
 
 @dataclass
@@ -48,7 +47,7 @@ class Critic:
 
     loss: CriticLoss
     optimizer: torch.optim.Optimizer
-    target_updater: SoftUpdate
+    target_updater: ForeachSoftUpdate
     terms: Callable[[Any, TensorDictBase], dict[str, torch.Tensor]]
     """``(loss, batch) -> {name: loss term}``: what one critic step minimises (the sum)."""
 
@@ -75,7 +74,7 @@ class Critic:
         update at ``critic.target_update_tau`` around ``loss`` (``options``: the fields
         after :attr:`terms`)."""
         optimizer = adam(params, lr=settings.lr)
-        updater = SoftUpdate(loss, tau=settings.target_update_tau)
+        updater = ForeachSoftUpdate(loss, tau=settings.target_update_tau)
         return cls(loss, optimizer, updater, terms, **options)
 
     def modules(self) -> dict[str, Any]:
@@ -109,7 +108,7 @@ class Critic:
         return {name: term.detach() for name, term in terms.items()}
 
 
-def iql_terms(loss: IQLLoss, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+def iql_terms(loss: OnePassIQLLoss, batch: TensorDictBase) -> dict[str, torch.Tensor]:
     """IQL: the Q loss (TD to ``r + γ V(s')``) and the expectile V loss."""
     return {"loss_qvalue": loss.qvalue_loss(batch)[0], "loss_value": loss.value_loss(batch)[0]}
 
@@ -242,7 +241,7 @@ def make_iql_critic(
             in_keys=["loc", "scale"],
             distribution_class=torch.distributions.Normal,
         )
-    loss = IQLLoss(
+    loss = OnePassIQLLoss(
         actor,
         qvalue,
         value,
