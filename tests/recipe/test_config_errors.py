@@ -39,12 +39,26 @@ CASES = [
     ),
     ("algo=iql actor.temperature=-1", "actor.temperature=-1: must be a number >= 0"),
     ("algo=iql actor.hiden=3", "unknown key 'actor.hiden'; did you mean actor.hidden?"),
-    ("algo=iql planner.horizon=4", "unknown key 'planner.horizon'"),
+    (
+        "algo=iql planner.horizon=4",
+        "unknown key 'planner.horizon' in this config; it is a key of algo=diffuser or "
+        "algo=dual or algo=edis: choose one, or leave the key out",
+    ),
     (
         "budget.onlin_frames=3",
         "unknown key 'budget.onlin_frames'; did you mean budget.online_frames?",
     ),
     ("planner.hiden=3", "unknown key 'planner.hiden'; did you mean planner.hidden?"),
+    (  # a key of another option of the group: name the option that has it
+        "critic.bellman_loss=l2",
+        "unknown key 'critic.bellman_loss' in this config; it is a key of critic=calql: "
+        "choose it, or leave the key out",
+    ),
+    (  # a key that an algo file (a _global_ package) brings
+        "algo=iql actor.weighting=sac",
+        "unknown key 'actor.weighting' in this config; it is a key of algo=dual: choose it, "
+        "or leave the key out",
+    ),
     ("+foo=1", "unknown key 'foo'"),
     ("+seed=2", "+seed=2: seed exists already; write seed=2 to change it"),
     ("~planner.hidden", "missing key 'planner.hidden' in planner"),
@@ -143,7 +157,11 @@ CASES = [
         "logger=wandb logger.mode=cloud",
         "logger.mode=cloud: unknown option; choose one of offline, online, disabled",
     ),
-    ("logger.project=dual", "unknown key 'logger.project'"),
+    (
+        "logger.project=dual",
+        "unknown key 'logger.project' in this config; it is a key of logger=wandb: choose it, "
+        "or leave the key out",
+    ),
     (
         "collector=mpi",
         "collector=mpi: unknown option; choose one of multi_async, multi_sync, ray, single",

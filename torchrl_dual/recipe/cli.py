@@ -68,6 +68,23 @@ def _group_options(config_dir: Path, group: str) -> list[str] | None:
     return sorted(p.stem for p in folder.glob("*.yaml"))
 
 
+def _options_with_key(config_dir: Path, key: str) -> list[str]:
+    """The ``group=option`` choices whose config file defines ``key`` (e.g.
+    ``critic.bellman_loss`` is ``critic=calql``'s): files of the key's first segment's
+    group, and ``_global_`` files of any group (an ``algo`` file sets ``actor.*``)."""
+    owners = []
+    for path in sorted(config_dir.glob("*/*.yaml")):
+        group, text = path.parent.name, path.read_text()
+        global_package = "@package _global_" in text.split("\n", 3)[0]
+        if not global_package and not key.startswith(f"{group}."):
+            continue
+        tree = OmegaConf.to_container(OmegaConf.create(text), resolve=False)
+        inner = key if global_package else key.removeprefix(f"{group}.")
+        if inner in _dotted_keys(tree):
+            owners.append(f"{group}={path.stem}")
+    return owners
+
+
 def _dotted_keys(tree: Any, prefix: str = "") -> list[str]:
     """Every key of a nested dict as ``a.b.c`` (groups included)."""
     if not isinstance(tree, dict):
@@ -116,7 +133,7 @@ def compose_checked(config_dir: str | Path, overrides: Sequence[str], config_nam
             for override in keys:
                 name = override.key_or_group
                 if override.type == OverrideType.CHANGE and name not in known:
-                    raise unknown_key(name, known)
+                    raise unknown_key(name, known, owners=_options_with_key(config_dir, name))
                 if override.type == OverrideType.ADD and name in known:
                     value = override.get_value_element_as_str()
                     raise ConfigError(

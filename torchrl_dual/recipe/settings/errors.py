@@ -13,7 +13,7 @@ from __future__ import annotations
 import os
 import sys
 import traceback
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from difflib import get_close_matches
 from typing import Any, NoReturn
@@ -63,14 +63,24 @@ class ConfigError(UserError):
     """A :class:`UserError` found in the composed config, before any data or network."""
 
 
-def unknown_key(key: str, known: Iterable[str]) -> ConfigError:
-    """The error for a key no schema has, with the closest known key of the same depth as
-    a hint.
+def unknown_key(key: str, known: Iterable[str], owners: Sequence[str] = ()) -> ConfigError:
+    """The error for a key no schema has: with ``owners`` (the ``group=option`` choices
+    that do have it), which choice brings it; else the closest known key of the same
+    depth as a hint.
 
     Examples:
         >>> str(unknown_key("budget.onlin_frames", ["budget.online_frames", "seed"]))
         "unknown key 'budget.onlin_frames'; did you mean budget.online_frames?"
+        >>> str(unknown_key("critic.bellman_loss", [], owners=["critic=calql"]))
+        "unknown key 'critic.bellman_loss' in this config; it is a key of critic=calql: choose it, or leave the key out"
     """
+    if owners:
+        return ConfigError(
+            None,
+            None,
+            f"unknown key '{key}' in this config; it is a key of {' or '.join(owners)}: "
+            f"choose {'it' if len(owners) == 1 else 'one'}, or leave the key out",
+        )
     depth = key.count(".")
     close = get_close_matches(key, [k for k in known if k.count(".") == depth], n=1, cutoff=0.6)
     hint = f"; did you mean {close[0]}?" if close else ""
