@@ -59,6 +59,37 @@ WALL_CLOCK = ("stage_seconds", "stage_cpu_seconds", "logger")
 """What two runs of the same seed may differ in: the stages' times and the logger's paths."""
 
 
+def compose_smoke(tmp_path: Path, *overrides: str):
+    """The validated config of a ``budget=smoke`` run writing under ``tmp_path / "run"``,
+    with ``overrides`` (``compose_checked``, as the command line composes it)."""
+    from torchrl_dual.recipe import compose_checked
+
+    return compose_checked(
+        CONFIG_DIR,
+        [f"output_dir={tmp_path / 'run'}", "budget=smoke", "progress=false", *overrides],
+    )
+
+
+@contextlib.contextmanager
+def standin_minari_datasets(root: Path, sizes: dict[str, tuple[int, int]]) -> Iterator[Path]:
+    """``MINARI_DATASETS_PATH`` set to ``root`` holding a stand-in data set per
+    ``{dataset_id: (episodes, steps per episode)}``
+    (:func:`~torchrl_dual.data.minari_standins.write_standin_dataset`), restored after."""
+    from torchrl_dual.data.minari_standins import write_standin_dataset
+
+    previous = os.environ.get("MINARI_DATASETS_PATH")
+    os.environ["MINARI_DATASETS_PATH"] = str(root)
+    try:
+        for dataset_id, (episodes, steps) in sizes.items():
+            write_standin_dataset(dataset_id, episodes, steps)
+        yield root
+    finally:
+        if previous is None:
+            os.environ.pop("MINARI_DATASETS_PATH", None)
+        else:
+            os.environ["MINARI_DATASETS_PATH"] = previous
+
+
 def checkpoint_state(output_dir: Path) -> dict:
     """The state saved in ``output_dir/checkpoint.pt``."""
     payload = torch.load(output_dir / "checkpoint.pt", map_location="cpu", weights_only=False)

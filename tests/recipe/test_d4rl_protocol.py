@@ -6,6 +6,7 @@ and the reward transforms of each critic's reference."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,12 +15,13 @@ import torch
 pytest.importorskip("h5py", reason="Minari's storage needs h5py: pip install 'minari[hdf5]'")
 minari = pytest.importorskip("minari")
 
+from recipe_runner import compose_smoke, standin_minari_datasets  # noqa: E402
 from tensordict.nn import TensorDictModule  # noqa: E402
 
 from torchrl_dual.data.minari_standins import UMAZE_MAP, write_standin_dataset  # noqa: E402
 from torchrl_dual.data.transition_layout import validate_transitions  # noqa: E402
 from torchrl_dual.envs.d4rl_antmaze import SingleGoalAntMaze  # noqa: E402
-from torchrl_dual.recipe import CONFIG_DIR, compose_checked, run  # noqa: E402
+from torchrl_dual.recipe import run  # noqa: E402
 from torchrl_dual.recipe.kits import build as env_kits  # noqa: E402
 from torchrl_dual.recipe.kits.minari_families import minari_evaluator, minari_gym_env  # noqa: E402
 from torchrl_dual.recipe.settings.envs import FAMILIES  # noqa: E402
@@ -49,21 +51,15 @@ FAST = (
 
 @pytest.fixture(scope="module")
 def minari_path(tmp_path_factory):
-    path = tmp_path_factory.mktemp("minari_datasets")
-    patch = pytest.MonkeyPatch()
-    patch.setenv("MINARI_DATASETS_PATH", str(path))
-    write_standin_dataset(ANTMAZE_ID, 3, 30)
-    write_standin_dataset(HOPPER_ID, 3, 30)
-    write_standin_dataset(PEN_ID, 2, 30)
-    yield path
-    patch.undo()
+    root = tmp_path_factory.mktemp("minari_datasets")
+    with standin_minari_datasets(
+        root, {ANTMAZE_ID: (3, 30), HOPPER_ID: (3, 30), PEN_ID: (2, 30)}
+    ) as path:
+        yield path
 
 
-def compose(tmp_path, *overrides: str):
-    return compose_checked(
-        CONFIG_DIR,
-        [f"output_dir={tmp_path / 'run'}", "budget=smoke", "progress=false", *overrides],
-    )
+def compose(tmp_path: Path, *overrides: str):
+    return compose_smoke(tmp_path, *overrides)
 
 
 def test_antmaze_data_are_d4rl_s_task_relabelled(minari_path, tmp_path):

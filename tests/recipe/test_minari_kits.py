@@ -17,14 +17,13 @@ import torch
 pytest.importorskip("h5py", reason="Minari's storage needs h5py: pip install 'minari[hdf5]'")
 minari = pytest.importorskip("minari")
 
-from recipe_runner import failed, run_recipe  # noqa: E402
+from recipe_runner import compose_smoke, failed, run_recipe, standin_minari_datasets  # noqa: E402
 
 from torchrl_dual.data.minari_standins import (  # noqa: E402
     UMAZE_EVAL_MAP,
     UMAZE_MAP,
-    write_standin_dataset,
 )
-from torchrl_dual.recipe import CONFIG_DIR, ConfigError, UserError, compose_checked, run  # noqa: E402
+from torchrl_dual.recipe import ConfigError, UserError, run  # noqa: E402
 from torchrl_dual.recipe.kits import build as env_kits  # noqa: E402
 from torchrl_dual.recipe.kits.minari_families import (  # noqa: E402
     OBSERVATION_STD_EPS,
@@ -52,21 +51,15 @@ FAST = [
 
 @pytest.fixture(scope="module")
 def minari_path(tmp_path_factory):
-    path = tmp_path_factory.mktemp("minari_datasets")
-    patch = pytest.MonkeyPatch()
-    patch.setenv("MINARI_DATASETS_PATH", str(path))
-    write_standin_dataset(ANTMAZE_ID, 4, 40)
-    write_standin_dataset(HOPPER_ID, 6, 60)
-    write_standin_dataset(PEN_ID, 3, 40)
-    yield path
-    patch.undo()
+    root = tmp_path_factory.mktemp("minari_datasets")
+    with standin_minari_datasets(
+        root, {ANTMAZE_ID: (4, 40), HOPPER_ID: (6, 60), PEN_ID: (3, 40)}
+    ) as path:
+        yield path
 
 
 def compose(tmp_path: Path, *overrides: str):
-    return compose_checked(
-        CONFIG_DIR,
-        [f"output_dir={tmp_path / 'run'}", "budget=smoke", "progress=false", *overrides],
-    )
+    return compose_smoke(tmp_path, *overrides)
 
 
 def raw_episodes(dataset_id: str):
