@@ -151,3 +151,11 @@ def test_the_docs_tables_are_the_committed_results():
     text = (REPO / "docs/reproducing.md").read_text()
     section = text.split(paper_tables.BEGIN)[1].split(paper_tables.END)[0]
     assert section.strip() == paper_tables.render_tables(results).strip()
+
+
+def test_our_cell_gives_the_paper_s_sd_and_the_95_percent_t_interval():
+    """sd 10 of (60, 70, 80); t(0.975, 2) = 4.303, so the half-width is 4.303 * 10 / sqrt 3."""
+    cell = paper_tables.ours_cell([{"final_score": s} for s in (60.0, 70.0, 80.0)])
+    assert cell == "70.0 ± 10.0 (95 % t ± 24.8, n = 3)"
+    assert paper_tables.ours_cell([{"final_score": 5.0}]) == "5.0 (n = 1)"
+    assert paper_tables.ours_cell([{"final_score": float("nan")}]) == "—"

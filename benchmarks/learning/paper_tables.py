@@ -13,7 +13,7 @@ paper's mean ± standard deviation over its 5 seeds is stored for every (table, 
 Minari counterpart (``medium-replay``, ``medium-expert``) and columns whose method does not
 run on that critic here (EDIS, Diff-QL, DACER on Cal-QL or SO2) are listed with the reason
 and queue no run. The report (between the ``paper-tables`` markers of
-``docs/reproducing.md``, written by the suite's report) shows ``ours (mean ± sd, n)``
+``docs/reproducing.md``, written by the suite's report) shows ``ours (mean ± sd, 95 % t half-width, n)``
 next to the paper's for every cell of ``benchmarks/results/<budget>/``.
 """
 
@@ -25,6 +25,8 @@ import statistics
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+
+from benchmarks.learning.stats import t_interval
 
 REPO = Path(__file__).resolve().parents[2]
 BEGIN, END = "<!-- paper-tables:begin -->", "<!-- paper-tables:end -->"
@@ -227,13 +229,21 @@ def gpu_projection_text(runs: int, path: Path = GPU_PROJECTION) -> str:
 
 
 # ----------------------------------------------------------------------------- report
-def _ours(results: list[dict]) -> str:
+def ours_cell(results: list[dict]) -> str:
+    """Our final normalized score over seeds: ``mean ± sd`` (the paper's form, to compare
+    with its column) and the 95 % Student-t interval's half-width (the project's form).
+
+    >>> ours_cell([{"final_score": s} for s in (60.0, 70.0, 80.0)])
+    '70.0 ± 10.0 (95 % t ± 24.8, n = 3)'
+    """
     scores = [r["final_score"] for r in results if math.isfinite(r.get("final_score", math.nan))]
     if not scores:
         return "—"
     if len(scores) == 1:
         return f"{scores[0]:.1f} (n = 1)"
-    return f"{statistics.fmean(scores):.1f} ± {statistics.stdev(scores):.1f} (n = {len(scores)})"
+    mean, half = t_interval(scores)
+    sd = statistics.stdev(scores)
+    return f"{mean:.1f} ± {sd:.1f} (95 % t ± {half:.1f}, n = {len(scores)})"
 
 
 def render_tables(results: dict[str, dict[str, list[dict]]]) -> str:
@@ -246,7 +256,8 @@ def render_tables(results: dict[str, dict[str, list[dict]]]) -> str:
         header = "| row | " + " | ".join(h for h, _ in columns) + " |"
         rule = "|---" * (len(columns) + 1) + "|"
         lines = [
-            f"**Table {table}** (ours / paper, normalized score, mean ± sd over seeds)",
+            f"**Table {table}** (ours / paper, normalized score, mean ± sd over seeds; ours "
+            "also with the half-width of its 95 % t interval)",
             "",
             header,
             rule,
@@ -258,7 +269,7 @@ def render_tables(results: dict[str, dict[str, list[dict]]]) -> str:
                 if row.unavailable or variant is None:
                     ours = "n/a"
                 else:
-                    ours = _ours(results.get(row.cell, {}).get(variant, []))
+                    ours = ours_cell(results.get(row.cell, {}).get(variant, []))
                 cells.append(f"{ours} / {mean:.2f} ± {sd:.2f}")
             note = f" ({row.unavailable})" if row.unavailable else ""
             lines.append(f"| `{row.row}`{note} | " + " | ".join(cells) + " |")
