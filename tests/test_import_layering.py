@@ -48,9 +48,9 @@ ALLOWED: dict[str, tuple[str, ...]] = {
     "trainers": ("trainers", "evaluation", "_tensordict_patch", *LIBRARY),
     # the recipe: settings (no torch, nothing else) < kits < o2o < parts < algos
     "recipe.settings": ("recipe.settings",),
-    # the entry: the schema, and the loop inside run() once the config is valid (torch-free
-    # up to there: tests/recipe/test_settings_light.py)
-    "recipe.cli": ("recipe.settings", "recipe.o2o.loop"),
+    # the entry: the schema, the signal handling (plain Python), and the loop inside run()
+    # once the config is valid (torch-free up to there: tests/recipe/test_settings_light.py)
+    "recipe.cli": ("recipe.settings", "recipe.o2o.interrupts", "recipe.o2o.loop"),
     "recipe.kits": (
         "recipe.kits",
         "recipe.settings",

@@ -50,6 +50,26 @@ def test_sigterm_is_ctrl_c_inside_the_block_and_waits_for_the_end_of_a_held_one(
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
 
 
+def test_sigterm_before_the_run_begins_ends_in_one_line_and_exit_130(monkeypatch, capsys):
+    """While the command line is checked (before Hydra and the run), a SIGTERM ends the
+    program with one line, not with the bare exit 143 of Python's default handler."""
+    from torchrl_dual.recipe import cli
+
+    def checked_then_signalled(config_dir):
+        _sigterm_to_self()
+
+    monkeypatch.setattr(cli, "check_command_line", checked_then_signalled)
+    monkeypatch.setattr(sys, "argv", ["o2o.py", "budget=smoke"])
+    with pytest.raises(SystemExit) as stop:
+        cli.main()
+    assert stop.value.code == 130
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        "interrupted (SIGTERM) before the run began; nothing was written. Start it again."
+    ]
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+
+
 def test_an_ignored_sigint_stays_ignored():
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:

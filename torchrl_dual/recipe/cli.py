@@ -27,6 +27,7 @@ from hydra.core.override_parser.types import Override, OverrideType
 from hydra.errors import HydraException, OverrideParseException
 from omegaconf import DictConfig, OmegaConf
 
+from torchrl_dual.recipe.o2o.interrupts import signals_as_interrupts
 from torchrl_dual.recipe.settings.algos import ALGORITHMS
 from torchrl_dual.recipe.settings.errors import ConfigError, UserError, unknown_key, user_errors
 from torchrl_dual.recipe.settings.schema import validate_config
@@ -212,13 +213,29 @@ def hydra_task(cfg: DictConfig) -> Any:
 def main() -> None:
     """Runs the recipe for the command line's overrides (``sys.argv``): one ``error:``
     line and exit code 2 for a bad config, then Hydra's ``main`` on :data:`CONFIG_DIR`.
+    Ctrl-C or SIGTERM before the run begins (while the command line is checked and Hydra
+    sets up) ends it with one line and exit code 130; within the run,
+    :func:`hydra_task` and :func:`~torchrl_dual.recipe.run_o2o` take them.
 
     Examples:
         ``torchrl-dual budget=smoke``, ``python -m torchrl_dual.recipe algo=iql``,
         ``python recipes/o2o.py env=frozenlake`` (the same program).
     """
-    check_command_line(CONFIG_DIR)  # composition and config errors: one line, exit 2
-    hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="config")(hydra_task)()
+    with signals_as_interrupts():  # SIGTERM as Ctrl-C from the start, not only in the run
+        try:
+            check_command_line(CONFIG_DIR)  # composition and config errors: one line, exit 2
+            hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="config")(
+                hydra_task
+            )()
+        except KeyboardInterrupt as stop:  # before hydra_task's run began: nothing written
+            signal_name = stop.args[0] if stop.args else "SIGINT"
+            print(
+                f"interrupted ({signal_name}) before the run began; nothing was written. "
+                "Start it again.",
+                file=sys.stderr,
+                flush=True,
+            )
+            raise SystemExit(130) from None
 
 
 __all__ = [
