@@ -16,14 +16,11 @@ The budget (frames, updates per batch, refit interval) is the recipe's ``budget`
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
 import hydra
 from hydra.core.config_store import ConfigStore
-from hydra.core.global_hydra import GlobalHydra
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from torchrl.data import LazyTensorStorage, OfflineToOnlineReplayBuffer, ReplayBuffer
@@ -55,31 +52,15 @@ class TorchRLTrainerConfig:
     trainer: Any = None
 
 
-# TorchRL's groups share names with the recipe's (logger/csv): Hydra would validate the
-# recipe's configs against TorchRL's schemas, so the recipe composes with the store as it
-# was before register_configs(), outside this app's Hydra instance
-_BEFORE = set(ConfigStore.instance().repo)
+# TorchRL's groups share names with the recipe's (logger/csv); compose_checked composes the
+# recipe's tree apart from them and from this app's running Hydra
 register_configs()
 ConfigStore.instance().store(name="torchrl_trainer", node=TorchRLTrainerConfig)
-_TORCHRL_ENTRIES = set(ConfigStore.instance().repo) - _BEFORE
-
-
-@contextmanager
-def _recipe_hydra() -> Iterator[None]:
-    store, global_hydra = ConfigStore.instance(), GlobalHydra.instance()
-    hidden = {key: store.repo.pop(key) for key in _TORCHRL_ENTRIES if key in store.repo}
-    saved_hydra, global_hydra.hydra = global_hydra.hydra, None
-    try:
-        yield
-    finally:
-        store.repo.update(hidden)
-        global_hydra.hydra = saved_hydra
 
 
 def build_trainer(cfg: DictConfig):
     """The recipe's DUAL parts, assembled by the stored ``trainer=dual`` config."""
-    with _recipe_hydra():
-        recipe_cfg = compose_checked(CONFIG_DIR, list(cfg.recipe))
+    recipe_cfg = compose_checked(CONFIG_DIR, list(cfg.recipe))
     run = O2ORun(recipe_cfg, DualLearner)
     learner = run.learner
     budget = recipe_cfg.budget

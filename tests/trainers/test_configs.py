@@ -79,3 +79,20 @@ def test_the_recipe_composes_while_torchrl_s_configs_are_stored():
     assert "csv.yaml" in store["logger"]  # TorchRL's logger/csv, a name the recipe uses too
     assert compose_checked(CONFIG_DIR, ["budget=smoke", "logger=csv"]).algo == "dual"
     assert "csv.yaml" in store["logger"]  # restored
+
+
+def test_the_recipe_composes_inside_a_running_hydra_app():
+    """A user's Hydra app (``recipes/torchrl_trainer.py``) calls compose_checked while its
+    own GlobalHydra is initialized: the recipe composes apart, and the app's Hydra is back
+    afterwards."""
+    from hydra import compose, initialize
+    from hydra.core.global_hydra import GlobalHydra
+
+    from torchrl_dual.recipe import CONFIG_DIR, compose_checked
+
+    register_configs()
+    with initialize(version_base=None):
+        running = GlobalHydra.instance().hydra
+        assert compose_checked(CONFIG_DIR, ["budget=smoke", "algo=iql"]).algo == "iql"
+        assert GlobalHydra.instance().hydra is running
+        assert compose("trainer/dual").trainer is not None  # the app's store still composes

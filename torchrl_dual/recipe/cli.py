@@ -151,21 +151,33 @@ def compose_checked(config_dir: str | Path, overrides: Sequence[str], config_nam
 
 @contextlib.contextmanager
 def _own_groups_only(config_dir: Path) -> Iterator[None]:
-    """Hides the entries of Hydra's process-wide ``ConfigStore`` named like a group of
-    ``config_dir`` while the recipe composes: Hydra would otherwise validate the recipe's
-    ``logger/csv.yaml`` against, e.g., TorchRL's ``logger/csv`` schema, stored once
-    ``torchrl.trainers.algorithms.configs`` (or :func:`torchrl_dual.trainers.register_configs`)
-    ran in the process ("Error merging 'logger/csv' with schema"). The store is as it was
-    afterwards (``tests/trainers/test_configs.py`` composes the recipe next to TorchRL's)."""
+    """Composes the recipe's config tree on its own, wherever it is called from:
+
+    * hides the entries of Hydra's process-wide ``ConfigStore`` named like a group of
+      ``config_dir``: Hydra would otherwise validate the recipe's ``logger/csv.yaml``
+      against, e.g., TorchRL's ``logger/csv`` schema, stored once
+      ``torchrl.trainers.algorithms.configs`` (or
+      :func:`torchrl_dual.trainers.register_configs`) ran in the process ("Error merging
+      'logger/csv' with schema");
+    * sets aside a running Hydra app's ``GlobalHydra`` (``initialize_config_dir`` refuses
+      to start inside one), so a Hydra app of the user's, e.g.
+      ``recipes/torchrl_trainer.py``, can call :func:`compose_checked`.
+
+    Both are as they were afterwards (``tests/trainers/test_configs.py`` composes the recipe
+    next to TorchRL's store and inside a running app)."""
     from hydra.core.config_store import ConfigStore
+    from hydra.core.global_hydra import GlobalHydra
 
     repo = ConfigStore.instance().repo
     ours = {path.name for path in config_dir.iterdir() if path.is_dir()}
     hidden = {key: repo.pop(key) for key in list(repo) if key in ours}
+    running = GlobalHydra.instance().hydra
+    GlobalHydra.instance().hydra = None
     try:
         yield
     finally:
         repo.update(hidden)
+        GlobalHydra.instance().hydra = running  # the instance: Hydra may have made a new one
 
 
 def _debug(overrides: Sequence[str]) -> bool:
