@@ -65,7 +65,8 @@ def test_sigterm_before_the_run_begins_ends_in_one_line_and_exit_130(monkeypatch
     assert stop.value.code == 130
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [
-        "interrupted (SIGTERM) before the run began; nothing was written. Start it again."
+        "interrupted (SIGTERM) outside the run's steps (while it was set up); no run state "
+        "was saved. Start it again."
     ]
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
 

@@ -127,7 +127,10 @@ def compose_checked(config_dir: str | Path, overrides: Sequence[str], config_nam
             raise ConfigError(
                 override.key_or_group, value, "unknown option; choose one of " + ", ".join(options)
             )
-    with _own_groups_only(config_dir), initialize_config_dir(str(config_dir), version_base="1.3"):
+    with (
+        _recipe_composition(config_dir),
+        initialize_config_dir(str(config_dir), version_base="1.3"),
+    ):
         try:
             base = compose(config_name, [o.input_line for o in groups])
             known = _dotted_keys(OmegaConf.to_container(base, resolve=False))
@@ -150,7 +153,7 @@ def compose_checked(config_dir: str | Path, overrides: Sequence[str], config_nam
 
 
 @contextlib.contextmanager
-def _own_groups_only(config_dir: Path) -> Iterator[None]:
+def _recipe_composition(config_dir: Path) -> Iterator[None]:
     """Composes the recipe's config tree on its own, wherever it is called from:
 
     * hides the entries of Hydra's process-wide ``ConfigStore`` named like a group of
@@ -239,11 +242,11 @@ def main() -> None:
             hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="config")(
                 hydra_task
             )()
-        except KeyboardInterrupt as stop:  # before hydra_task's run began: nothing written
+        except KeyboardInterrupt as stop:  # before hydra_task's run began: nothing saved
             signal_name = stop.args[0] if stop.args else "SIGINT"
             print(
-                f"interrupted ({signal_name}) before the run began; nothing was written. "
-                "Start it again.",
+                f"interrupted ({signal_name}) outside the run's steps (while it was set up); "
+                "no run state was saved. Start it again.",
                 file=sys.stderr,
                 flush=True,
             )
