@@ -76,6 +76,24 @@ def test_online_reward_counts_the_batches_with_reward_and_the_positive_evaluatio
     assert records["dual"][3]["batches"] == 4
 
 
+def test_paired_mcnemar_counts_discordant_seeds_and_gives_the_exact_binomial_tail():
+    from benchmarks.studies.online_reward import paired_mcnemar
+
+    def runs(found: list[int]) -> dict[int, dict]:
+        return {seed: {"batches_with_reward": n} for seed, n in enumerate(found)}
+
+    # 7 of 7 against 0 of 7: every pair discordant one way, p = 2**-7
+    test = paired_mcnemar(runs([2, 1, 3, 1, 1, 2, 1]), runs([0] * 7))
+    assert (test["better"], test["worse"]) == (7, 0)
+    assert test["p_one_sided"] == pytest.approx(1 / 128)
+    # concordant seeds do not count; 3 wins and 1 loss: P(Bin(4, 1/2) >= 3) = 5/16
+    test = paired_mcnemar(runs([1, 1, 1, 0, 1, 0]), runs([1, 0, 0, 1, 0, 0]))
+    assert (test["better"], test["worse"], test["p_one_sided"]) == (3, 1, 5 / 16)
+    # only the seeds both ran are paired; no discordant seed gives p = 1
+    test = paired_mcnemar(runs([0, 0, 5]), runs([0, 0]))
+    assert test["seeds"] == [0, 1] and test["p_one_sided"] == 1.0
+
+
 # ---------------------------------------------------------------- robustness/: mutmut, kill -9 and resume
 def test_mutation_testing_mutates_the_targets_only_and_counts_per_file(monkeypatch):
     """The mutmut table keeps every other package file out, and ``mutmut results`` lines

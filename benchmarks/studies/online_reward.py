@@ -11,6 +11,11 @@ runs the batch rewards are read from the run's own CSV log
 
     python -m benchmarks.studies.online_reward --cell medium_explore
     python -m benchmarks.studies.online_reward --cell medium_explore --json out.json
+    python -m benchmarks.studies.online_reward --cell medium_explore_v2 --against dual_no_uq
+
+``--against`` adds, for every other variant, the exact McNemar test of "found reward"
+paired by seed against the named variant: the discordant seeds each way and the one-sided
+p-value that the variant finds reward no more often than the reference.
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+from math import comb
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
@@ -62,6 +68,25 @@ def cell_records(results: Path, runs: Path, cell: str) -> dict[str, dict[int, di
     return out
 
 
+def found_reward(record: dict) -> bool:
+    """Whether a run collected any reward online."""
+    return record["batches_with_reward"] > 0
+
+
+def paired_mcnemar(variant: dict[int, dict], reference: dict[int, dict]) -> dict:
+    """Exact one-sided McNemar test of "found reward", paired by seed over the seeds both
+    variants ran: ``better`` seeds where only ``variant`` found reward, ``worse`` where only
+    ``reference`` did, and ``p = P(Binomial(better + worse, 1/2) >= better)``, the chance of
+    at least that many wins among the discordant seeds if neither finds reward more often.
+    """
+    seeds = sorted(set(variant) & set(reference))
+    better = sum(found_reward(variant[s]) and not found_reward(reference[s]) for s in seeds)
+    worse = sum(found_reward(reference[s]) and not found_reward(variant[s]) for s in seeds)
+    discordant = better + worse
+    p = sum(comb(discordant, k) for k in range(better, discordant + 1)) / 2**discordant
+    return {"seeds": seeds, "better": better, "worse": worse, "p_one_sided": p}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--cell", default="medium_explore")
@@ -69,8 +94,14 @@ def main() -> None:
     parser.add_argument("--results", type=Path, default=REPO / "benchmarks" / "results")
     parser.add_argument("--runs", type=Path, default=REPO / "outputs" / "suite")
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument(
+        "--against", default=None, help="reference variant of the paired McNemar test"
+    )
     args = parser.parse_args()
-    records = cell_records(args.results / args.budget, args.runs / args.budget, args.cell)
+    try:
+        records = cell_records(args.results / args.budget, args.runs / args.budget, args.cell)
+    except FileNotFoundError as err:  # an older run whose JSON lacks the batch rewards
+        raise SystemExit(f"error: {err}; pass --runs to the suite's output folder") from None
     print("| variant | seeds that found reward | batches with reward (first frame), by seed |")
     print("|---|---|---|")
     for variant, seeds in records.items():
@@ -81,8 +112,31 @@ def main() -> None:
             for s, r in sorted(seeds.items())
         )
         print(f"| `{variant}` | {found}/{len(seeds)} | {counts} |")
+    out: dict = {"cell": args.cell, "runs": records}
+    if args.against:
+        if args.against not in records:
+            raise SystemExit(
+                f"error: --against {args.against}: no runs of it in {args.cell} "
+                f"(variants with runs: {', '.join(sorted(records))})"
+            )
+        tests = {
+            variant: paired_mcnemar(seeds, records[args.against])
+            for variant, seeds in records.items()
+            if variant != args.against
+        }
+        print(
+            f"\n| variant | against `{args.against}`: seeds | only it found | only the "
+            "reference found | exact one-sided p |"
+        )
+        print("|---|---:|---:|---:|---:|")
+        for variant, t in tests.items():
+            print(
+                f"| `{variant}` | {len(t['seeds'])} | {t['better']} | {t['worse']} | "
+                f"{t['p_one_sided']:.4f} |"
+            )
+        out["mcnemar"] = {"against": args.against, "tests": tests}
     if args.json:
-        args.json.write_text(json.dumps({"cell": args.cell, "runs": records}, indent=1) + "\n")
+        args.json.write_text(json.dumps(out, indent=1) + "\n")
 
 
 if __name__ == "__main__":
