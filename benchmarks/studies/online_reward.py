@@ -105,7 +105,7 @@ def main() -> None:
     print("| variant | seeds that found reward | batches with reward (first frame), by seed |")
     print("|---|---|---|")
     for variant, seeds in records.items():
-        found = sum(r["batches_with_reward"] > 0 for r in seeds.values())
+        found = sum(found_reward(r) for r in seeds.values())
         counts = ", ".join(
             f"{s}: {r['batches_with_reward']}"
             + (f" ({r['first_reward_frames']})" if r["first_reward_frames"] else "")
