@@ -5,7 +5,8 @@ validates, builds its learner, runs its offline stages and its online updates, i
 interrupted (``interrupt_at_frames``) with a checkpoint, resumes from it to the end
 (skipping every finished stage, continuing the frame counter and the history), writes
 ``summary.json``, and its checkpoint restores every module of its learner exactly; the
-interrupted and resumed run ends bitwise as the same run never interrupted.
+interrupted and resumed run ends bitwise as the same run never interrupted; and every
+optimizer it checkpoints is PyTorch's fused Adam (``objectives/optim.py``).
 """
 
 from __future__ import annotations
@@ -62,6 +63,9 @@ def test_every_algorithm_runs_checkpoints_resumes_and_restores(algo, cache_dir, 
     assert not (tmp_path / "summary.json").exists()  # interrupted, not finished
     offline_stages = [name for name, _ in first.learner.offline_stages()]
     assert set(offline_stages) <= set(first.stages_done)
+    for name, module in first.learner.modules().items():  # issue 40: fused Adam, every one
+        if isinstance(module, torch.optim.Optimizer):
+            assert all(group["fused"] for group in module.param_groups), f"{algo}: {name}"
 
     second = run_o2o(cfg("resume=true"), entry.learner)
     assert second.frames == 100 and second.updates > first.updates

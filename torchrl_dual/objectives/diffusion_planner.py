@@ -9,6 +9,7 @@ from tensordict import TensorDict, TensorDictBase, TensorDictParams
 
 from torchrl_dual.diffusion.model import TrajectoryDiffusion
 from torchrl_dual.objectives._trajectory_window_loss import TrajectoryWindowLoss, masked_mean
+from torchrl_dual.objectives.optim import adam
 from torchrl_dual.objectives.update_loop import run_updates
 
 
@@ -113,6 +114,6 @@ def train_planner(
 ) -> dict[str, float]:
     """Pre-trains the planner with :class:`DiffusionPlannerLoss` (Algorithm 1, lines 3-4)."""
     loss = DiffusionPlannerLoss(model, action_condition_prob=action_condition_prob)
-    optimizer = torch.optim.Adam(loss.parameters(), lr=lr)
+    optimizer = adam(loss.parameters(), lr=lr)
     kwargs.setdefault("desc", "planner")
     return run_updates(loss, sample, num_updates, optimizer, **kwargs)

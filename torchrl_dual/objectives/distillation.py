@@ -11,6 +11,7 @@ from tensordict import TensorDict, TensorDictBase, TensorDictParams
 
 from torchrl_dual.diffusion.model import TrajectoryDiffusion
 from torchrl_dual.objectives._trajectory_window_loss import TrajectoryWindowLoss, masked_mean
+from torchrl_dual.objectives.optim import adam
 from torchrl_dual.objectives.update_loop import (
     ExponentialMovingAverage,
     UpdateCheckpoints,
@@ -215,7 +216,7 @@ def progressive_distillation(
             current = student
             continue
         loss = DistillationLoss(student, current, action_condition_prob=action_condition_prob)
-        optimizer = torch.optim.Adam(loss.parameters(), lr=lr)
+        optimizer = adam(loss.parameters(), lr=lr)
         ema = None if ema_decay is None else ExponentialMovingAverage(student, ema_decay)
         run_updates(
             loss,

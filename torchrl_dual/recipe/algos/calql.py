@@ -16,6 +16,7 @@ from __future__ import annotations
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
 
+from torchrl_dual.objectives.optim import adam
 from torchrl_dual.recipe.algos.iql import make_iql_actor
 from torchrl_dual.recipe.kits.build import projected_policy
 from torchrl_dual.recipe.o2o.learner import Learner, RunContext
@@ -23,7 +24,6 @@ from torchrl_dual.recipe.o2o.loop import run_o2o
 from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.parts.critics import make_critic
 from torchrl_dual.recipe.parts.mc_labels import MonteCarloLabels
-from torchrl_dual.recipe.parts.optim import adam
 from torchrl_dual.recipe.settings.baselines import MLPActorSettings
 from torchrl_dual.recipe.settings.rules import as_settings
 

@@ -53,6 +53,7 @@ from torchrl_dual.modules.exploration import (
     dacer_target_entropy,
     sampled_entropy,
 )
+from torchrl_dual.objectives.optim import adam
 from torchrl_dual.recipe.algos.diffql import DiffQLLearner
 from torchrl_dual.recipe.o2o.learner import RunContext
 from torchrl_dual.recipe.settings.baselines import DACERSettings
@@ -75,7 +76,7 @@ class DACERLearner(DiffQLLearner):
         self.noise = EntropyRegulatedNoise(
             target, d.noise_scale, d.init_alpha, device=self.cfg.device
         )
-        self.alpha_optimizer = torch.optim.Adam([self.noise.log_alpha], lr=d.alpha_lr)
+        self.alpha_optimizer = adam([self.noise.log_alpha], lr=d.alpha_lr)
         # what Ĥ is estimated of: the executed action before the env kit's projection
         self.noisy_actor = TensorDictSequential(self.actor, self.noise, self.clamp)
         self.exploration_policy = self.projected(self.noisy_actor)

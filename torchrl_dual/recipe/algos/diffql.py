@@ -55,6 +55,7 @@ from torchrl.modules import DiffusionActor
 
 from torchrl_dual import DDPMLastStepActor, WeightedMAPActorLoss
 from torchrl_dual.objectives.diffql_actor_loss import DiffQLActorLoss
+from torchrl_dual.objectives.optim import adam
 from torchrl_dual.recipe.kits.build import projected_policy
 from torchrl_dual.recipe.o2o.learner import Learner, RunContext
 from torchrl_dual.recipe.parts.critics import make_critic
@@ -137,7 +138,7 @@ class DiffQLLearner(Learner):
         self.actor_loss = DiffQLActorLoss.from_iql(
             self.actor, self.critic.loss, self.box, eta=s.eta
         )
-        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=s.lr)
+        self.actor_optimizer = adam(self.actor.parameters(), lr=s.lr)
         self.clamp = TensorDictModule(self.box, in_keys=["action"], out_keys=["action"])
         self.evaluation_policy = TensorDictSequential(self.actor, self.clamp)
         self.exploration_policy = self.projected(self.evaluation_policy)

@@ -26,6 +26,7 @@ from tensordict import TensorDictBase
 from torchrl_dual.diffusion import WindowReplayBuffer
 from torchrl_dual.modules import PlannerPolicy
 from torchrl_dual.objectives import DiffusionPlannerLoss
+from torchrl_dual.objectives.optim import adam
 from torchrl_dual.objectives.update_loop import run_updates
 from torchrl_dual.recipe.kits.build import projected_policy
 from torchrl_dual.recipe.o2o.learner import Learner, RunContext
@@ -55,7 +56,7 @@ class DiffuserLearner(Learner):
         self.loss = DiffusionPlannerLoss(
             self.planner, action_condition_prob=p.action_condition_prob
         )
-        self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=p.lr)
+        self.optimizer = adam(self.loss.parameters(), lr=p.lr)
         space = run.env.action_spec.space
         policy = PlannerPolicy(
             self.planner,

@@ -23,6 +23,7 @@ from torchrl_dual import PlannerActor, TransitionModel, WeightedMAPActorLoss
 from torchrl_dual.diffusion import TrajectoryDiffusion
 from torchrl_dual.modules import ShiftAwareNoise, exploration_signals
 from torchrl_dual.objectives import progressive_distillation
+from torchrl_dual.objectives.optim import adam
 from torchrl_dual.recipe.kits.build import env_kit
 from torchrl_dual.recipe.o2o.learner import Learner, RunContext
 from torchrl_dual.recipe.o2o.loop import run_o2o
@@ -31,7 +32,6 @@ from torchrl_dual.recipe.parts.critics import Critic, make_critic, policy_view
 from torchrl_dual.recipe.parts.laplace_refits import RefitSchedule
 from torchrl_dual.recipe.parts.mc_labels import MonteCarloLabels
 from torchrl_dual.recipe.parts.networks import make_planner, make_policy, student_like
-from torchrl_dual.recipe.parts.optim import adam
 from torchrl_dual.recipe.parts.planner_augment import augment_capacity, make_augmenter
 from torchrl_dual.recipe.parts.planner_stage import offline_windows, pretrain_planner
 from torchrl_dual.recipe.settings.dual import ActorSettings, DualSections
@@ -129,7 +129,7 @@ class DualLearner(Learner):
         self.labels = MonteCarloLabels(run) if cfg.critic.name == "calql" else None
         entropy_coef = cfg.critic.get("entropy_coef")  # SO2's α
         self.actor_loss = make_actor_loss(s.actor, self.actor, self.critic, spec, entropy_coef)
-        self.actor_optimizer = adam(self.actor_loss.parameters(), lr=s.actor.lr, fuse=False)
+        self.actor_optimizer = adam(self.actor_loss.parameters(), lr=s.actor.lr)
         self.policy = make_policy(  # Eq. 9 + Eq. 10
             s.laplace,
             self.actor,

@@ -31,12 +31,12 @@ from torchrl.envs.utils import ExplorationType
 from torchrl.modules import MLP, IndependentNormal, ProbabilisticActor, TanhNormal
 
 from torchrl_dual.modules.actors.last_layer_actor import TanhSquash
+from torchrl_dual.objectives.optim import adam
 from torchrl_dual.recipe.kits.build import projected_policy
 from torchrl_dual.recipe.o2o.learner import Learner, RunContext
 from torchrl_dual.recipe.o2o.loop import run_o2o
 from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.parts.critics import make_critic
-from torchrl_dual.recipe.parts.optim import adam
 from torchrl_dual.recipe.settings.baselines import (
     ACTOR_DISTRIBUTIONS,
     IQLActorSettings,

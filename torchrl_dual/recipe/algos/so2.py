@@ -22,6 +22,7 @@ import torch
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
 
+from torchrl_dual.objectives.optim import adam
 from torchrl_dual.recipe.algos.iql import make_iql_actor
 from torchrl_dual.recipe.kits.build import projected_policy
 from torchrl_dual.recipe.o2o.learner import Learner, RunContext
@@ -48,7 +49,7 @@ class SO2Learner(Learner):
         )
         self.critic = make_critic(cfg, run.data.obs_dim, run.data.action_dim, actor=self.actor)
         self.online_batches_per_update = self.critic.online_steps_per_update
-        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=s.lr)
+        self.actor_optimizer = adam(self.actor.parameters(), lr=s.lr)
         self.alpha = cfg.critic.entropy_coef
         self.evaluation_policy = self.actor
         self.exploration_policy = projected_policy(cfg, self.actor)

@@ -36,13 +36,15 @@ from torchrl_dual.recipe.settings.errors import UserError
 if TYPE_CHECKING:
     from torchrl_dual.recipe.o2o.run import O2ORun
 
-OFFLINE_PHASE_REVISION = 2
+OFFLINE_PHASE_REVISION = 3
 """Bumped when a code change alters what a shared offline stage computes, so that caches
 written before it are not reused (their entries stay on disk under their old keys).
 2 (2026-12-02): DUAL's ``sac`` weighting (``critic=calql``/``so2``) reads Q at the clamped
 action and scores it as a censored Gaussian (docs/equations.md, deviation 2a).
 (IQL's Q networks built by ``critics.q_network``, same day, changed only their parameter
-names; snapshots of before are renamed on load: ``critics.upgraded_critic_state``.)"""
+names; snapshots of before are renamed on load: ``critics.upgraded_critic_state``.)
+3 (2026-12-06): DUAL's planner, distillation and actor optimizers are PyTorch's fused Adam
+(``objectives/optim.py``), which rounds differently from the per-parameter loop."""
 
 ONLINE_KEYS: tuple[str, ...] = (
     "output_dir",

@@ -22,12 +22,12 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-import torch
 from tensordict import TensorDictBase
 from torchrl.data import OfflineToOnlineReplayBuffer, RandomSampler, ReplayBuffer
 
 from torchrl_dual.data import BalancedReplayBuffer
 from torchrl_dual.objectives import DensityRatioLoss, make_density_ratio_network
+from torchrl_dual.objectives.optim import adam
 
 if TYPE_CHECKING:
     from torchrl_dual.recipe.o2o.run import O2ORun
@@ -98,7 +98,7 @@ class BalancedReplay(Replay):
             run.data.obs_dim, run.data.action_dim, num_cells=[c.hidden] * c.depth
         ).to(cfg.device)
         self.loss = DensityRatioLoss(network).to(cfg.device)
-        self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=c.lr)
+        self.optimizer = adam(self.loss.parameters(), lr=c.lr)
         self.device, self.ratio_batch_size = cfg.device, c.ratio_batch_size
         super().__init__(
             BalancedReplayBuffer(

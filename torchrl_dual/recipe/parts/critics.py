@@ -26,7 +26,7 @@ from torchrl.modules import MLP, ProbabilisticActor, ValueOperator
 
 from torchrl_dual.modules.actors.action_box import ClippedNormal, box_bounds
 from torchrl_dual.objectives import CalQLLoss, ForeachSoftUpdate, OnePassIQLLoss, SO2QLoss
-from torchrl_dual.recipe.parts.optim import adam
+from torchrl_dual.objectives.optim import adam
 from torchrl_dual.recipe.settings.parts import (
     CRITICS,
     CalQLCriticSettings,

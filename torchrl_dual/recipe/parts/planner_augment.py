@@ -45,6 +45,7 @@ from torchrl_dual.diffusion import (
     density_ratio_loss,
 )
 from torchrl_dual.modules import PlannerSampler, RewardModel
+from torchrl_dual.objectives.optim import adam
 from torchrl_dual.recipe.kits.build import env_kit
 from torchrl_dual.recipe.o2o.learner import RunContext
 from torchrl_dual.recipe.parts.planner_stage import offline_windows
@@ -109,8 +110,8 @@ class PlannerAugmenter:
             self.reward_model = RewardModel(planner.normalizer, hidden=a.hidden)
         self.guider.to(cfg.device)
         self.reward_model.to(cfg.device)
-        self.guider_optimizer = torch.optim.Adam(self.guider.parameters(), lr=a.lr)
-        self.reward_optimizer = torch.optim.Adam(self.reward_model.parameters(), lr=a.lr)
+        self.guider_optimizer = adam(self.guider.parameters(), lr=a.lr)
+        self.reward_optimizer = adam(self.reward_model.parameters(), lr=a.lr)
         self.sampler = PlannerSampler(planner, sampler="ddpm")
         space = run.env.action_spec.space
         self.action_low = space.low.to(cfg.device)
