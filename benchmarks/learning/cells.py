@@ -80,7 +80,8 @@ CELLS: dict[str, Cell] = {
             v for v in VARIANTS
             if v not in (*ABLATION_VARIANTS, *PAPER_BASELINES, *ONLINE_TUNING_VARIANTS,
                          *NOISE_VARIANTS, *NOISE_CONTROLS, *TEMPERATURE_VARIANTS,
-                         "iql_equal_time_online", "iql_equal_time_24k", *SPARSE_REWARD_VARIANTS,
+                         "iql_equal_time_online", "iql_equal_time_24k", "iql_equal_time_29k",
+                         *SPARSE_REWARD_VARIANTS,
                          *REFERENCE_CHECKS)
         ), 5,
         "PointMaze U-maze",
@@ -133,11 +134,12 @@ CELLS: dict[str, Cell] = {
         "PointMaze U-maze: DUAL with offline share 0.75 or UTD 0.25 online (`dual`: 0.5 and 0.5)",
     ),
     # issue 41: the README's U-maze comparison on seeds 5-9, which no tuning saw (DUAL's
-    # budget split was chosen on `umaze` seeds 0-2), on one machine in one sitting, on the
-    # code after fused Adam (issue 40)
+    # budget split was chosen on `umaze` seeds 0-2), all on the AMD EPYC: IQL and d3rlpy's
+    # IQL on the code after fused Adam (issue 40), DUAL re-run on its fused actor (cb46f83)
     "umaze_fresh": Cell(
-        ("env=pointmaze_umaze",), ("dual", "iql", "iql_d3rlpy", "iql_equal_time_24k"), 5,
-        "PointMaze U-maze, fresh seeds 5-9 (no tuning saw them), one machine, one sitting",
+        ("env=pointmaze_umaze",),
+        ("dual", "iql", "iql_d3rlpy", "iql_equal_time_24k", "iql_equal_time_29k"), 5,
+        "PointMaze U-maze, fresh seeds 5-9 (no tuning saw them), one machine (AMD EPYC)",
         first_seed=5,
     ),
     # its own `dual` runs: the online-only ablations (latent UQ, and DUAL + EDIS below) ran
@@ -188,14 +190,15 @@ CELLS: dict[str, Cell] = {
         "(`default`: 8000)",
     ),
     # issue 41: medium_goal_long's DUAL ran on the Intel Xeon (12-03), its IQL on the AMD EPYC
-    # (12-04); the pair again on one machine, in one sitting, on the code after fused Adam
+    # (12-04); the pair again on one machine (AMD EPYC): IQL on the code after fused Adam,
+    # DUAL re-run on its fused actor (cb46f83) the same evening
     "medium_goal_onehost": Cell(
         (
             "env=pointmaze_medium", "env.goal_cell=[6,6]", "budget.offline_updates=40000",
             "budget.online_frames=32000",
         ),
         ("dual", "iql"), 3,
-        "medium_goal_long's DUAL and IQL again, on one machine in one sitting",
+        "medium_goal_long's DUAL and IQL again, on one machine (AMD EPYC)",
     ),
     "frozenlake8x8_slip": Cell(
         ("env=frozenlake", "env.map_name=8x8", "env.shift=biased_slip"), SHIFT_VARIANTS, 3,

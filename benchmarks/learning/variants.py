@@ -37,6 +37,11 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     # per run, IQL 310-350 at 20.7 CPU-ms per offline update, so +14000 updates ≈ 290 CPU-s;
     # a new name, so `iql_equal_time`'s runs keep their definition
     "iql_equal_time_24k": ("algo=iql", "budget.offline_updates=24000"),
+    # the same once more after DUAL's fused actor (cb46f83) and IQL's one-pass losses
+    # (1d13292, 1.26x): umaze_fresh's DUAL re-runs took 454-541 CPU-s (mean 505), IQL at
+    # HEAD (umaze_fresh seed 5, 2026-12-06) 14.0 CPU-ms per offline update plus 90 CPU-s for
+    # its evaluation and online phase, so 505 CPU-s buy about 29000 offline updates
+    "iql_equal_time_29k": ("algo=iql", "budget.offline_updates=29000"),
     # IQL given DUAL's CPU time on medium_goal_long, spent online instead (its offline phase
     # is medium_goal's): measured 2026-12-03, DUAL 1130 CPU-s offline + 150 per 8000 frames,
     # IQL 630 + 90, so IQL's 1100 CPU-s after its offline phase buy ≈ 96000 frames
@@ -117,7 +122,13 @@ REFERENCE_SCRIPTS: dict[str, tuple[str, ...]] = {
 REFERENCE_CHECKS = ("calql_d3rlpy",)
 """Reference runs checked on one cell only (``umaze_baselines``, 3 seeds): Cal-QL's."""
 
-IQL_VARIANTS = ("iql", "iql_equal_time", "iql_equal_time_24k", "iql_equal_time_online")
+IQL_VARIANTS = (
+    "iql",
+    "iql_equal_time",
+    "iql_equal_time_24k",
+    "iql_equal_time_29k",
+    "iql_equal_time_online",
+)
 """The IQL runs DUAL is compared with at equal steps (``iql``) and equal time (both)."""
 
 ABLATION_VARIANTS = ("dual_no_planner", "dual_no_distillation", "dual_latent_uq")
