@@ -43,7 +43,7 @@ ALLOWED: dict[str, tuple[str, ...]] = {
     "modules.exploration": ("modules.exploration", "modules._gaussian", "_utils"),
     "modules.dual_policy": ("modules",),
     "modules": ("modules",),
-    "objectives": ("objectives", "diffusion", "modules.actors", "_utils"),
+    "objectives": ("objectives", "diffusion", "modules.actors", "_utils", "_versioned_cache"),
     # DUAL in TorchRL's Trainer: the library's parts, not the recipe
     "trainers": ("trainers", "evaluation", "_tensordict_patch", *LIBRARY),
     # the recipe: settings (no torch, nothing else) < kits < o2o < parts < algos
