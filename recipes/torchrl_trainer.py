@@ -102,8 +102,8 @@ def build_trainer(cfg: DictConfig):
         stepper=RunUpdateStepper(run),
         replay_buffer=replay,
         offline_stages=learner.offline_stages(),
-        weight_fn=learner.actor_loss.advantage_weights,
-        loss_module=learner.actor_loss,
+        weight_fn=learner.loss.actor_objective.advantage_weights,
+        loss_module=learner.loss,
         evaluation=evaluation,
     )
     # the learner's weights and optimizers (teacher, critics, ...) in the trainer checkpoint

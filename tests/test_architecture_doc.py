@@ -80,7 +80,7 @@ def test_one_dual_update_reads_through_at_most_five_files_each_calling_the_next(
         "recipe/settings/algos.py",
         "recipe/o2o/loop.py",
         "recipe/algos/dual.py",
-        "recipe/parts/critics.py",
+        "trainers/stepper.py",
     ]
     text = {f: (PACKAGE / f).read_text() for f in files}
     assert "run_o2o(cfg, ALGORITHMS[cfg.algo].learner)" in text["recipe/cli.py"]
@@ -93,5 +93,7 @@ def test_one_dual_update_reads_through_at_most_five_files_each_calling_the_next(
     dual = text["recipe/algos/dual.py"]
     update = dual[dual.index("    def update(self, batch") :]
     update = update[: update.index("\n    def ")]
-    assert "self.critic.step(" in update and "self.actor_loss(" in update
-    assert "def step(self, batch" in text["recipe/parts/critics.py"]
+    assert "self.stepper.update(batch)" in update and "DUALLoss(" in dual
+    stepper = text["trainers/stepper.py"]
+    assert "def update(self, batch" in stepper
+    assert "self.loss.critic_loss(" in stepper and "self.loss.actor_loss(" in stepper

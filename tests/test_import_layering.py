@@ -78,6 +78,7 @@ ALLOWED: dict[str, tuple[str, ...]] = {
     ),
     "recipe.algos": (
         "recipe.algos",
+        "trainers.stepper",  # Alg. 1's update, written once (CriticActorStepper)
         "recipe.parts",
         "recipe.o2o",
         "recipe.kits",

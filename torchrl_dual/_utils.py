@@ -50,6 +50,29 @@ def check_finite(value: Tensor, role: str, fix: str) -> None:
         raise ValueError(f"{role} holds {bad} NaN/inf entries; {fix}")
 
 
+def first_non_finite(tensordict: TensorDictBase) -> str:
+    """Where a batch first holds a NaN or inf, as a sentence for an error message: the
+    key and the batch index of its first non-finite float entry, or, for a finite batch,
+    that the weights diverged.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> td = TensorDict({"next": {"reward": torch.tensor([[0.0], [float("nan")]])}}, [2])
+        >>> first_non_finite(td)
+        "the batch's ('next', 'reward') is not finite at batch index 1: clean the data."
+    """
+    for key, value in tensordict.items(True, True):
+        if not value.is_floating_point():
+            continue
+        bad = ~torch.isfinite(value.reshape(*value.shape[: tensordict.batch_dims], -1))
+        if bool(bad.any()):
+            index = [int(i) for i in bad.any(-1).nonzero()[0]]
+            where = index[0] if len(index) == 1 else tuple(index)
+            return f"the batch's {key!r} is not finite at batch index {where}: clean the data."
+    return "the batch is finite, so the weights diverged: lower the learning rate."
+
+
 def read_key(tensordict: TensorDictBase, key: NestedKey, reader: str, fix: str = "") -> Tensor:
     """``tensordict[key]``, or a ``KeyError`` naming ``reader``, the keys present and ``fix``.
 

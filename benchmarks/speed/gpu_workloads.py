@@ -22,21 +22,21 @@ from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDict
-from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.data import Bounded
-from torchrl.modules import MLP, ProbabilisticActor, ValueOperator
-from torchrl.objectives import IQLLoss, SoftUpdate
+from torchrl.modules import MLP, ValueOperator
+from torchrl.objectives import SoftUpdate
 
 from torchrl_dual import (
     DiffusionPlannerLoss,
     DistillationLoss,
     PlannerActor,
     TransitionModel,
-    WeightedMAPActorLoss,
     make_dual_policy,
 )
 from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
+from torchrl_dual.objectives import DUALLoss, IQLCriticLoss
+from torchrl_dual.trainers import CriticActorStepper
 
 
 @dataclass
@@ -125,59 +125,29 @@ def build_distillation(s: Sizes, device: str, capturable: bool):
     return _step(loss_fn, "loss_distillation", optimizer), _windows(s, device)
 
 
-def _iql_critic(s: Sizes, device: str) -> IQLLoss:
+def build_actor_critic(s: Sizes, device: str, capturable: bool):
+    """``DualLearner.update``: ``CriticActorStepper`` on ``DUALLoss``, IQL's Q + V step and
+    soft update, then Eq. 7's actor step."""
     def mlp(inputs: int) -> MLP:
         return MLP(in_features=inputs, out_features=1, num_cells=[s.hidden] * 2,
                    activation_class=nn.ReLU)  # fmt: skip
 
-    qvalue = ValueOperator(mlp(s.obs_dim + s.action_dim), in_keys=["observation", "action"])
-    value = ValueOperator(mlp(s.obs_dim), in_keys=["observation"])
-    stand_in = ProbabilisticActor(  # IQLLoss needs an actor slot; DUAL's is Eq. 7's loss
-        TensorDictModule(_NoActor(), in_keys=["observation"], out_keys=["loc", "scale"]),
-        in_keys=["loc", "scale"],
-        distribution_class=torch.distributions.Normal,
+    critic = IQLCriticLoss(
+        ValueOperator(mlp(s.obs_dim + s.action_dim), in_keys=["observation", "action"]),
+        ValueOperator(mlp(s.obs_dim), in_keys=["observation"]),
+        expectile=0.9,
+        loss_function="l2",
     )
-    loss = IQLLoss(stand_in, qvalue, value, expectile=0.9, num_qvalue_nets=2,
-                   loss_function="l2").to(device)  # fmt: skip
+    actor = PlannerActor(_planner(s, 1, device), init_std=0.3)
+    loss = DUALLoss(actor, critic, temperature=10.0, max_weight=100.0).to(device)
     loss.make_value_estimator(gamma=0.99)
-    return loss
-
-
-class _NoActor(nn.Module):
-    """A parameterless actor slot for ``IQLLoss`` (only its Q and V losses are used)."""
-
-    def forward(self, observation: torch.Tensor):
-        raise RuntimeError("DUAL's actor loss is WeightedMAPActorLoss (Eq. 7)")
-
-
-def build_actor_critic(s: Sizes, device: str, capturable: bool):
-    """``DualLearner.update``: IQL's Q + V step and soft update, then Eq. 7's actor step."""
-    actor = PlannerActor(_planner(s, 1, device), init_std=0.3).to(device)
-    critic = _iql_critic(s, device)
-    critic_params = list(critic.qvalue_network_params.values(True, True)) + list(
-        critic.value_network_params.values(True, True)
+    stepper = CriticActorStepper(
+        loss,
+        _adam(loss.critic_parameters(), capturable),
+        _adam(loss.actor_parameters(), capturable),
+        target_update=SoftUpdate(loss, tau=0.005),
     )
-    critic_optimizer = _adam(critic_params, capturable)
-    target_updater = SoftUpdate(critic, tau=0.005)
-    actor_loss = WeightedMAPActorLoss.from_iql(
-        actor, critic, weighting="advantage", temperature=10.0, max_weight=100.0
-    )
-    actor_optimizer = _adam(actor.parameters(), capturable)
-
-    def update(batch: TensorDict) -> TensorDict:
-        q_loss, value_loss = critic.qvalue_loss(batch)[0], critic.value_loss(batch)[0]
-        critic_optimizer.zero_grad(set_to_none=True)
-        (q_loss + value_loss).backward()
-        critic_optimizer.step()
-        target_updater.step()
-        out = actor_loss(batch)
-        actor_optimizer.zero_grad(set_to_none=True)
-        out["loss_actor"].backward()
-        actor_optimizer.step()
-        return TensorDict(loss_qvalue=q_loss.detach(), loss_value=value_loss.detach(),
-                          loss_actor=out["loss_actor"].detach())  # fmt: skip
-
-    return update, _transitions(s, device)
+    return stepper.update, _transitions(s, device)
 
 
 def build_policy(s: Sizes, device: str):

@@ -31,7 +31,7 @@ CASES = [
     ("budget.online_frames=-5", "budget.online_frames=-5: must be an integer >= 0"),
     ("critic.expectile=1.5", "critic.expectile=1.5: must lie in (0, 1)"),
     ("env=mujoco", f"env=mujoco: unknown option; choose one of {ENVS}"),
-    ("budget=tiny", "budget=tiny: unknown option; choose one of default, default_v1, paper, smoke"),
+    ("budget=tiny", "budget=tiny: unknown option; choose one of default, paper, smoke"),
     (
         "algo=nope",
         "algo=nope: unknown option; choose one of calql, dacer, diffql, diffql_la, diffuser, dual, "

@@ -265,7 +265,6 @@ def test_every_config_key_is_classified_for_the_offline_cache(tmp_path, monkeypa
     assert keyed == recorded, (
         f"config keys new to the offline-cache key: {sorted(keyed - recorded)}; gone from it: "
         f"{sorted(recorded - keyed)}. A new key the offline stages do not read belongs in "
-        "offline_cache.ONLINE_KEYS (or the learner's online_keys); one they read but that "
-        "existed before at a fixed value, in offline_cache.LATER_KEYS with that value (so the "
-        f"entries of before stay valid); only a key meant to start new offline phases goes into {KEYED.name}"
+        "offline_cache.ONLINE_KEYS (or the learner's online_keys); a key they read goes "
+        f"into {KEYED.name}"
     )

@@ -1,12 +1,13 @@
 """DUAL's entries in TorchRL's ConfigStore, instantiated into a run that trains."""
 
+import torch
 from hydra.core.config_store import ConfigStore
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
 from tests.trainers.toy_dual import toy_parts
 from torchrl_dual.modules import ShiftAwareNoise
-from torchrl_dual.objectives import WeightedMAPActorLoss
+from torchrl_dual.objectives import DUALLoss
 from torchrl_dual.trainers import DUALTrainer, dual_collector, register_configs
 
 
@@ -15,7 +16,8 @@ def test_register_configs_lists_dual_next_to_torchrl_groups():
     repo = ConfigStore.instance().repo
     assert "iql.yaml" in repo["loss"]  # TorchRL's own entries are there too
     for group, name in [
-        ("loss", "dual_weighted_map"),
+        ("loss", "dual"),
+        ("loss", "dual_iql_critic"),
         ("loss", "dual_diffusion_planner"),
         ("loss", "dual_distillation"),
         ("exploration", "shift_aware_noise"),
@@ -31,15 +33,30 @@ def test_register_configs_lists_dual_next_to_torchrl_groups():
 def test_stored_configs_instantiate_and_train(tmp_path):
     register_configs()
     repo = ConfigStore.instance().repo
-    env, policy, stepper, replay, stages, runs, actor_loss, iql = toy_parts()
-    loss_cfg = OmegaConf.structured(repo["loss"]["dual_weighted_map.yaml"].node)
+    env, policy, stepper, replay, stages, runs, trained = toy_parts()
     # modules are not config values: Hydra builds a partial, the modules complete it
-    loss = instantiate(loss_cfg, temperature=2.0, _partial_=True)(
-        actor=policy[0].actor,
-        qvalue_network=iql.qvalue_network,
-        value_network=iql.value_network,
+    critic_cfg = OmegaConf.structured(repo["loss"]["dual_iql_critic.yaml"].node)
+    critic = instantiate(critic_cfg, _partial_=True)(
+        qvalue_network=trained.critic.qvalue_network, value_network=trained.critic.value_network
     )
-    assert isinstance(loss, WeightedMAPActorLoss) and loss.temperature == 2.0
+    loss_cfg = OmegaConf.structured(repo["loss"]["dual.yaml"].node)
+    loss = instantiate(loss_cfg, temperature=2.0, _partial_=True)(
+        actor=policy[0].actor, critic=critic
+    )
+    assert isinstance(loss, DUALLoss) and loss.actor_objective.temperature == 2.0
+    # Eq. 7 reads the critic the loss trains: its weights, not the modules' initial ones
+    loss.make_value_estimator(gamma=0.99)
+    with torch.no_grad():
+        critic.value_network_params.apply_(lambda p: p.add_(1.0))
+    batch = replay.offline_buffer.sample(8)
+    with critic.value_network_params.to_module(critic.value_network):
+        expected = critic.value_network(batch.select("observation"))["state_value"]
+    assert torch.equal(
+        loss.actor_objective._evaluate(
+            critic.value_network, loss.actor_objective.value_params, batch, "state_value"
+        ),
+        expected,
+    )
     noise_cfg = OmegaConf.structured(repo["exploration"]["shift_aware_noise.yaml"].node)
     noise = instantiate(noise_cfg, shift_weight=0.25, _partial_=True)(spec=env.action_spec)
     assert isinstance(noise, ShiftAwareNoise) and noise.shift_weight == 0.25
@@ -53,7 +70,7 @@ def test_stored_configs_instantiate_and_train(tmp_path):
         stepper=stepper,
         replay_buffer=replay,
         offline_stages=stages,
-        weight_fn=actor_loss.advantage_weights,
+        weight_fn=trained.actor_objective.advantage_weights,
     )
     assert isinstance(trainer, DUALTrainer)
     trainer.train()

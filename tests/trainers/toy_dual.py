@@ -3,35 +3,27 @@
 from __future__ import annotations
 
 import torch
-from tensordict.nn import TensorDictModule
-from torch import nn
 from torchrl.data import LazyTensorStorage, OfflineToOnlineReplayBuffer, ReplayBuffer
 from torchrl.envs import GymEnv
-from torchrl.modules import MLP, ProbabilisticActor, ValueOperator
-from torchrl.objectives import IQLLoss, SoftUpdate
+from torchrl.modules import MLP, ValueOperator
+from torchrl.objectives import SoftUpdate
 from torchrl.trainers import Trainer, UpdateWeights
 from torchrl.trainers.algorithms.offline_to_online import OfflineToOnlineReplayBufferHook
 
 from torchrl_dual.data import TRANSITION_KEYS, validate_transitions
 from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
 from torchrl_dual.modules import PlannerActor, TransitionModel, make_dual_policy
-from torchrl_dual.objectives import WeightedMAPActorLoss
+from torchrl_dual.objectives import DUALLoss, IQLCriticLoss
 from torchrl_dual.trainers import (
     CriticActorStepper,
     DUALTrainer,
     LaplaceRefitHook,
     OfflineStagesHook,
     dual_collector,
-    iql_critic_loss,
 )
 from torchrl_dual.transforms import PreviousTransition
 
 KEYS = [key for key in TRANSITION_KEYS if key != "episode"]
-
-
-class _NoActor(nn.Module):
-    def forward(self, observation):
-        raise RuntimeError("DUAL's actor loss is WeightedMAPActorLoss (Eq. 7)")
 
 
 def toy_parts():
@@ -47,31 +39,21 @@ def toy_parts():
     )
     model.normalizer.fit(transitions["observation"], transitions["action"])
     actor = PlannerActor(model)
-    iql = IQLLoss(
-        ProbabilisticActor(
-            TensorDictModule(_NoActor(), in_keys=["observation"], out_keys=["loc", "scale"]),
-            in_keys=["loc", "scale"],
-            distribution_class=torch.distributions.Normal,
-        ),
+    critic = IQLCriticLoss(
         ValueOperator(
             MLP(in_features=4, out_features=1, num_cells=[16]), ["observation", "action"]
         ),
         ValueOperator(MLP(in_features=3, out_features=1, num_cells=[16]), ["observation"]),
-        num_qvalue_nets=2,
     )
-    iql.make_value_estimator(gamma=0.99)
-    actor_loss = WeightedMAPActorLoss.from_iql(actor, iql, temperature=3.0)
-    critic_params = [
-        *iql.qvalue_network_params.values(True, True),
-        *iql.value_network_params.values(True, True),
-    ]
+    loss = DUALLoss(actor, critic, temperature=3.0)
+    loss.make_value_estimator(gamma=0.99)
     stepper = CriticActorStepper(
-        iql_critic_loss(iql),
-        actor_loss,
-        torch.optim.Adam(critic_params, lr=3e-4),
-        torch.optim.Adam(actor_loss.parameters(), lr=3e-4),
-        target_update=SoftUpdate(iql, tau=0.005),
+        loss,
+        torch.optim.Adam(loss.critic_parameters(), lr=3e-4),
+        torch.optim.Adam(loss.actor_parameters(), lr=3e-4),
+        target_update=SoftUpdate(loss, tau=0.005),
     )
+    actor_loss = loss.actor_objective
     policy = make_dual_policy(
         actor, env.action_spec, transition_model=TransitionModel.frozen_copy(model), num_samples=3
     )
@@ -93,12 +75,12 @@ def toy_parts():
         ensemble.fit_laplace([offline[:]], weight_fn=actor_loss.advantage_weights)
 
     stages = [("pretrain", pretrain), ("laplace_fit", laplace_fit)]
-    return env, policy, stepper, replay, stages, runs, actor_loss, iql
+    return env, policy, stepper, replay, stages, runs, loss
 
 
 def toy_trainer(save_file, *, total_frames: int = 40, refit_interval: int = 4, log=None):
     """A plain Trainer with DUAL's stepper and hooks; ``log`` records the post_steps order."""
-    env, policy, stepper, replay, stage_list, runs, actor_loss, iql = toy_parts()
+    env, policy, stepper, replay, stage_list, runs, loss = toy_parts()
     offline, ensemble = replay.offline_buffer, policy[0]
     collector = dual_collector(env, policy, frames_per_batch=20, total_frames=total_frames)
     trainer = Trainer(
@@ -106,14 +88,13 @@ def toy_trainer(save_file, *, total_frames: int = 40, refit_interval: int = 4, l
         total_frames=total_frames,
         frame_skip=1,
         optim_steps_per_batch=2,
-        loss_module=actor_loss,
+        loss_module=loss,
         optimization_stepper=stepper,
         progress_bar=False,
         save_trainer_file=save_file,
         save_trainer_interval=1,
     )
     trainer.register_module("policy", policy)
-    trainer.register_module("iql", iql)
     if log is not None:  # stands for the weight push, registered before the refit hook
         trainer.register_op("post_steps", lambda: log.append("push"))
     UpdateWeights(collector, update_weights_interval=1).register(trainer)
@@ -124,7 +105,7 @@ def toy_trainer(save_file, *, total_frames: int = 40, refit_interval: int = 4, l
         ensemble,
         lambda: [offline[:], replay.online_buffer[:]],
         refit_interval,
-        weight_fn=actor_loss.advantage_weights,
+        weight_fn=loss.actor_objective.advantage_weights,
     )
     refit.register(trainer)
     if log is not None:
@@ -140,7 +121,7 @@ def toy_trainer(save_file, *, total_frames: int = 40, refit_interval: int = 4, l
 
 def toy_dual_trainer(save_file, *, total_frames: int = 40, **trainer_kwargs):
     """The same run through ``DUALTrainer`` (``trainer_kwargs``: its other arguments)."""
-    env, policy, stepper, replay, stages, runs, actor_loss, _ = toy_parts()
+    env, policy, stepper, replay, stages, runs, loss = toy_parts()
     trainer = DUALTrainer(
         collector=dual_collector(env, policy, frames_per_batch=20, total_frames=total_frames),
         policy=policy,
@@ -150,7 +131,7 @@ def toy_dual_trainer(save_file, *, total_frames: int = 40, **trainer_kwargs):
         total_frames=total_frames,
         optim_steps_per_batch=2,
         refit_interval=4,
-        weight_fn=actor_loss.advantage_weights,
+        weight_fn=loss.actor_objective.advantage_weights,
         batch_size=16,
         progress_bar=False,
         save_trainer_file=save_file,

@@ -274,6 +274,27 @@ class CalQLLoss(CQLLoss):
         )
         return loss, {"bound_rate": rate.mean().detach()}
 
+    @property
+    def critic_out_keys(self) -> tuple[str, ...]:
+        """The terms :meth:`critic_terms` returns (the critic protocol of ``DUALLoss``)."""
+        return ("loss_qvalue", "loss_cql", *(("loss_alpha_prime",) if self.with_lagrange else ()))
+
+    def critic_terms(self, tensordict: TensorDictBase) -> dict[str, Tensor]:
+        """The losses of one critic step: the twin-Q Bellman loss ``loss_qvalue``, the
+        bounded penalty ``loss_cql`` and, in the Lagrange form, ``loss_alpha_prime`` (its
+        gradient reaches ``log α'`` only). The actor terms are not computed."""
+        terms = {"loss_qvalue": self.q_loss(tensordict)[0], "loss_cql": self.cql_loss(tensordict)[0]}
+        if self.with_lagrange:
+            terms["loss_alpha_prime"] = self.alpha_prime_loss(tensordict)[0]
+        return terms
+
+    def critic_parameters(self) -> list[Tensor]:
+        """What the critic's optimizer steps: the Q networks and, in the Lagrange form,
+        ``log α'`` (as Cal-QL's code, at the critic's learning rate); not the actor nor
+        the entropy's ``log α``."""
+        params = list(self.qvalue_network_params.values(True, True))
+        return [*params, self.log_alpha_prime] if self.with_lagrange else params
+
     def _alpha_prime(self) -> Tensor:
         """``α' = exp(log α')``, clipped at 1e6 as the references and ``CQLLoss`` do."""
         return self.log_alpha_prime.exp().clamp_max(1e6)

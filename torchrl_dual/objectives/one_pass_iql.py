@@ -1,4 +1,4 @@
-"""TorchRL's IQL loss with the target Q and ``V(s)`` computed once per batch (issue 40).
+"""TorchRL's IQL loss with the target Q and ``V(s)`` computed once per batch.
 
 TorchRL 0.14's :class:`~torchrl.objectives.IQLLoss` computes its three terms in three
 independent methods. Two of them need the same quantities: ``value_loss`` evaluates the

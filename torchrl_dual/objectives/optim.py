@@ -1,10 +1,9 @@
-"""Adam as every trainer of this package builds it: PyTorch's fused kernel (issue 40, item 2).
+"""Adam as every trainer of this package builds it: PyTorch's fused kernel.
 
 ``torch.optim.Adam(fused=True)`` updates every parameter of a group in one kernel (on the
 CPU and on CUDA) instead of a dozen ATen calls per parameter tensor; the same arithmetic
 in another order, so results differ from the per-parameter loop in the last bits only
-(the project's decision in issue 40: speed wins). A checkpoint keeps the group's
-``fused`` flag: a run resumed from a checkpoint written before this steps as it did.
+(speed wins). A checkpoint keeps the group's ``fused`` flag.
 """
 
 from __future__ import annotations
@@ -22,10 +21,7 @@ def adam(params: Iterable[torch.Tensor], lr: float, *, fuse: bool = True) -> tor
 
     Every optimizer this package builds is one of these: :func:`train_planner`'s,
     :func:`progressive_distillation`'s and every optimizer of the recipe's algorithms.
-    Since 2026-12-06 that includes DUAL's planner, distillation and actor optimizers and
-    the baselines' actors (before, PyTorch's default per-parameter loop; the DUAL runs
-    that the README cites were re-run on the fused update, issue 40's rule for a speed-up
-    that changes results by rounding). PyTorch's fused Adam changes the weights without moving
+    PyTorch's fused Adam changes the weights without moving
     their version counters; the step hook of :mod:`torchrl_dual._versioned_cache` moves
     them, so the acting path's caches see every step. ``fuse=False`` keeps PyTorch's
     default. ``foreach=True`` fails under ``compile.compile=true`` (Dynamo: "Expected

@@ -340,6 +340,18 @@ class SO2QLoss(LossModule):
         }
         return loss, metadata
 
+    critic_out_keys = ("loss_qvalue",)
+    """The terms :meth:`critic_terms` returns (the critic protocol of ``DUALLoss``)."""
+
+    def critic_terms(self, tensordict: TensorDictBase) -> dict[str, torch.Tensor]:
+        """The loss of one critic step: the ensemble's TD loss ``loss_qvalue``, reduced."""
+        loss = self._reduce_loss(self.qvalue_loss(tensordict)[0], tensordict=tensordict)
+        return {"loss_qvalue": loss}
+
+    def critic_parameters(self) -> list[torch.Tensor]:
+        """What the critic's optimizer steps: the Q ensemble."""
+        return list(self.qvalue_network_params.values(True, True))
+
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
         loss, metadata = self.qvalue_loss(tensordict)
         loss = self._reduce_loss(loss, tensordict=tensordict)

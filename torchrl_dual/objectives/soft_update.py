@@ -1,4 +1,4 @@
-"""TorchRL's soft target update as one fused kernel over every target weight (issue 40).
+"""TorchRL's soft target update as one fused kernel over every target weight.
 
 TorchRL 0.14's :class:`~torchrl.objectives.SoftUpdate` steps each source group (e.g. the
 twin Q networks' ``TensorDictParams``) with ``target.data.lerp_(source.data, 1 - eps)``.

@@ -13,7 +13,7 @@ from torchrl.data import TensorSpec
 from torchrl.objectives.common import LossModule
 from torchrl.objectives.utils import _vmap_func  # TorchRL's own ensemble evaluation
 
-from torchrl_dual._utils import check_finite, read_loss_input
+from torchrl_dual._utils import check_finite, first_non_finite, host_reads_allowed, read_loss_input
 from torchrl_dual.modules.actors.action_box import ActionBox
 from torchrl_dual.modules.actors.last_layer_actor import LastLayerActor
 
@@ -133,6 +133,12 @@ class WeightedMAPActorLoss(LossModule):
         reduction: str = "mean",
     ) -> None:
         super().__init__()
+        if not isinstance(actor, LastLayerActor):
+            raise TypeError(
+                f"WeightedMAPActorLoss trains a LastLayerActor (mean mu(s) and learnable "
+                f"sigma of Eq. 7: PlannerActor, LinearHeadActor or DDPMLastStepActor), got "
+                f"{type(actor).__name__}; wrap a TorchRL actor with LinearHeadActor.from_actor."
+            )
         if weighting not in WEIGHTINGS:
             raise ValueError(f"Unknown weighting {weighting!r}; choose one of {WEIGHTINGS}.")
         if weighting != "uniform" and qvalue_network is None:
@@ -223,15 +229,33 @@ class WeightedMAPActorLoss(LossModule):
         v = self._evaluate(
             self.value_network, self.value_params, tensordict, self.tensor_keys.value
         ).squeeze(-1)
-        return torch.exp(self.temperature * (q - v)).clamp_max(self.max_weight)
+        weights = torch.exp(self.temperature * (q - v)).clamp_max(self.max_weight)
+        if host_reads_allowed() and not bool(torch.isfinite(weights).all()):
+            raise ValueError(
+                f"WeightedMAPActorLoss: the advantage weights are not finite; "
+                f"{first_non_finite(tensordict)}"
+            )
+        return weights
 
     # ------------------------------------------------------------------ loss
+    def reset_parameters_recursive(self) -> None:
+        """Re-initialises the actor, the one module this loss owns (the critic it reads
+        belongs to the critic's loss)."""
+        with self.actor_params.to_module(self.actor):
+            self.actor.reset_parameters_recursive()
+
     def _inputs(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         values = []
+        dtype = self.actor.log_std.dtype
         for role, dim in (("observation", None), ("action", self.actor.action_dim)):
             value = read_loss_input(tensordict, getattr(self.tensor_keys, role), role)
             if dim is not None and value.shape[-1] != dim:
                 raise ValueError(f"{role} must end with dim {dim}, got shape {tuple(value.shape)}.")
+            if value.dtype != dtype:
+                raise TypeError(
+                    f"the batch's {role} is {value.dtype} and the actor's weights {dtype}: "
+                    f"cast one to the other (batch.to({dtype}) or loss.to({value.dtype}))."
+                )
             check_finite(value, role, "clean the batch first.")
             values.append(value)
         return values[0], values[1]

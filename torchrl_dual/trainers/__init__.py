@@ -18,7 +18,7 @@ from torchrl_dual.trainers.hooks import (
     register_before_weight_update,
 )
 from torchrl_dual.trainers.logging_hooks import DUALSignalsLogHook, NormalizedScoreLogHook
-from torchrl_dual.trainers.stepper import CriticActorStepper, iql_critic_loss
+from torchrl_dual.trainers.stepper import CriticActorStepper
 
 __all__ = [
     "CriticActorStepper",
@@ -28,7 +28,6 @@ __all__ = [
     "LaplaceRefitHook",
     "NormalizedScoreLogHook",
     "OfflineStagesHook",
-    "iql_critic_loss",
     "register_configs",
     "register_before_weight_update",
 ]

@@ -6,7 +6,8 @@ groups, so a run composed from TorchRL's groups can pick DUAL's parts:
 ========================  ===================================================
 group=name                target
 ========================  ===================================================
-``loss=dual_weighted_map``     :class:`~torchrl_dual.objectives.WeightedMAPActorLoss` (Eq. 7)
+``loss=dual``                  :class:`~torchrl_dual.objectives.DUALLoss` (Alg. 1 l. 7-8, Eq. 7)
+``loss=dual_iql_critic``       :class:`~torchrl_dual.objectives.IQLCriticLoss` (its critic)
 ``loss=dual_diffusion_planner``  :class:`~torchrl_dual.objectives.DiffusionPlannerLoss` (Eq. 3)
 ``loss=dual_distillation``     :class:`~torchrl_dual.objectives.DistillationLoss` (Alg. 1 l. 5)
 ``exploration=shift_aware_noise``  :class:`~torchrl_dual.modules.ShiftAwareNoise` (Eq. 10)
@@ -32,7 +33,7 @@ Example:
     >>> from hydra.core.config_store import ConfigStore
     >>> from torchrl_dual.trainers import register_configs
     >>> register_configs()
-    >>> "dual_weighted_map.yaml" in ConfigStore.instance().repo["loss"]
+    >>> "dual.yaml" in ConfigStore.instance().repo["loss"]
     True
     >>> "dual.yaml" in ConfigStore.instance().repo["trainer"]
     True
@@ -44,32 +45,48 @@ from dataclasses import dataclass
 from typing import Any
 
 __all__ = [
+    "DUALLossConfig",
     "DUALTrainerConfig",
     "DiffusionPlannerLossConfig",
     "DistillationLossConfig",
     "DUALSignalsLogHookConfig",
+    "IQLCriticLossConfig",
     "LaplaceRefitHookConfig",
     "NormalizedScoreLogHookConfig",
     "OfflineToOnlineReplayBufferConfig",
     "ShiftAwareNoiseConfig",
-    "WeightedMAPActorLossConfig",
     "register_configs",
 ]
 
 
 @dataclass
-class WeightedMAPActorLossConfig:
-    """:class:`~torchrl_dual.objectives.WeightedMAPActorLoss`: Eq. 7's weighted MAP actor."""
+class IQLCriticLossConfig:
+    """:class:`~torchrl_dual.objectives.IQLCriticLoss`: IQL's twin Q and expectile V, DUAL's
+    critic (IQL's paper values: ``loss_function="l2"``, ``expectile`` 0.7 or 0.9)."""
 
-    actor: Any = None
     qvalue_network: Any = None
     value_network: Any = None
+    num_qvalue_nets: int = 2
+    loss_function: str = "l2"
+    expectile: float = 0.7
+    _target_: str = "torchrl_dual.objectives.IQLCriticLoss"
+    _partial_: bool = False
+
+
+@dataclass
+class DUALLossConfig:
+    """:class:`~torchrl_dual.objectives.DUALLoss`: the critic and Eq. 7's weighted MAP actor
+    on it (Alg. 1 lines 7-8). ``critic`` is the critic loss itself, e.g. built from
+    ``loss=dual_iql_critic``: Eq. 7 then reads the weights that loss trains."""
+
+    actor: Any = None
+    critic: Any = None
     weighting: str = "advantage"
     temperature: float = 3.0
     max_weight: float = 100.0
     entropy_coef: float = 0.2
-    reduction: str = "mean"
-    _target_: str = "torchrl_dual.objectives.WeightedMAPActorLoss"
+    reduction: str | None = None
+    _target_: str = "torchrl_dual.objectives.DUALLoss"
     _partial_: bool = False
 
 
@@ -182,7 +199,8 @@ class DUALTrainerConfig:
 
 
 _ENTRIES = (
-    ("loss", "dual_weighted_map", WeightedMAPActorLossConfig),
+    ("loss", "dual", DUALLossConfig),
+    ("loss", "dual_iql_critic", IQLCriticLossConfig),
     ("loss", "dual_diffusion_planner", DiffusionPlannerLossConfig),
     ("loss", "dual_distillation", DistillationLossConfig),
     ("exploration", "shift_aware_noise", ShiftAwareNoiseConfig),

@@ -55,7 +55,7 @@ class DUALTrainer(Trainer):
             :class:`~torchrl_dual.modules.LaplaceEnsembleActor` that is refitted.
         stepper: the critic-then-actor update, a
             :class:`~torchrl_dual.trainers.CriticActorStepper` or any TorchRL
-            ``OptimizationStepper`` (then pass ``loss_module``, e.g. the actor loss).
+            ``OptimizationStepper`` (then pass ``loss_module``, e.g. the ``DUALLoss``).
         replay_buffer: the offline-to-online buffer (fixed offline share per batch).
         offline_stages: ``(name, callable)`` pairs run once before collection.
         total_frames: online frames to collect.
@@ -65,7 +65,7 @@ class DUALTrainer(Trainer):
             ``WeightedMAPActorLoss.advantage_weights``.
         batch_size: replay batch size (defaults to the buffer's).
         loss_module: the trainer's ``loss_module`` (saved in its checkpoint); defaults
-            to the stepper's actor loss.
+            to the stepper's ``DUALLoss``.
         log_signals: log Eq. 9-10's signals of each collected batch
             (:class:`~torchrl_dual.trainers.DUALSignalsLogHook`). Defaults to ``True``.
         evaluation: a hook with a ``register(trainer)`` method run after each batch's
@@ -99,7 +99,7 @@ class DUALTrainer(Trainer):
             collector=collector,
             total_frames=total_frames,
             optim_steps_per_batch=optim_steps_per_batch,
-            loss_module=stepper.actor_loss_fn if loss_module is None else loss_module,
+            loss_module=stepper.loss if loss_module is None else loss_module,
             optimization_stepper=stepper,
             **trainer_kwargs,
         )

@@ -1,86 +1,88 @@
-"""Critic-then-actor optimization step for TorchRL's :class:`~torchrl.trainers.Trainer`.
+"""Alg. 1's critic-then-actor update as a TorchRL :class:`~torchrl.trainers.OptimizationStepper`.
 
-DUAL trains IQL's critics (expectile value loss and Q loss) and Eq. (7)'s weighted-MAP
-actor with two optimizers: one critic step, the target-network update, then one actor
-step on the same batch (Algorithm 1, lines 6-8 offline and 13-15 online). TorchRL's
+DUAL trains its critic and Eq. (7)'s actor with two optimizers: one critic step, the
+target-network update, then one actor step on the same batch, which reads the critic
+just updated (Algorithm 1, lines 7-8 offline and 15-16 online). TorchRL's
 :class:`~torchrl.trainers.DefaultOptimizationStepper` steps one optimizer on the sum of a
-single loss module's ``loss_*`` entries, so it cannot express this; an
-:class:`~torchrl.trainers.OptimizationStepper` owns its optimizers and can.
+loss's ``loss_*`` entries; an :class:`~torchrl.trainers.OptimizationStepper` owns its
+optimizers and can keep Alg. 1's order. This is the one place the package writes it.
 
 Nothing here reads a device value back to the host: the returned losses are detached
 tensors (the trainer averages and logs them), so on a GPU the update queues without a
 synchronisation.
-
-Example:
-    >>> import torch
-    >>> from torch import nn
-    >>> from tensordict import TensorDict
-    >>> from torchrl_dual.trainers import CriticActorStepper
-    >>> critic, actor = nn.Linear(2, 1), nn.Linear(2, 1)
-    >>> stepper = CriticActorStepper(
-    ...     critic_loss_fn=lambda b: critic(b["observation"]).pow(2).mean(),
-    ...     actor_loss_fn=lambda b: {"loss_actor": actor(b["observation"]).pow(2).mean()},
-    ...     critic_optimizer=torch.optim.SGD(critic.parameters(), lr=0.1),
-    ...     actor_optimizer=torch.optim.SGD(actor.parameters(), lr=0.1),
-    ... )
-    >>> out = stepper.step(None, TensorDict(observation=torch.ones(4, 2), batch_size=[4]))
-    >>> sorted(out.keys())
-    ['loss_actor', 'loss_critic']
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
 from typing import Any
 
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.trainers import OptimizationStepper
 
-__all__ = ["CriticActorStepper", "iql_critic_loss"]
+from torchrl_dual.objectives import DUALLoss
 
-
-def iql_critic_loss(iql: Any) -> Callable[[TensorDictBase], torch.Tensor]:
-    """IQL's critic objective of a TorchRL :class:`~torchrl.objectives.IQLLoss`.
-
-    The sum of its Q loss (TD regression to ``r + γ V(s')``) and its expectile value loss,
-    without the AWR actor term (DUAL's actor loss is Eq. 7 instead).
-    """
-
-    def loss(batch: TensorDictBase) -> torch.Tensor:
-        return iql.qvalue_loss(batch)[0] + iql.value_loss(batch)[0]
-
-    return loss
+__all__ = ["CriticActorStepper"]
 
 
 class CriticActorStepper(OptimizationStepper):
     """One critic step, the target update, then one actor step on the same batch.
 
     Args:
-        critic_loss_fn: batch -> scalar critic loss (e.g. :func:`iql_critic_loss`).
-        actor_loss_fn: batch -> mapping with ``"loss_actor"`` (e.g. a
-            :class:`~torchrl_dual.objectives.WeightedMAPActorLoss`, Eq. 7).
-        critic_optimizer: the optimizer of the critic's parameters.
-        actor_optimizer: the optimizer of the actor's parameters.
-        target_update: optional TorchRL target updater (``SoftUpdate``/``HardUpdate``),
-            stepped after the critic step.
-        max_grad_norm: optional gradient-norm clip applied to both steps.
+        loss (DUALLoss): the update's terms (:meth:`~torchrl_dual.objectives.DUALLoss.critic_loss`,
+            :meth:`~torchrl_dual.objectives.DUALLoss.actor_loss`).
+        critic_optimizer: steps ``loss.critic_parameters()``.
+        actor_optimizer: steps ``loss.actor_parameters()``.
 
-    Both optimizers and the target updater's state are in :meth:`state_dict`, so a
-    trainer checkpoint (the stepper is registered as a trainer module) restores them.
+    Keyword Args:
+        target_update: a TorchRL target updater (``SoftUpdate(loss, tau=...)``), stepped
+            after each critic step; none by default.
+        max_grad_norm (float, optional): a gradient-norm clip applied to both steps.
+
+    A batch stacked ``[k, B]`` (SO2's online phase) gets one critic step per ``[B]``
+    batch, then the actor step on the last. Both optimizers and the target updater are in
+    :meth:`state_dict`, so a trainer checkpoint (the stepper is a trainer module)
+    restores them.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl.modules import MLP, ValueOperator
+        >>> from torchrl.objectives import SoftUpdate
+        >>> from torchrl_dual.modules import LinearHeadActor
+        >>> from torchrl_dual.objectives import DUALLoss, IQLCriticLoss
+        >>> critic = IQLCriticLoss(
+        ...     ValueOperator(MLP(in_features=5, out_features=1, num_cells=[16]),
+        ...                   in_keys=["observation", "action"]),
+        ...     ValueOperator(MLP(in_features=3, out_features=1, num_cells=[16]),
+        ...                   in_keys=["observation"]))
+        >>> actor = LinearHeadActor(MLP(in_features=3, out_features=2, num_cells=[16]), 2)
+        >>> loss = DUALLoss(actor, critic)
+        >>> loss.make_value_estimator(gamma=0.99)
+        >>> stepper = CriticActorStepper(
+        ...     loss,
+        ...     torch.optim.Adam(loss.critic_parameters(), lr=3e-4),
+        ...     torch.optim.Adam(loss.actor_parameters(), lr=3e-4),
+        ...     target_update=SoftUpdate(loss, tau=0.005))
+        >>> batch = TensorDict({
+        ...     "observation": torch.randn(8, 3), "action": torch.rand(8, 2) * 2 - 1,
+        ...     "next": {"observation": torch.randn(8, 3), "reward": torch.randn(8, 1),
+        ...              "done": torch.zeros(8, 1, dtype=torch.bool),
+        ...              "terminated": torch.zeros(8, 1, dtype=torch.bool)}}, [8])
+        >>> sorted(stepper.update(batch).keys())
+        ['actor_std', 'log_prob', 'loss_actor', 'loss_qvalue', 'loss_value', 'weight_mean']
     """
 
     def __init__(
         self,
-        critic_loss_fn: Callable[[TensorDictBase], torch.Tensor],
-        actor_loss_fn: Callable[[TensorDictBase], Mapping[str, torch.Tensor]],
+        loss: DUALLoss,
         critic_optimizer: torch.optim.Optimizer,
         actor_optimizer: torch.optim.Optimizer,
+        *,
         target_update: Any | None = None,
         max_grad_norm: float | None = None,
     ) -> None:
-        self.critic_loss_fn = critic_loss_fn
-        self.actor_loss_fn = actor_loss_fn
+        self.loss = loss
         self.critic_optimizer = critic_optimizer
         self.actor_optimizer = actor_optimizer
         self.target_update = target_update
@@ -95,16 +97,16 @@ class CriticActorStepper(OptimizationStepper):
         optimizer.step()
 
     def update(self, batch: TensorDictBase) -> TensorDictBase:
-        """One critic-then-actor update; returns the detached losses (no host read)."""
-        critic_loss = self.critic_loss_fn(batch)
-        self._apply(self.critic_optimizer, critic_loss)
-        if self.target_update is not None:
-            self.target_update.step()
-        actor_loss = self.actor_loss_fn(batch)["loss_actor"]
-        self._apply(self.actor_optimizer, actor_loss)
-        return TensorDict(
-            loss_critic=critic_loss.detach(), loss_actor=actor_loss.detach(), batch_size=[]
-        )
+        """Alg. 1 lines 7-8 / 15-16 on ``batch``; returns every term and metric, detached
+        (the last critic step's terms for a stacked batch)."""
+        for one in batch.unbind(0) if batch.ndim > 1 else (batch,):
+            critic, _ = self.loss.critic_loss(one)
+            self._apply(self.critic_optimizer, sum(critic.values()))
+            if self.target_update is not None:
+                self.target_update.step()
+        actor, metrics = self.loss.actor_loss(one)
+        self._apply(self.actor_optimizer, actor)
+        return TensorDict({**critic, "loss_actor": actor, **metrics}).detach()
 
     def step(self, trainer: Any, sub_batch: TensorDictBase) -> TensorDictBase:
         """The :class:`~torchrl.trainers.OptimizationStepper` entry point."""

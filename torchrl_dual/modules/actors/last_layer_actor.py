@@ -119,10 +119,32 @@ class LastLayerActor(nn.Module):
                 f"init_std={init_std} must lie in [min_std={min_std}, max_std={max_std}]."
             )
         self.action_dim = action_dim
-        self.log_std = nn.Parameter(torch.full((action_dim,), math.log(init_std)))
+        self.init_log_std = math.log(init_std)
+        self.log_std = nn.Parameter(torch.full((action_dim,), self.init_log_std))
         self.min_log_std, self.max_log_std = math.log(min_std), math.log(max_std)
         self.squash = squash  # None: a plain attribute, no state_dict entry
         self.noise_after_squash = bool(noise_after_squash)
+
+    def reset_parameters_recursive(self) -> None:
+        """Re-initialises every submodule that has ``reset_parameters`` (the trunk and the
+        head) and ``σ̄`` to ``init_std``, as TorchRL's modules do.
+
+        Examples:
+            >>> import torch
+            >>> from torchrl.modules import MLP
+            >>> from torchrl_dual.modules import LinearHeadActor
+            >>> actor = LinearHeadActor(MLP(in_features=3, out_features=2, num_cells=[8]), 2)
+            >>> with torch.no_grad():
+            ...     actor.log_std.fill_(1.0)
+            >>> actor.reset_parameters_recursive()
+            >>> actor.std
+            tensor([0.3000, 0.3000], grad_fn=<ExpBackward0>)
+        """
+        for module in self.modules():
+            if module is not self and callable(getattr(module, "reset_parameters", None)):
+                module.reset_parameters()
+        with torch.no_grad():
+            self.log_std.fill_(self.init_log_std)
 
     @property
     def std(self) -> torch.Tensor:

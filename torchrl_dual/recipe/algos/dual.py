@@ -19,10 +19,10 @@ from omegaconf import DictConfig
 from tensordict import TensorDictBase
 from torchrl.data.tensor_specs import TensorSpec
 
-from torchrl_dual import PlannerActor, TransitionModel, WeightedMAPActorLoss
+from torchrl_dual import PlannerActor, TransitionModel
 from torchrl_dual.diffusion import TrajectoryDiffusion
 from torchrl_dual.modules import ShiftAwareNoise, exploration_signals
-from torchrl_dual.objectives import progressive_distillation
+from torchrl_dual.objectives import DUALLoss, progressive_distillation
 from torchrl_dual.objectives.optim import adam
 from torchrl_dual.recipe.kits.build import env_kit
 from torchrl_dual.recipe.o2o.learner import Learner, RunContext
@@ -36,6 +36,7 @@ from torchrl_dual.recipe.parts.planner_augment import augment_capacity, make_aug
 from torchrl_dual.recipe.parts.planner_stage import offline_windows, pretrain_planner
 from torchrl_dual.recipe.settings.dual import ActorSettings, DualSections
 from torchrl_dual.recipe.settings.parts import POLICY_CRITICS
+from torchrl_dual.trainers.stepper import CriticActorStepper
 
 
 # ---------------------------------------------------------------------- builders (l. 1)
@@ -68,18 +69,19 @@ def make_transition_model(
     return TransitionModel(actor.model, frozen=False)
 
 
-def make_actor_loss(
+def make_loss(
     settings: ActorSettings,
     actor: PlannerActor,
     critic: Critic,
     action_spec: TensorSpec,
     entropy_coef: float | None = None,
-) -> WeightedMAPActorLoss:
-    """The weighted MAP actor loss of Eq. (7) on the critics; ``action_spec`` bounds the
-    actions at which the ``sac`` weighting reads Q, whose ``α`` is ``entropy_coef`` when
-    the critic has one (SO2: the same ``α`` as its targets)."""
+) -> DUALLoss:
+    """DUAL's update (Alg. 1 lines 7-8): the critic's loss and Eq. (7)'s weighted MAP actor
+    on it; ``action_spec`` bounds the actions at which the ``sac`` weighting reads Q,
+    whose ``α`` is ``entropy_coef`` when the critic has one (SO2: the same ``α`` as its
+    targets)."""
     entropy = {} if entropy_coef is None else {"entropy_coef": entropy_coef}
-    return WeightedMAPActorLoss.from_iql(
+    return DUALLoss(
         actor,
         critic.loss,
         weighting=settings.weighting,
@@ -128,8 +130,14 @@ class DualLearner(Learner):
         # critic=calql: the Monte-Carlo bound on D_offline now, on D_online per episode
         self.labels = MonteCarloLabels(run) if cfg.critic.name == "calql" else None
         entropy_coef = cfg.critic.get("entropy_coef")  # SO2's α
-        self.actor_loss = make_actor_loss(s.actor, self.actor, self.critic, spec, entropy_coef)
-        self.actor_optimizer = adam(self.actor_loss.parameters(), lr=s.actor.lr)
+        self.loss = make_loss(s.actor, self.actor, self.critic, spec, entropy_coef)
+        self.actor_optimizer = adam(self.loss.actor_parameters(), lr=s.actor.lr)
+        self.stepper = CriticActorStepper(  # Alg. 1's order: critic, target, then actor
+            self.loss,
+            self.critic.optimizer,
+            self.actor_optimizer,
+            target_update=self.critic.target_updater,
+        )
         self.policy = make_policy(  # Eq. 9 + Eq. 10
             s.laplace,
             self.actor,
@@ -223,12 +231,8 @@ class DualLearner(Learner):
         """One critic (IQL, Cal-QL's TD + bounded penalty, or SO2's ensemble TD: one step
         per batch of a stacked ``[k, B]``) and one actor (Eq. 7) gradient step, Alg. 1
         lines 7-8 / 15-16."""
-        critic = self.critic.step(batch, online=self.run.frames > 0)
-        out = self.actor_loss(batch[-1] if batch.ndim > 1 else batch)  # SO2: [k, B]
-        self.actor_optimizer.zero_grad(set_to_none=True)
-        out["loss_actor"].backward()
-        self.actor_optimizer.step()
-        return {k: v.detach() for k, v in {**critic, **out}.items()}
+        self.critic.set_phase(online=self.run.frames > 0)
+        return dict(self.stepper.update(batch).items())
 
     def after_update(self) -> None:
         """One more update toward the next refit (Alg. 1 line 17)."""
@@ -291,7 +295,7 @@ class DualLearner(Learner):
             advantage = self.settings.actor.weighting == "advantage"
             laplace = self.ensemble.fit_laplace(
                 self.run.all_transitions(),
-                weight_fn=self.actor_loss.advantage_weights if advantage else None,
+                weight_fn=self.loss.actor_objective.advantage_weights if advantage else None,
             )
         self.run.log({"prior_precision": laplace.prior_precision}, self.run.updates, "laplace/")
 

@@ -36,15 +36,9 @@ from torchrl_dual.recipe.settings.errors import UserError
 if TYPE_CHECKING:
     from torchrl_dual.recipe.o2o.run import O2ORun
 
-OFFLINE_PHASE_REVISION = 3
+OFFLINE_PHASE_REVISION = 1
 """Bumped when a code change alters what a shared offline stage computes, so that caches
-written before it are not reused (their entries stay on disk under their old keys).
-2 (2026-12-02): DUAL's ``sac`` weighting (``critic=calql``/``so2``) reads Q at the clamped
-action and scores it as a censored Gaussian (docs/equations.md, deviation 2a).
-(IQL's Q networks built by ``critics.q_network``, same day, changed only their parameter
-names; snapshots of before are renamed on load: ``critics.upgraded_critic_state``.)
-3 (2026-12-06): DUAL's planner, distillation and actor optimizers are PyTorch's fused Adam
-(``objectives/optim.py``), which rounds differently from the per-parameter loop."""
+written before it are not reused (their entries stay on disk under their old keys)."""
 
 ONLINE_KEYS: tuple[str, ...] = (
     "output_dir",
@@ -79,32 +73,15 @@ ONLINE_KEYS: tuple[str, ...] = (
 """Dotted keys that no algorithm's offline stages read (the online phase, the offline
 evaluation, which runs after the snapshot on the possibly shifted env, and bookkeeping)."""
 
-LATER_KEYS: dict[str, object] = {
-    "compile.cudagraphs": False,  # 2026-12-05
-    "env.protocol": "minari",  # 2026-12-05, the Minari families' behaviour before the key
-    "env.reward_scale": 1.0,  # 2026-12-05 on PointMaze (the Minari families had it before)
-    "env.reward_shift": 0.0,
-    "critic.lagrange_gap": None,  # 2026-12-05, Cal-QL's Lagrange multiplier (off before)
-}
-"""Keys added to the config after offline caches were written, with the value that
-reproduces what ran before them: left out of the key at that value, so the caches of
-before stay valid (any other value is part of the key). Every new config key goes here, in
-:data:`ONLINE_KEYS` or, when it is meant to start new offline phases, into the record of
-keyed names that ``tests/recipe/test_offline_cache.py`` checks the config against."""
-
-
 def offline_key_config(cfg: DictConfig, extra_online_keys: tuple[str, ...] = ()) -> dict:
-    """The resolved config without the online-only keys (and the :data:`LATER_KEYS` at
-    their former value): what a shared offline phase is computed from."""
+    """The resolved config without the online-only keys: what a shared offline phase is
+    computed from. Every config key is in :data:`ONLINE_KEYS` or in the record of keyed
+    names that ``tests/recipe/test_offline_cache.py`` checks the config against."""
     container = OmegaConf.to_container(cfg, resolve=True)
     for dotted in (*ONLINE_KEYS, *extra_online_keys):
         node, leaf = _parent(container, dotted)
         if node is not None:
             node.pop(leaf, None)
-    for dotted, before in LATER_KEYS.items():
-        node, leaf = _parent(container, dotted)
-        if node is not None and leaf in node and node[leaf] == before:
-            node.pop(leaf)
     return container
 
 

@@ -73,8 +73,6 @@ _COUNTERS = (
     "online_signals",
     "offline_steps",
 )
-_LATER_COUNTERS = {"online_signals": list, "offline_steps": int}
-"""Counters a checkpoint written before them lacks, and how each starts (empty, 0)."""
 
 
 class O2ORun:
@@ -97,7 +95,7 @@ class O2ORun:
             if k not in RESUMABLE_KEYS
         }
         fingerprint["checkpoint_layout"] = self.checkpoint_layout = CHECKPOINT_LAYOUT
-        # may change on resume, and absent from checkpoints written before it (2026-12-05)
+        # may change on resume
         fingerprint["budget"].pop("offline_checkpoint_every", None)
         check_output_dir(cfg)
         self.checkpoint = RunCheckpoint(
@@ -215,9 +213,8 @@ class O2ORun:
                 f"the checkpoint {self.checkpoint.path} does not fit this run's networks "
                 f"({err}). Resume with the settings that wrote it, or use another output_dir.",
             ) from err
-        for name in _COUNTERS:  # a counter added later is absent from older checkpoints
-            later = _LATER_COUNTERS.get(name)
-            setattr(self, name, state[name] if later is None else state.get(name, later()))
+        for name in _COUNTERS:
+            setattr(self, name, state[name])
         self.stage_progress = state.get("stage_progress")
         if state["online_data"] is not None:
             self.replay.extend(state["online_data"])

@@ -9,7 +9,6 @@ policy-smoothed targets; ``algo=so2`` and ``algo=dual``).
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from functools import partial
@@ -25,7 +24,13 @@ from torchrl.data.utils import DEVICE_TYPING
 from torchrl.modules import MLP, ProbabilisticActor, ValueOperator
 
 from torchrl_dual.modules.actors.action_box import ClippedNormal, box_bounds
-from torchrl_dual.objectives import CalQLLoss, ForeachSoftUpdate, OnePassIQLLoss, SO2QLoss
+from torchrl_dual.objectives import (
+    CalQLLoss,
+    ForeachSoftUpdate,
+    IQLCriticLoss,
+    OnePassIQLLoss,
+    SO2QLoss,
+)
 from torchrl_dual.objectives.optim import adam
 from torchrl_dual.recipe.settings.parts import (
     CRITICS,
@@ -36,20 +41,18 @@ from torchrl_dual.recipe.settings.parts import (
 )
 from torchrl_dual.recipe.settings.rules import as_settings
 
-CriticLoss = OnePassIQLLoss | CalQLLoss | SO2QLoss
+CriticLoss = IQLCriticLoss | OnePassIQLLoss | CalQLLoss | SO2QLoss
 
 
 @dataclass
 class Critic:
     """A critic loss (TorchRL ``IQLLoss``, :class:`~torchrl_dual.objectives.CalQLLoss` or
     :class:`~torchrl_dual.objectives.SO2QLoss`), the optimizer of its Q (and V) networks,
-    its target-network updater and its loss terms (:data:`CRITIC_TERMS`)."""
+    and its target-network updater."""
 
     loss: CriticLoss
     optimizer: torch.optim.Optimizer
     target_updater: ForeachSoftUpdate
-    terms: Callable[[Any, TensorDictBase], dict[str, torch.Tensor]]
-    """``(loss, batch) -> {name: loss term}``: what one critic step minimises (the sum)."""
 
     saves_actor: bool = True
     """``False`` when the loss samples a :func:`policy_view` of the learner's actor, which
@@ -67,15 +70,14 @@ class Critic:
         loss: CriticLoss,
         params: Iterable[torch.Tensor],
         settings: CriticSettings,
-        terms: Callable[[Any, TensorDictBase], dict[str, torch.Tensor]],
         **options: Any,
     ) -> Critic:
         """Every builder's tail: Adam over ``params`` at ``critic.lr`` and the soft target
         update at ``critic.target_update_tau`` around ``loss`` (``options``: the fields
-        after :attr:`terms`)."""
+        after :attr:`target_updater`)."""
         optimizer = adam(params, lr=settings.lr)
         updater = ForeachSoftUpdate(loss, tau=settings.target_update_tau)
-        return cls(loss, optimizer, updater, terms, **options)
+        return cls(loss, optimizer, updater, **options)
 
     def modules(self) -> dict[str, Any]:
         """What a learner's checkpoint holds of the critics (:meth:`Learner.modules`): the
@@ -86,51 +88,38 @@ class Critic:
         }
 
     def step(self, batch: TensorDictBase, *, online: bool = False) -> dict[str, torch.Tensor]:
-        """Critic updates of Alg. 1 (lines 7 and 15): per batch (``[B]``, or each of a
-        stacked ``[k, B]``), one gradient step on the sum of :attr:`terms` (IQL: TD to
-        ``r + γ V(s')`` plus the expectile V loss; Cal-QL: TD plus the bounded
-        conservative penalty; SO2: the ensemble's TD), then the soft update of the target
-        Q networks. ``online`` selects the critic's online settings (SO2's smoothed,
-        per-member targets). Returns the last step's terms, detached.
+        """The critic updates of the Diff-QL and SO2 baselines: per batch (``[B]``, or each
+        of a stacked ``[k, B]``), one gradient step on the sum of the loss's
+        ``critic_terms`` (IQL: TD to ``r + γ V(s')`` plus the expectile V loss; SO2: the
+        ensemble's TD), then the soft update of the target Q networks. ``online`` selects
+        the critic's online settings (SO2's smoothed, per-member targets). Returns the
+        last step's terms, detached.
 
-        The IQL and Cal-QL baselines do not call it: their updates sum the actor loss into
-        the same backward pass (e.g. :meth:`~torchrl_dual.recipe.IQLLearner.update`).
+        DUAL's update is :class:`~torchrl_dual.trainers.CriticActorStepper` on a
+        :class:`~torchrl_dual.objectives.DUALLoss`; the IQL and Cal-QL baselines sum the
+        actor loss into the critic's backward pass (e.g.
+        :meth:`~torchrl_dual.recipe.IQLLearner.update`).
         """
-        if self.phases is not None:
-            self.phases(self.loss, online=online)
+        self.set_phase(online)
         terms: dict[str, torch.Tensor] = {}
         for one in batch.unbind(0) if batch.ndim > 1 else (batch,):
-            terms = self.terms(self.loss, one)
+            terms = self.loss.critic_terms(one)
             self.optimizer.zero_grad(set_to_none=True)
             sum(terms.values()).backward()
             self.optimizer.step()
             self.target_updater.step()
         return {name: term.detach() for name, term in terms.items()}
 
-
-def iql_terms(loss: OnePassIQLLoss, batch: TensorDictBase) -> dict[str, torch.Tensor]:
-    """IQL: the Q loss (TD to ``r + γ V(s')``) and the expectile V loss."""
-    return {"loss_qvalue": loss.qvalue_loss(batch)[0], "loss_value": loss.value_loss(batch)[0]}
-
-
-def calql_terms(loss: CalQLLoss, batch: TensorDictBase) -> dict[str, torch.Tensor]:
-    """Cal-QL: the Bellman loss and the conservative penalty with the Monte-Carlo bound."""
-    terms = {"loss_qvalue": loss.q_loss(batch)[0], "loss_cql": loss.cql_loss(batch)[0]}
-    if loss.with_lagrange:  # the multiplier's loss: its gradient reaches log α' only
-        terms["loss_alpha_prime"] = loss.alpha_prime_loss(batch)[0]
-    return terms
-
-
-def so2_terms(loss: SO2QLoss, batch: TensorDictBase) -> dict[str, torch.Tensor]:
-    """SO2: the ensemble's TD loss on policy-smoothed targets."""
-    return {"loss_qvalue": loss.qvalue_loss(batch)[0].mean()}
+    def set_phase(self, online: bool) -> None:
+        """The critic's offline or online settings (SO2's; the other critics have one)."""
+        if self.phases is not None:
+            self.phases(self.loss, online=online)
 
 
 class _CriticState:
     """What a checkpoint holds of a critic loss: its ``state_dict``, without the actor
     weights it samples unless ``keep_actor`` (else the learner saves them as its actor's).
-    Loading renames the Q keys of checkpoints written before IQL's Q networks came from
-    :func:`q_network` (:func:`upgraded_critic_state`)."""
+    """
 
     def __init__(self, loss: nn.Module, *, keep_actor: bool) -> None:
         self.loss, self.keep_actor = loss, keep_actor
@@ -145,7 +134,6 @@ class _CriticState:
         skips it, even with ``strict=True``, which would leave those networks as they were
         initialised without a word (``test_critic_checkpoint.py`` shows the upstream
         behaviour)."""
-        state = upgraded_critic_state(state)
         given = {k for k in state if self.keep_actor or not _is_actor(k)}
         expected = set(self.state_dict())
         if given != expected:
@@ -158,38 +146,6 @@ class _CriticState:
 
 def _is_actor(name: str) -> bool:
     return name.startswith(("actor_network_params", "target_actor_network_params"))
-
-
-_OLD_IQL_Q = re.compile(r"^((?:target_)?qvalue_network_params\.module)\.mlp\.")
-
-
-def upgraded_critic_state(state: dict[str, Any]) -> dict[str, Any]:
-    """A critic ``state_dict`` in today's key layout: until 2026-12-02 IQL's Q networks were
-    an ``MLP`` inside a small module (keys ``qvalue_network_params.module.mlp.0.weight``);
-    they are :func:`q_network`'s ``MLP`` itself now (``...module.0.weight``), the same
-    parameters. Other keys are kept.
-
-    Examples:
-        >>> upgraded_critic_state({"target_qvalue_network_params.module.mlp.0.bias": 1, "x": 2})
-        {'target_qvalue_network_params.module.0.bias': 1, 'x': 2}
-    """
-    return {_OLD_IQL_Q.sub(r"\1.", k): v for k, v in state.items()}
-
-
-class _NoActor(nn.Module):
-    """The actor slot of TorchRL 0.14.1's ``IQLLoss``, which cannot be left empty.
-
-    ``IQLLoss.__init__`` converts its ``actor_network`` to functional parameters and
-    ``qvalue_loss`` reads ``actor_network.in_keys`` for the observation keys, so an actor
-    is required even though the recipe only calls ``qvalue_loss`` and ``value_loss``:
-    DUAL's actor loss is :class:`~torchrl_dual.WeightedMAPActorLoss` (Eq. 7). This one
-    has no parameters, so the loss's state_dict holds no copy of the actor's weights.
-    """
-
-    def forward(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        raise RuntimeError(
-            "IQLLoss.actor_loss is not DUAL's actor loss; use WeightedMAPActorLoss (Eq. 7)."
-        )
 
 
 def make_critic(
@@ -218,8 +174,8 @@ def make_iql_critic(
     """IQL's expectile value network V and twin Q networks (TorchRL ``IQLLoss``).
 
     Built in a fixed order (Q MLP, V MLP, then ``IQLLoss``, which redraws the second Q
-    network's weights) so a seed gives the same critics. Without ``actor`` the loss's
-    actor slot is a parameterless stand-in (DUAL trains its actor with its own loss);
+    network's weights) so a seed gives the same critics. Without ``actor`` the loss is
+    :class:`~torchrl_dual.objectives.IQLCriticLoss` (DUAL trains its actor with Eq. 7);
     with one (the ``iql`` baseline), ``loss.actor_loss`` is IQL's advantage-weighted
     regression at ``temperature`` and ``loss`` holds the actor's weights, which the
     critic's optimizer leaves alone.
@@ -235,26 +191,25 @@ def make_iql_critic(
         ),
         in_keys=["observation"],
     )
-    if actor is None:
-        actor = ProbabilisticActor(
-            TensorDictModule(_NoActor(), in_keys=["observation"], out_keys=["loc", "scale"]),
-            in_keys=["loc", "scale"],
-            distribution_class=torch.distributions.Normal,
-        )
-    loss = OnePassIQLLoss(
-        actor,
-        qvalue,
-        value,
-        expectile=c.expectile,
-        temperature=temperature,
-        num_qvalue_nets=2,
-        loss_function="l2",
-    ).to(device)
+    if actor is None:  # DUAL, Diff-QL: the critic alone
+        loss = IQLCriticLoss(
+            qvalue, value, expectile=c.expectile, num_qvalue_nets=2, loss_function="l2"
+        ).to(device)
+    else:
+        loss = OnePassIQLLoss(
+            actor,
+            qvalue,
+            value,
+            expectile=c.expectile,
+            temperature=temperature,
+            num_qvalue_nets=2,
+            loss_function="l2",
+        ).to(device)
     loss.make_value_estimator(gamma=c.discount)
     params = list(loss.qvalue_network_params.values(True, True)) + list(
         loss.value_network_params.values(True, True)
     )
-    return Critic.around(loss, params, c, iql_terms)
+    return Critic.around(loss, params, c)
 
 
 def make_calql_critic(
@@ -292,7 +247,7 @@ def make_calql_critic(
     params = list(loss.qvalue_network_params.values(True, True))
     if loss.with_lagrange:
         params.append(loss.log_alpha_prime)
-    return Critic.around(loss, params, c, calql_terms, saves_actor=saves_actor)
+    return Critic.around(loss, params, c, saves_actor=saves_actor)
 
 
 def make_so2_critic(
@@ -325,7 +280,7 @@ def make_so2_critic(
     phases(loss, online=False)
     params = loss.qvalue_network_params.values(True, True)
     return Critic.around(
-        loss, params, c, so2_terms, online_steps_per_update=c.online_steps_per_update, phases=phases
+        loss, params, c, online_steps_per_update=c.online_steps_per_update, phases=phases
     )
 
 
