@@ -113,10 +113,12 @@ def with_provenance(payload: Any, record: dict[str, Any] | None = None) -> dict[
     return {"rows": payload, "provenance": record}
 
 
-def write_json(path: Path | str, payload: Any, *, indent: int = 1, **dump: Any) -> dict:
-    """Writes :func:`with_provenance` of ``payload`` to ``path`` (a trailing newline);
-    returns what it wrote."""
-    stamped = with_provenance(payload)
+def write_json(
+    path: Path | str, payload: Any, *, indent: int = 1, tree: Path | str = REPO, **dump: Any
+) -> dict:
+    """Writes :func:`with_provenance` of ``payload`` (the commit of ``tree``, the source tree
+    that made it) to ``path`` with a trailing newline; returns what it wrote."""
+    stamped = with_provenance(payload, provenance(tree))
     Path(path).write_text(json.dumps(stamped, indent=indent, **dump) + "\n")
     return stamped
 

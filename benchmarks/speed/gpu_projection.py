@@ -93,6 +93,7 @@ def merge(paths: list[str], env_step_ms: float, eval_hours: float) -> dict:
     for report in reports[1:]:
         for name, modes in report["results"].items():
             results.setdefault(name, {}).update(modes)
+    merged["merged_from"] = [report.get("provenance") for report in reports]  # where measured
     merged["best_modes"] = best_modes(results)
     merged["paper_hours"] = paper_hours(results, env_step_ms, eval_hours)
     return merged
