@@ -226,6 +226,39 @@ def test_pen_runs_at_d4rl_s_100_step_horizon(minari_path, tmp_path):
     assert (data.reference_min, data.reference_max) == (96.262799, 3076.8331017826877)
 
 
+def _drop_the_pen(env):
+    """Puts the pen 0.2 below its start (its first slide joint points down in the world);
+    returns the unwrapped ``AdroitHandPen``."""
+    pen = env.unwrapped
+    qpos, qvel = pen.data.qpos.copy(), pen.data.qvel.copy()
+    qpos[24] += 0.2
+    pen.set_state(qpos, qvel)
+    return pen
+
+
+def test_a_dropped_pen_ends_the_episode_as_d4rl_s_does(minari_path, tmp_path):
+    """D4RL's pen_v0.py: done once the pen's height is below 0.075 (with the -5 penalty,
+    which Gymnasium-Robotics' dense reward keeps); protocol=minari keeps the data set's
+    env, which never terminates."""
+    cfg = compose(tmp_path, "env=adroit")
+    data = env_kits.make_offline_dataset(cfg)
+    for protocol, ends in (("d4rl", True), ("minari", False)):
+        run_cfg = compose(tmp_path, "env=adroit", f"env.protocol={protocol}")
+        for eval_env in (False, True):
+            env = minari_gym_env(run_cfg, data, eval_env=eval_env, shifted=False)
+            env.reset(seed=0)
+            still = np.zeros(env.action_space.shape, np.float32)
+            _, _, terminated, _, _ = env.step(still)
+            assert not terminated  # the pen starts in the hand, at height 0.25
+            pen = _drop_the_pen(env)
+            _, reward, terminated, truncated, info = env.step(still)
+            assert pen.data.xpos[pen.obj_body_id][2] < 0.075
+            assert reward < -4  # D4RL's drop penalty, -5 plus the orientation term
+            assert (terminated, truncated) == (ends, False), (protocol, eval_env)
+            assert info.get("pen_dropped", False) == ends
+            env.close()
+
+
 def test_locomotion_scores_with_d4rl_s_references(minari_path, tmp_path):
     result = run(compose(tmp_path, "env=hopper", "algo=iql", "num_threads=1", *FAST))
     for h in result.history:

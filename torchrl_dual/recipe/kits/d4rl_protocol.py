@@ -10,8 +10,9 @@ AntMaze        D4RL's single-goal task in the data's maze     Minari's goal-cond
                terminals relabelled to its goal,              ends, evaluation in the data set's
                ``desired_goal`` not observed, D4RL's          ``eval_env`` (whose U-maze is
                horizon), score 100 x success rate             turned, Minari issue #304)
-Adroit         D4RL's horizon (pen 100, others 200) and       the data set's env spec and
-               references                                     references
+Adroit         D4RL's horizon (pen 100, others 200), its      the data set's env spec and
+               references, Pen's end when the pen drops       references
+               (:class:`~torchrl_dual.envs.PenDropTermination`)
 locomotion     D4RL's random / expert references              none (no normalized score)
 =============  ============================================  =================================
 
@@ -50,6 +51,7 @@ class DataProtocol:
         antmaze_task (D4RLAntMazeTask, optional): D4RL's single AntMaze goal.
         evaluate_in_eval_env (bool): evaluate in the data set's ``eval_env`` rather than
             the env of its data.
+        pen_drop_ends (bool): a Pen episode ends when the pen drops (D4RL's pen).
     """
 
     name: str
@@ -58,6 +60,7 @@ class DataProtocol:
     references: tuple[float, float] | None = None
     antmaze_task: D4RLAntMazeTask | None = None
     evaluate_in_eval_env: bool = False
+    pen_drop_ends: bool = False
 
 
 @functools.lru_cache(maxsize=8)
@@ -93,7 +96,10 @@ def data_protocol(cfg: DictConfig) -> DataProtocol:
             antmaze_task=task,
         )
     return DataProtocol(
-        "d4rl", max_episode_steps=D4RL_HORIZONS[env.task], references=d4rl_references(env.task)
+        "d4rl",
+        max_episode_steps=D4RL_HORIZONS[env.task],
+        references=d4rl_references(env.task),
+        pen_drop_ends=env.get("task") == "pen",
     )
 
 

@@ -21,8 +21,9 @@ task, D4RL's horizons and references) comes from :mod:`~torchrl_dual.recipe.kits
   (``recover_environment()``; under ``protocol=minari`` the evaluation uses
   ``recover_environment(eval_env=True)``: same id, version and kwargs as the data), at the
   protocol's time limit, AntMaze wrapped in :class:`~torchrl_dual.envs.SingleGoalAntMaze`
-  under ``d4rl``, under ``env.shift`` (online only), behind the same
-  :class:`~torchrl_dual.envs.FlatObservation` map as the data; their observation space
+  and Pen in :class:`~torchrl_dual.envs.PenDropTermination` under ``d4rl``, under
+  ``env.shift`` (online only), behind the same :class:`~torchrl_dual.envs.FlatObservation`
+  map as the data; their observation space
   must match the data set's (:func:`check_observation_layout`).
 * Scores are D4RL-normalized with the protocol's references (``d4rl``: D4RL's; ``minari``:
   the data set's ``ref_min_score`` / ``ref_max_score``) or ``env.reference_returns``;
@@ -48,6 +49,7 @@ from torchrl_dual.data import OfflineDataset, load_minari_dataset
 from torchrl_dual.data.goal_relabel import relabel_to_goal
 from torchrl_dual.envs import (
     FlatObservation,
+    PenDropTermination,
     apply_shift,
     make_flat_env,
     register_robotics_envs,
@@ -184,6 +186,8 @@ def minari_gym_env(cfg: DictConfig, data: OfflineDataset, *, eval_env: bool, shi
     check_observation_layout(dataset.observation_space, raw.observation_space, dataset_id)
     if protocol.antmaze_task is not None:
         raw = SingleGoalAntMaze(raw, protocol.antmaze_task)
+    if protocol.pen_drop_ends:
+        raw = PenDropTermination(raw)
     if shifted:
         raw = apply_shift(raw, env.shift, scale=env.shift_scale, kind=env.kind)
     meta = data.metadata
