@@ -16,7 +16,10 @@ Adroit         D4RL's horizon (pen 100, others 200), its      the data set's env
 locomotion     D4RL's random / expert references              none (no normalized score)
 =============  ============================================  =================================
 
-``env.max_episode_steps`` and ``env.reference_returns``, when set, win over both.
+``env.max_episode_steps`` and ``env.reference_returns``, when set, win over both; AntMaze's
+``env.horizon_seconds`` sets the time limit in simulated seconds (:func:`horizon_of_seconds`:
+D4RL's ant steps 0.1 s, the data's 0.05 s) and ``env.goal_noise`` redraws D4RL's goal at
+each reset.
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ from omegaconf import DictConfig
 
 from torchrl_dual.data.d4rl_references import D4RL_HORIZONS, d4rl_references
 from torchrl_dual.envs import register_robotics_envs, release_maze_xml
-from torchrl_dual.envs.d4rl_antmaze import D4RLAntMazeTask, d4rl_maze_of
+from torchrl_dual.envs.d4rl_antmaze import D4RLAntMazeTask, d4rl_horizon_seconds, d4rl_maze_of
 from torchrl_dual.recipe.settings.envs import FAMILIES
 from torchrl_dual.recipe.settings.errors import UserError
 
@@ -101,6 +104,32 @@ def data_protocol(cfg: DictConfig) -> DataProtocol:
         references=d4rl_references(env.task),
         pen_drop_ends=env.get("task") == "pen",
     )
+
+
+@functools.lru_cache(maxsize=8)
+def ant_step_seconds(dataset_id: str) -> float:
+    """Simulated seconds per step of the ant of a Minari AntMaze data set's env."""
+    import minari
+
+    register_robotics_envs()
+    env = release_maze_xml(minari.load_dataset(dataset_id).recover_environment())
+    try:
+        return float(env.unwrapped.ant_env.dt)
+    finally:
+        env.close()
+
+
+def horizon_of_seconds(cfg: DictConfig) -> int | None:
+    """The time limit in steps that ``env.horizon_seconds`` gives (AntMaze; ``None``
+    when it is unset): the seconds (``d4rl``: D4RL's, 0.1 s x 700 / 1000) at the data's
+    env step."""
+    seconds = cfg.env.get("horizon_seconds")
+    if seconds is None:
+        return None
+    if seconds == "d4rl":
+        seconds = d4rl_horizon_seconds(cfg.env.dataset)
+    step = ant_step_seconds(FAMILIES[cfg.env.kind].dataset_id(cfg.env))
+    return max(1, round(float(seconds) / step))
 
 
 def protocol_metadata(protocol: DataProtocol) -> dict[str, Any]:

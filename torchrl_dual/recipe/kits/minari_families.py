@@ -58,7 +58,11 @@ from torchrl_dual.envs import (
 from torchrl_dual.envs.d4rl_antmaze import D4RL_SUCCESS_RADIUS, SingleGoalAntMaze
 from torchrl_dual.evaluation import evaluate_episodes
 from torchrl_dual.recipe.kits.build import Evaluator
-from torchrl_dual.recipe.kits.d4rl_protocol import data_protocol, protocol_metadata
+from torchrl_dual.recipe.kits.d4rl_protocol import (
+    data_protocol,
+    horizon_of_seconds,
+    protocol_metadata,
+)
 from torchrl_dual.recipe.settings.envs import FAMILIES
 from torchrl_dual.recipe.settings.errors import UserError
 from torchrl_dual.recipe.settings.references import reward_transform
@@ -114,9 +118,13 @@ def observation_normalizer(data: OfflineDataset, enabled: bool) -> tuple[np.ndar
 
 
 def _time_limit(cfg: DictConfig, dataset_id: str) -> int | None:
-    """``env.max_episode_steps``, else the protocol's, else the data set's env spec."""
+    """``env.max_episode_steps``, else AntMaze's ``env.horizon_seconds``, else the
+    protocol's, else the data set's env spec."""
     if cfg.env.max_episode_steps is not None:
         return int(cfg.env.max_episode_steps)
+    steps = horizon_of_seconds(cfg)
+    if steps is not None:
+        return steps
     protocol = data_protocol(cfg)
     if protocol.max_episode_steps is not None:
         return protocol.max_episode_steps
@@ -185,7 +193,7 @@ def minari_gym_env(cfg: DictConfig, data: OfflineDataset, *, eval_env: bool, shi
     raw = release_maze_xml(dataset.recover_environment(eval_env=eval_env, **kwargs))
     check_observation_layout(dataset.observation_space, raw.observation_space, dataset_id)
     if protocol.antmaze_task is not None:
-        raw = SingleGoalAntMaze(raw, protocol.antmaze_task)
+        raw = SingleGoalAntMaze(raw, protocol.antmaze_task, goal_noise=env.goal_noise)
     if protocol.pen_drop_ends:
         raw = PenDropTermination(raw)
     if shifted:
