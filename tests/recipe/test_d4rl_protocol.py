@@ -122,6 +122,33 @@ def test_online_and_evaluation_envs_play_the_task_in_the_data_s_maze(minari_path
     assert torch.all(rollout["next", "reward"] == -1.0)  # r = 0 far from the goal, IQL's r - 1
 
 
+def test_the_ant_s_clock_key_sets_the_time_limit_in_simulated_seconds(minari_path, tmp_path):
+    """The data's ant steps 0.05 s (timestep 0.01 x frame skip 5), D4RL's 0.1 s (0.02 x 5):
+    env.horizon_seconds=d4rl gives D4RL's 70 s of umaze, 1400 steps; a number is seconds;
+    env.max_episode_steps still wins; unset, D4RL's 700 steps (35 s here)."""
+    cases = {(): 700, ("env.horizon_seconds=d4rl",): 1400, ("env.horizon_seconds=10",): 200}
+    cases[("env.horizon_seconds=d4rl", "env.max_episode_steps=50")] = 50
+    data = env_kits.make_offline_dataset(compose(tmp_path, "env=antmaze"))
+    for overrides, steps in cases.items():
+        cfg = compose(tmp_path, "env=antmaze", *overrides)
+        for eval_env in (False, True):
+            env = minari_gym_env(cfg, data, eval_env=eval_env, shifted=False)
+            assert env.spec.max_episode_steps == steps, overrides
+            assert env.unwrapped.ant_env.dt == pytest.approx(0.05)
+            env.close()
+
+
+def test_goal_noise_redraws_d4rl_s_goal_in_its_square_at_each_reset(minari_path, tmp_path):
+    data = env_kits.make_offline_dataset(compose(tmp_path, "env=antmaze"))
+    for noise in (False, True):
+        cfg = compose(tmp_path, "env=antmaze", f"env.goal_noise={str(noise).lower()}")
+        env = minari_gym_env(cfg, data, eval_env=True, shifted=False)
+        goals = np.array([env.env.reset(seed=s)[0]["desired_goal"] for s in range(20)])
+        # D4RL's square: the G cell's corner (-4, 4) + U(0, 1) + U(0, 0.5) per axis
+        assert np.all(goals >= GOAL - 0.75) and np.all(goals <= GOAL + 0.75)
+        assert (goals.std(0) > 0.1).all() == noise and (goals.std(0) == 0).all() != noise
+
+
 def test_a_random_policy_scores_0_in_the_kit_s_evaluator(minari_path, tmp_path):
     cfg = compose(tmp_path, "env=antmaze", "budget.eval_episodes=3")
     data = env_kits.make_offline_dataset(cfg)
