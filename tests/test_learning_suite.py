@@ -294,7 +294,7 @@ def test_learning_suite_runs_one_tiny_cell_end_to_end_and_then_nothing(tmp_path,
     assert (result["variant"], result["algo"], result["shift"]) == ("iql", "iql", "biased_slip")
     assert [h["frames"] for h in result["history"]] == [0, 50, 100]
     assert result["wall_seconds"] >= result["offline_seconds"] > 0
-    record = result["provenance"]  # where it ran, read on the node (benchmarks/provenance.py)
+    record = result["provenance"]  # where it ran, read on the node (benchmarks/provenance/)
     assert record["host"] == host_id() and record["cpu"] == cpu_model()
     assert result["commit"] == record["commit"] != "?" and isinstance(record["dirty"], bool)
     assert "frozenlake8x8_slip iql seed0: final score" in printed.out + printed.err

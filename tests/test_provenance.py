@@ -1,4 +1,4 @@
-"""``benchmarks/provenance.py``: the host, CPU, commit and dirty flag every result JSON carries."""
+"""``benchmarks/provenance/``: the host, CPU, commit and dirty flag every result JSON carries."""
 
 from __future__ import annotations
 

@@ -29,7 +29,7 @@ def test_latency_benchmark_times_every_candidate_and_writes_json(tmp_path):
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     medians = json.loads(out.read_text())
-    assert medians.pop("provenance")["commit"] != "?"  # benchmarks/provenance.py
+    assert medians.pop("provenance")["commit"] != "?"  # benchmarks/provenance/
     assert set(medians) == {
         "mlp_actor",
         "planner_n32",

@@ -69,7 +69,7 @@ EQUIVALENCE_ABOUT = (
         f"{EQUIVALENCE_MARGIN * n**0.5 / t_quantile(0.95, n - 1):.1f} at n = {n}" for n in (5, 3)
     )
     + ". *One host, one commit?*: *yes* when every paired run recorded the same host id and "
-    "commit with a clean tree (`benchmarks/provenance.py`); *no* names what crosses (hosts, "
+    "commit with a clean tree (`benchmarks/provenance/`); *no* names what crosses (hosts, "
     "commits, a dirty tree; runs written before the host id was recorded say *host not "
     "recorded*): such a pair also carries the difference between hosts or code versions."
 )

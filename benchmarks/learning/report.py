@@ -326,7 +326,7 @@ def render_section(
         f"`{results_dir}`; everything between the markers is rewritten._",
         header,
         f"Runs on: {machines or '—'}. Commits: {commits or '—'}. Host ids "
-        f"(`benchmarks/provenance.py`): {len(hosts)}"
+        f"(`benchmarks/provenance/`): {len(hosts)}"
         + (f"; {unrecorded} runs from before host ids were recorded" if unrecorded else "")
         + ". Every paired comparison below says whether its runs share one host and commit.",
         "Each entry is the mean over seeds ± the half-width of the 95 % Student-t interval "

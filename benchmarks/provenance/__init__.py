@@ -38,7 +38,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 _SALT = "torchrl-dual host id\n"
 _NOT_CODE = (":(exclude)benchmarks/results", ":(exclude)docs", ":(exclude,glob)**/*.md")
 
