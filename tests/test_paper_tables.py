@@ -117,7 +117,7 @@ def test_the_dry_run_lists_five_seeds_of_six_methods_per_row_with_gpu_hours(tmp_
         "dual",
     }
     assert all("budget=paper" in c for c in commands)
-    assert "projected GPU time of the 270 paper runs to go: 270 x 2.26 h" in out
+    assert "projected GPU time of the 270 paper runs to go: 270 x 2.33 h" in out
 
 
 def test_the_paper_cells_run_end_to_end_on_stand_ins_and_the_report_shows_ours_next_to_the_paper_s(

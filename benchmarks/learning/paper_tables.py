@@ -250,20 +250,22 @@ def gpu_projection_text(runs: int, path: Path = GPU_PROJECTION) -> str:
 
     Examples:
         >>> print(gpu_projection_text(2).split(";")[0])
-        projected GPU time of the 2 paper runs to go: 2 x 2.26 h = 4.5 GPU-hours
+        projected GPU time of the 2 paper runs to go: 2 x 2.33 h = 4.7 GPU-hours
     """
     import json
 
-    report = json.loads(path.read_text())
-    hours = report["paper_hours"]
+    from benchmarks.speed.gpu_projection import PAPER, project_paper
+
+    report = json.loads(path.read_text())  # its rates, priced at today's budget=paper
+    hours = project_paper(report["results"], report["env_step_ms"], report["eval_hours"])
     return (
         f"projected GPU time of the {runs} paper runs to go: {runs} x {hours['total']:.2f} h = "
         f"{runs * hours['total']:.1f} GPU-hours; each priced as one DUAL budget=paper AntMaze run "
         f"on one {report['device_name']} ({path.relative_to(REPO)}, {report['date']}: its "
         f"update rates measured there, {hours['online_steps']:.2f} h of 1M env steps at "
         f"{report['env_step_ms']} ms measured on a CPU, {report['eval_hours']} h of evaluation "
-        "assumed, not measured); an upper bound for the methods without a planner, whose env "
-        "steps cost the same"
+        f"assumed, not measured; {PAPER['utd_ratio']:g} online update per env step); an upper "
+        "bound for the methods without a planner, whose env steps cost the same"
     )
 
 
