@@ -53,7 +53,7 @@ def test_rates_divide_each_count_by_its_stage_time():
 
 
 def test_the_projection_refuses_a_probe_at_another_update_ratio():
-    probe = {"measured": {}, "rates": {"online_utd_ratio": 1.0}}
+    probe = {"measured": {}, "rates": {"online_utd_ratio": 0.5}}  # budget=paper's DUAL: 1.0
     with pytest.raises(ValueError, match="utd_ratio"):
         project_from_probe(probe)
 

@@ -12,8 +12,14 @@ from benchmarks.learning import pairs as learning_pairs
 REPO = Path(__file__).resolve().parents[1]
 
 
-def _run(seed: int, offline: float, final: float, auc: float | None = None) -> dict:
-    return {"seed": seed, "offline_score": offline, "final_score": final, "auc": auc or final}
+def _run(
+    seed: int, offline: float, final: float, auc: float | None = None, host: str = "h"
+) -> dict:
+    record = {"host": host, "commit": "c0ffee", "dirty": False}
+    return {
+        "seed": seed, "offline_score": offline, "final_score": final, "auc": auc or final,
+        "provenance": record,
+    }  # fmt: skip
 
 
 def test_the_module_examples_run():
@@ -43,9 +49,9 @@ def test_dual_variants_pair_with_dual_by_seed_and_report_shared_offline_phases()
     low, high = -3.0 - 2.92 / 3**0.5, 1 / 3 + 2.92 * (1 / 3) ** 0.5 / 3**0.5
     assert rows[0].endswith(
         f"| -3.0 ± {final:.1f} ▼ | +0.3 ± {auc:.1f} ≈ | yes [{low:+.1f}, -1.3] / yes [-0.6, "
-        f"{high:+.1f}] |"
+        f"{high:+.1f}] | yes |"
     )
-    assert rows[1].endswith("| +10.0 ? | +20.0 ? | ? / ? |")  # one pair: no interval
+    assert rows[1].endswith("| +10.0 ? | +20.0 ? | ? / ? | yes |")  # one pair: no interval
     n, (mean, _), _ = learning_pairs.paired_difference(cells["umaze_online"]["dual_utd025"], dual)
     assert (n, mean) == (2, pytest.approx(-5.0))
 
@@ -79,3 +85,23 @@ def test_every_baseline_pairs_with_the_dual_runs_of_its_reference_cell():
     assert rows[1].split(" | ")[6] == f"+6.0 ± {4.3027 / 3**0.5:.1f} ▲"
     assert set(variants.baseline_variants()) >= {"iql", "diffuser", "dacer", "edis"}
     assert not {"dual", "dual_no_uq", "dual_calql"} & set(variants.baseline_variants())
+
+
+def test_a_pair_that_crosses_hosts_commits_or_a_dirty_tree_is_marked():
+    """Only the paired seeds count: an unpaired run on another host changes nothing."""
+    dual = [_run(0, 20.0, 50.0), _run(1, 30.0, 60.0)]
+    same = [_run(0, 20.0, 40.0), _run(1, 30.0, 50.0), _run(7, 0.0, 0.0, host="elsewhere")]
+    moved = [_run(0, 20.0, 40.0), _run(1, 30.0, 50.0, host="elsewhere")]
+    edited = [_run(0, 20.0, 40.0), _run(1, 30.0, 50.0)]
+    edited[1]["provenance"] = {**edited[1]["provenance"], "commit": "beef", "dirty": True}
+    older = [{k: v for k, v in r.items() if k != "provenance"} | {"commit": "c0ffee"} for r in same]
+
+    def verdict(base: list[dict]) -> str:
+        cells = {"u": {"dual": dual, "iql": base}}
+        row = learning_pairs.baseline_pairs_table(cells, ["u"], baselines=["iql"])
+        return row.splitlines()[-1].rsplit(" | ", 1)[1].removesuffix(" |")
+
+    assert verdict(same) == "yes"
+    assert verdict(moved) == "no: 2 hosts"
+    assert verdict(edited) == "no: 2 commits, dirty tree"
+    assert verdict(older) == "no: host not recorded"

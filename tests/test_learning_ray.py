@@ -87,9 +87,13 @@ def test_ray_backend_writes_the_runs_and_table_of_the_local_backend(ray_runtime,
     assert [str(n) for n in names] == ["smoke/frozenlake8x8_slip/iql/seed0.json"]
     assert sorted(p.relative_to(ray / "results") for p in ray.glob("results/**/*.json")) == names
     timing = {"offline_seconds", "online_seconds", "wall_seconds", "stage_seconds", "date"}
-    timing |= {"offline_cpu_seconds", "cpu_seconds", "stage_cpu_seconds"}
+    timing |= {"offline_cpu_seconds", "cpu_seconds", "stage_cpu_seconds", "provenance"}
     for name in names:
         a, b = (json.loads((root / "results" / name).read_text()) for root in (local, ray))
+        # where it ran, read on the Ray worker as on this process: the same host and commit
+        assert {k: v for k, v in a["provenance"].items() if k != "date"} == {
+            k: v for k, v in b["provenance"].items() if k != "date"
+        }
         # same seed, one thread, same machine: every score is bit-equal
         assert {k: v for k, v in a.items() if k not in timing} == {
             k: v for k, v in b.items() if k not in timing

@@ -15,6 +15,7 @@ import pytest
 
 from benchmarks.learning import report as lr
 from benchmarks.learning import suite as learning
+from benchmarks.provenance import cpu_model, host_id
 
 pytestmark = pytest.mark.long_running(seconds=10)  # starts first under xdist
 HAND_WRITTEN = "# Learning results\n\nIntro written by hand.\n\n## Older runs\n\nkept as is.\n"
@@ -162,7 +163,8 @@ def test_dual_against_its_base_critic_is_a_paired_difference_over_common_seeds()
     half90 = 2.92 * sd / math.sqrt(3)
     assert mean + half90 > 10 > mean - half90 > -10
     assert table[-1].endswith(
-        f"| +{mean:.1f} ± {half:.1f} ≈ | no [{mean - half90:+.1f}, {mean + half90:+.1f}] |"
+        f"| +{mean:.1f} ± {half:.1f} ≈ | no [{mean - half90:+.1f}, {mean + half90:+.1f}] "
+        "| no: host not recorded |"  # the runs carry a commit but no host id
     )
     n, (m, h), marker = learning_pairs.paired_difference(
         runs("d", [12.0, 13.0, 15.0], [0, 1, 2]), runs("b", [10.0, 10.5, 12.0], [0, 1, 2])
@@ -292,6 +294,9 @@ def test_learning_suite_runs_one_tiny_cell_end_to_end_and_then_nothing(tmp_path,
     assert (result["variant"], result["algo"], result["shift"]) == ("iql", "iql", "biased_slip")
     assert [h["frames"] for h in result["history"]] == [0, 50, 100]
     assert result["wall_seconds"] >= result["offline_seconds"] > 0
+    record = result["provenance"]  # where it ran, read on the node (benchmarks/provenance/)
+    assert record["host"] == host_id() and record["cpu"] == cpu_model()
+    assert result["commit"] == record["commit"] != "?" and isinstance(record["dirty"], bool)
     assert "frozenlake8x8_slip iql seed0: final score" in printed.out + printed.err
     assert "### frozenlake8x8_slip" in docs.read_text()
     stamp = path.stat().st_mtime_ns

@@ -83,6 +83,23 @@ def test_every_paper_row_s_data_set_has_a_stand_in():
         assert FAMILIES[kind].dataset_id(OmegaConf.create(fields)) in STANDINS, row.row
 
 
+def test_table_1_s_antmaze_rows_read_the_minari_data_set_with_d4rl_s_layout():
+    """D4RL's play rows send the ant to a few hand-picked goals, its diverse rows anywhere:
+    Minari recorded its play sets in the registered maps (goals in any free cell) and its
+    diverse sets in ``*_Diverse_GR`` (the hand-picked ``c`` cells), so each row reads the
+    set whose env records D4RL's layout, and its label names that set."""
+    rows = {r.row: r for r in paper_tables.ROWS if r.row.startswith("antmaze-")}
+    assert len(rows) == 6
+    for label, row in rows.items():
+        hand_picked = "Diverse_GR" in STANDINS[row.data].env_id
+        assert hand_picked == ("-play-" in label), (label, row.data)
+        assert f"env.dataset={row.data.split('/')[-1].removesuffix('-v1')}" in row.overrides
+        assert f"data: `{row.data}`" in row.label
+    assert rows["antmaze-medium-play-v2"].data == "D4RL/antmaze/medium-diverse-v1"
+    assert rows["antmaze-large-diverse-v2"].data == "D4RL/antmaze/large-play-v1"
+    assert rows["antmaze-umaze-diverse-v2"].data == "D4RL/antmaze/umaze-diverse-v1"
+
+
 def test_the_dry_run_lists_five_seeds_of_six_methods_per_row_with_gpu_hours(tmp_path, capsys):
     cells = [r.cell for r in paper_tables.runnable_rows(1)]
     flags = ["--results", str(tmp_path), "--out", str(tmp_path / "out")]
@@ -100,7 +117,7 @@ def test_the_dry_run_lists_five_seeds_of_six_methods_per_row_with_gpu_hours(tmp_
         "dual",
     }
     assert all("budget=paper" in c for c in commands)
-    assert "projected GPU time of the 270 paper runs to go: 270 x 2.26 h" in out
+    assert "projected GPU time of the 270 paper runs to go: 270 x 2.33 h" in out
 
 
 def test_the_paper_cells_run_end_to_end_on_stand_ins_and_the_report_shows_ours_next_to_the_paper_s(

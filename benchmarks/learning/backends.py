@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from benchmarks.learning.cells import Run
+from benchmarks.provenance import cpu_model, provenance
 
 
 class Suite(Protocol):
@@ -55,26 +56,9 @@ SHARED_TOKEN = ".suite-shared-token"
 """File under ``--out`` that every Ray task reads to check that ``--out`` is shared."""
 
 Outcome = dict[str, Any]
-"""One run's end: ``error`` (``""`` on success), ``seconds`` and the ``machine`` it ran on."""
-
-
-def cpu_model() -> str:
-    """The CPU's model name (``/proc/cpuinfo`` on Linux, else ``platform.processor()``):
-    two VMs with the same platform string can run on different CPUs, whose float
-    rounding and speed differ (``""`` when unknown).
-
-    Examples:
-        >>> isinstance(cpu_model(), str)
-        True
-    """
-    try:
-        with open("/proc/cpuinfo") as cpuinfo:
-            for line in cpuinfo:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor()
+"""One run's end: ``error`` (``""`` on success), ``seconds``, the ``machine`` it ran on and
+its ``provenance`` there (:func:`benchmarks.provenance.provenance`: host, CPU, commit, dirty
+flag, read on the node when the run starts)."""
 
 
 def machine() -> str:
@@ -120,7 +104,7 @@ def run_recipe(
         'exit 3, no summary.json; stder'
     """
     start, path = time.monotonic(), Path(run_dir)
-    outcome = {"error": "", "seconds": 0.0, "machine": machine()}
+    outcome = {"error": "", "seconds": 0.0, "machine": machine(), "provenance": provenance(cwd)}
     if shared_token is not None and not _token_matches(*shared_token):
         outcome["error"] = (
             f"error: {shared_token[0]} is not visible on node {platform.node()}: --out must "

@@ -159,6 +159,12 @@ CELLS: dict[str, Cell] = {
         ("env=pointmaze_umaze", "env.shift=rotation"), (*SHIFT_VARIANTS, *CRITIC_VARIANTS), 3,
         "U-maze, online actions rotated by `env.shift_angle` (60°)",
     ),
+    # umaze_rotation's shift-aware claim again, whole: DUAL, λ = 0 and IQL, seeds 0-4, run
+    # together on one host and one commit (its runs of record crossed commits and dates)
+    "umaze_rotation_onehost": Cell(
+        ("env=pointmaze_umaze", "env.shift=rotation"), ("dual", "dual_lambda0", "iql"), 5,
+        "umaze_rotation's DUAL, λ = 0 and IQL again, seeds 0-4, one host and one commit",
+    ),
     "umaze_damping": Cell(
         ("env=pointmaze_umaze", "env.shift=damping"), SHIFT_VARIANTS, 3,
         "U-maze, online damping × 150",

@@ -14,7 +14,7 @@ at α = 0.05), which is what "level" or "at full strength" needs.
     ...     "dual": [{"seed": s, "final_score": v} for s, v in enumerate([50.0, 60.0, 55.0])],
     ...     "iql": [{"seed": s, "final_score": v} for s, v in enumerate([40.0, 52.0, 44.0])]}}
     >>> print(critic_pairs_table(cells, ["c"]).splitlines()[-1])
-    | c | IQL | 3 | 45.3 ± 15.2 | 55.0 ± 12.4 | +9.7 ± 3.8 ▲ | no [+7.1, +12.2] |
+    | c | IQL | 3 | 45.3 ± 15.2 | 55.0 ± 12.4 | +9.7 ± 3.8 ▲ | no [+7.1, +12.2] | no: host not recorded, commit not recorded |
 """
 
 from __future__ import annotations
@@ -35,6 +35,7 @@ from benchmarks.learning.variants import (
     baseline_variants,
     dual_variants,
 )
+from benchmarks.provenance import crossing
 
 CRITIC_PAIRS: tuple[tuple[str, str, str], ...] = (
     ("IQL", "iql", "dual"),
@@ -45,6 +46,8 @@ CRITIC_PAIRS: tuple[tuple[str, str, str], ...] = (
 
 _WITHIN = f"equivalent within ±{EQUIVALENCE_MARGIN:g}? (90 % interval)"
 """The header of the equivalence columns (:func:`paired_equivalence`)."""
+_ONE_SITTING = "one host, one commit?"
+"""The header of the provenance column (:func:`same_host_and_commit`)."""
 
 EQUIVALENCE_ABOUT = (
     "Every paired table below gives, next to the paired difference and its 95 % interval "
@@ -65,7 +68,10 @@ EQUIVALENCE_ABOUT = (
     + ", ".join(
         f"{EQUIVALENCE_MARGIN * n**0.5 / t_quantile(0.95, n - 1):.1f} at n = {n}" for n in (5, 3)
     )
-    + "."
+    + ". *One host, one commit?*: *yes* when every paired run recorded the same host id and "
+    "commit with a clean tree (`benchmarks/provenance/`); *no* names what crosses (hosts, "
+    "commits, a dirty tree; runs written before the host id was recorded say *host not "
+    "recorded*): such a pair also carries the difference between hosts or code versions."
 )
 """The report's paragraph on the equivalence columns: the margin, stated and justified once."""
 
@@ -97,12 +103,26 @@ def paired_equivalence(
     return equivalence(_differences(minuend, subtrahend, key), EQUIVALENCE_MARGIN)
 
 
+def same_host_and_commit(*sides: list[dict]) -> str:
+    """``yes`` when every run of ``sides`` (the paired runs) recorded one host id and one
+    commit, none dirty (:func:`benchmarks.provenance.crossing`); else ``no: `` and what
+    crosses (runs written before the host was recorded: ``host not recorded``).
+
+    Examples:
+        >>> run = lambda host: {"provenance": {"host": host, "commit": "c", "dirty": False}}
+        >>> same_host_and_commit([run("a")], [run("a")]), same_host_and_commit([run("a")], [run("b")])
+        ('yes', 'no: 2 hosts')
+    """
+    crosses = crossing(r for side in sides for r in side)
+    return f"no: {crosses}" if crosses else "yes"
+
+
 def _pair_cells(
     minuend: list[dict], subtrahend: list[dict], keys: Sequence[str] = ("final_score", "auc")
 ) -> tuple[int, list[str]] | None:
     """``(n, [subtrahend final, minuend final, one paired difference per key, the
-    equivalence verdicts of the keys joined by " / "])`` as table cells, on the seeds both
-    ran; ``None`` without a pair."""
+    equivalence verdicts of the keys joined by " / ", whether the paired runs share one host
+    and commit])`` as table cells, on the seeds both ran; ``None`` without a pair."""
     n, _, _ = paired_difference(minuend, subtrahend, keys[0])
     if not n:
         return None
@@ -116,7 +136,8 @@ def _pair_cells(
         _, (m, h), marker = paired_difference(minuend, subtrahend, key)
         texts.append(f"{m:+.1f} {marker}" if n < 2 else f"{m:+.1f} ± {h:.1f} {marker}")
     verdicts = " / ".join(paired_equivalence(minuend, subtrahend, key).text() for key in keys)
-    return n, [*finals, *texts, verdicts]
+    paired = [[r for r in side if r["seed"] in seeds] for side in (minuend, subtrahend)]
+    return n, [*finals, *texts, verdicts, same_host_and_commit(*paired)]
 
 
 def _against_dual(
@@ -142,8 +163,8 @@ def critic_pairs_table(cells: dict[str, dict[str, list[dict]]], order: Sequence[
     sides of."""
     lines = [
         "| cell | critic | n (paired) | base: final | DUAL on it: final | DUAL − base (paired) "
-        f"| {_WITHIN} |",
-        "|---|---|---:|---|---|---|---|",
+        f"| {_WITHIN} | {_ONE_SITTING} |",
+        "|---|---|---:|---|---|---|---|---|",
     ]
     for cell in sorted(cells, key=lambda c: order.index(c) if c in order else len(order)):
         variants = cells[cell]
@@ -182,14 +203,15 @@ def dual_variant_pairs_table(
         ...          "u_online": {"dual_utd025": [run(0, 9.0, 47.0), run(1, 7.0, 55.0)]}}
         >>> print(dual_variant_pairs_table(cells, ["u", "u_online"], {"u_online": "u"})
         ...       .splitlines()[-1])
-        | u_online | `dual_utd025` (`online.utd_ratio=0.25`) | 2 | 1/2 | 55.0 ± 63.5 | 51.0 ± 50.8 | -4.0 ± 12.7 ≈ | -4.0 ± 12.7 ≈ | no [-10.3, +2.3] / no [-10.3, +2.3] |
+        | u_online | `dual_utd025` (`online.utd_ratio=0.25`) | 2 | 1/2 | 55.0 ± 63.5 | 51.0 ± 50.8 | -4.0 ± 12.7 ≈ | -4.0 ± 12.7 ≈ | no [-10.3, +2.3] / no [-10.3, +2.3] | no: host not recorded, commit not recorded |
     """
     dual_from = dual_from or {}
     variants = dual_variants() if variants is None else variants
     lines = [
         "| cell | variant | n (paired) | same offline phase | `dual`: final | variant: final "
-        f"| variant − `dual`: final | variant − `dual`: AUC | {_WITHIN}: final / AUC |",
-        "|---|---|---:|---:|---|---|---|---|---|",
+        f"| variant − `dual`: final | variant − `dual`: AUC | {_WITHIN}: final / AUC "
+        f"| {_ONE_SITTING} |",
+        "|---|---|---:|---:|---|---|---|---|---|---|",
     ]
     for cell, _, variant, runs, dual in _against_dual(cells, order, dual_from, variants):
         pair = _pair_cells(runs, dual)
@@ -222,14 +244,15 @@ def baseline_pairs_table(
         ...          "u_base": {"edis": [run(0, 40.0), run(1, 45.0)]}}
         >>> print(baseline_pairs_table(cells, ["u", "u_base"], {"u_base": "u"}, ["edis"])
         ...       .splitlines()[-1])
-        | u_base | `edis` | 2 | u | 42.5 ± 31.8 | 55.0 ± 63.5 | +12.5 ± 31.8 ≈ | +6.2 ± 15.9 ≈ | no [-3.3, +28.3] / no [-1.6, +14.1] |
+        | u_base | `edis` | 2 | u | 42.5 ± 31.8 | 55.0 ± 63.5 | +12.5 ± 31.8 ≈ | +6.2 ± 15.9 ≈ | no [-3.3, +28.3] / no [-1.6, +14.1] | no: host not recorded, commit not recorded |
     """
     dual_from = dual_from or {}
     baselines = baseline_variants() if baselines is None else baselines
     lines = [
         "| cell | baseline | n (paired) | `dual` of | baseline: final | `dual`: final "
-        f"| DUAL − baseline: final | DUAL − baseline: AUC | {_WITHIN}: final / AUC |",
-        "|---|---|---:|---|---|---|---|---|---|",
+        f"| DUAL − baseline: final | DUAL − baseline: AUC | {_WITHIN}: final / AUC "
+        f"| {_ONE_SITTING} |",
+        "|---|---|---:|---|---|---|---|---|---|---|",
     ]
     dual_runs = dual_runs or {}
     for cell, reference, base, runs, dual in _against_dual(cells, order, dual_from, baselines):
@@ -281,13 +304,13 @@ def reference_pairs_table(cells: dict[str, dict[str, list[dict]]], order: Sequen
         >>> cells = {"u": {"iql": [run(0, 50.0), run(1, 52.0), run(2, 51.0)],
         ...                "iql_d3rlpy": [run(0, 49.0), run(1, 50.0), run(2, 51.0)]}}
         >>> print(reference_pairs_table(cells, ["u"]).splitlines()[-1])
-        | u | `iql` | `iql_d3rlpy` | 3 | 50.0 ± 2.5 | 51.0 ± 2.5 | +0.0 ± 0.0 ≈ | +1.0 ± 2.5 ≈ | +1.0 ± 2.5 ≈ | yes [+0.0, +0.0] / yes [-0.7, +2.7] / yes [-0.7, +2.7] |
+        | u | `iql` | `iql_d3rlpy` | 3 | 50.0 ± 2.5 | 51.0 ± 2.5 | +0.0 ± 0.0 ≈ | +1.0 ± 2.5 ≈ | +1.0 ± 2.5 ≈ | yes [+0.0, +0.0] / yes [-0.7, +2.7] / yes [-0.7, +2.7] | no: host not recorded, commit not recorded |
     """
     lines = [
         "| cell | ours | reference | n (paired) | reference: final | ours: final "
         "| ours − reference: offline | ours − reference: final | ours − reference: AUC "
-        f"| {_WITHIN}: offline / final / AUC |",
-        "|---|---|---|---:|---|---|---|---|---|---|",
+        f"| {_WITHIN}: offline / final / AUC | {_ONE_SITTING} |",
+        "|---|---|---|---:|---|---|---|---|---|---|---|",
     ]
     keys = ("offline_score", "final_score", "auc")
     for cell in sorted(cells, key=lambda c: order.index(c) if c in order else len(order)):

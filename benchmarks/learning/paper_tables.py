@@ -131,6 +131,23 @@ _ODRL = {  # ODRL rows: (robot, D4RL data set, shift); all at shift level 2.0 (a
 }
 MINARI_LOCOMOTION = ("medium", "expert", "simple")
 """Minari's ``mujoco/<robot>/<name>-v0`` data sets (no ``medium-replay``/``medium-expert``)."""
+ANTMAZE_MINARI_DATA = {
+    "umaze": "umaze",
+    "umaze-diverse": "umaze-diverse",
+    "medium-play": "medium-diverse",
+    "medium-diverse": "medium-play",
+    "large-play": "large-diverse",
+    "large-diverse": "large-play",
+}
+"""D4RL's AntMaze data set -> the Minari one (``D4RL/antmaze/<name>-v1``) with its layout.
+D4RL's ``play`` sets command the ant to a few hand-picked goals, its ``diverse`` sets to
+goals anywhere. Minari's generation script (``scripts/antmaze/create_antmaze_dataset.py``,
+``DATASET_ID_TO_ENV_ID``) recorded its ``medium-play``/``large-play`` in
+``AntMaze_Medium-v4``/``AntMaze_Large-v4`` (goals and resets in any free cell) and its
+``medium-diverse``/``large-diverse`` in ``AntMaze_*_Diverse_GR-v4`` (the hand-picked ``c``
+cells): the names are swapped, so D4RL's play row reads Minari's diverse set and the
+other way round. ``umaze`` (one goal) and ``umaze-diverse`` (goals anywhere in the
+registered ``U_MAZE``) keep their names."""
 
 
 @dataclass(frozen=True)
@@ -142,12 +159,31 @@ class PaperRow:
         row (str): the paper's row label, e.g. ``antmaze-umaze-v2``.
         overrides (tuple of str): the recipe overrides of its data set and shift.
         unavailable (str): why it cannot run here (empty: it can).
+        data (str): the Minari data set it reads (empty when it cannot run).
     """
 
     table: int
     row: str
     overrides: tuple[str, ...]
     unavailable: str = ""
+    data: str = ""
+
+    @property
+    def label(self) -> str:
+        """The row as the report names it: the paper's label and the Minari data set it
+        reads, or why it cannot run.
+
+        Examples:
+            >>> next(r for r in ROWS if r.row == "antmaze-large-play-v2").label
+            "`antmaze-large-play-v2` (data: `D4RL/antmaze/large-diverse-v1`, D4RL's play layout under Minari's other name)"
+        """
+        if self.unavailable:
+            return f"`{self.row}` ({self.unavailable})"
+        name = self.data.split("/")[-1].rsplit("-v", 1)[0]
+        d4rl = self.row.removeprefix("antmaze-").rsplit("-v", 1)[0]
+        swapped = self.row.startswith("antmaze-") and name != d4rl
+        why = f", D4RL's {d4rl.split('-')[1]} layout under Minari's other name" if swapped else ""
+        return f"`{self.row}` (data: `{self.data}`{why})"
 
     @property
     def cell(self) -> str:
@@ -166,10 +202,13 @@ def _row(table: int, row: str) -> PaperRow:
         robot, dataset, shift = _ODRL[row]
         extra = (f"env.shift={shift}", "env.shift_scale=2.0")
     elif name.startswith("antmaze-"):
-        return PaperRow(table, row, ("env=antmaze", f"env.dataset={name.removeprefix('antmaze-')}"))
+        dataset = ANTMAZE_MINARI_DATA[name.removeprefix("antmaze-")]
+        overrides = ("env=antmaze", f"env.dataset={dataset}")
+        return PaperRow(table, row, overrides, data=f"D4RL/antmaze/{dataset}-v1")
     elif name.split("-")[0] in ("pen", "door", "hammer", "relocate"):
         task, dataset = name.split("-", 1)
-        return PaperRow(table, row, ("env=adroit", f"env.task={task}", f"env.dataset={dataset}"))
+        overrides = ("env=adroit", f"env.task={task}", f"env.dataset={dataset}")
+        return PaperRow(table, row, overrides, data=f"D4RL/{task}/{dataset}-v2")
     else:
         robot, dataset = name.split("-", 1)
         extra = ()
@@ -179,7 +218,7 @@ def _row(table: int, row: str) -> PaperRow:
             table, row, overrides,
             f"Minari has no mujoco/{robot}/{dataset} data set",
         )  # fmt: skip
-    return PaperRow(table, row, overrides)
+    return PaperRow(table, row, overrides, data=f"mujoco/{robot}/{dataset}-v0")
 
 
 ROWS: tuple[PaperRow, ...] = tuple(
@@ -211,20 +250,22 @@ def gpu_projection_text(runs: int, path: Path = GPU_PROJECTION) -> str:
 
     Examples:
         >>> print(gpu_projection_text(2).split(";")[0])
-        projected GPU time of the 2 paper runs to go: 2 x 2.26 h = 4.5 GPU-hours
+        projected GPU time of the 2 paper runs to go: 2 x 2.33 h = 4.7 GPU-hours
     """
     import json
 
-    report = json.loads(path.read_text())
-    hours = report["paper_hours"]
+    from benchmarks.speed.gpu_projection import PAPER, project_paper
+
+    report = json.loads(path.read_text())  # its rates, priced at today's budget=paper
+    hours = project_paper(report["results"], report["env_step_ms"], report["eval_hours"])
     return (
         f"projected GPU time of the {runs} paper runs to go: {runs} x {hours['total']:.2f} h = "
         f"{runs * hours['total']:.1f} GPU-hours; each priced as one DUAL budget=paper AntMaze run "
         f"on one {report['device_name']} ({path.relative_to(REPO)}, {report['date']}: its "
         f"update rates measured there, {hours['online_steps']:.2f} h of 1M env steps at "
         f"{report['env_step_ms']} ms measured on a CPU, {report['eval_hours']} h of evaluation "
-        "assumed, not measured); an upper bound for the methods without a planner, whose env "
-        "steps cost the same"
+        f"assumed, not measured; {PAPER['utd_ratio']:g} online update per env step); an upper "
+        "bound for the methods without a planner, whose env steps cost the same"
     )
 
 
@@ -271,8 +312,7 @@ def render_tables(results: dict[str, dict[str, list[dict]]]) -> str:
                 else:
                     ours = ours_cell(results.get(row.cell, {}).get(variant, []))
                 cells.append(f"{ours} / {mean:.2f} ± {sd:.2f}")
-            note = f" ({row.unavailable})" if row.unavailable else ""
-            lines.append(f"| `{row.row}`{note} | " + " | ".join(cells) + " |")
+            lines.append(f"| {row.label} | " + " | ".join(cells) + " |")
         parts.append("\n".join(lines))
     return "\n\n".join(parts)
 

@@ -26,7 +26,6 @@ import argparse
 import json
 import os
 import shlex
-import subprocess
 import sys
 from contextlib import closing
 from datetime import datetime, timezone
@@ -86,27 +85,26 @@ def order_for_sharing(runs: list[Run]) -> list[Run]:
     return leaders + followers
 
 
-def git_commit() -> str:
-    proc = subprocess.run(
-        ["git", "rev-parse", "--short=12", "HEAD"], cwd=REPO, capture_output=True, text=True
-    )
-    return proc.stdout.strip() or "?"
-
-
 class Suite:
     """Runs the queue and writes one compact JSON per finished run."""
 
     def __init__(self, args: argparse.Namespace, extra: list[str]) -> None:
         self.args, self.extra = args, extra
-        self.meta: dict[str, str] = {}
 
-    def run_meta(self, node: str) -> dict[str, str]:
-        """Commit (read once, when needed), the machine the run ran on (``node``) and the
-        date, recorded in a run's JSON."""
-        if not self.meta:
-            self.meta = {"commit": git_commit()}
+    @staticmethod
+    def run_meta(outcome: Outcome) -> dict:
+        """What a run's JSON records of where it ran: the node's provenance (host id, CPU,
+        commit, dirty flag, date; :mod:`benchmarks.provenance`, read on the node when the
+        run started), its commit again as ``commit`` (what older JSONs kept) and the
+        node's ``machine`` line (platform, CPUs, torch / torchrl versions)."""
+        record = outcome.get("provenance") or {}
         date = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-        return {**self.meta, "machine": node, "date": date}
+        return {
+            "commit": record.get("commit", "?"),
+            "machine": outcome["machine"],
+            "date": date,
+            "provenance": record,
+        }
 
     def run_dir(self, run: Run) -> Path:
         return self.args.out / self.args.budget / run.cell / run.variant / f"seed{run.seed}"
@@ -137,7 +135,7 @@ class Suite:
         """Writes the compact JSON of a finished run from its ``summary.json``."""
         summary = json.loads((self.run_dir(run) / "summary.json").read_text())
         overrides = [*run.overrides, *self.extra]
-        meta = self.run_meta(outcome["machine"])
+        meta = self.run_meta(outcome)
         result = compact_result(
             summary, variant=run.variant, cell=run.cell, overrides=overrides, meta=meta
         )

@@ -31,6 +31,8 @@ import time
 from collections import Counter
 from pathlib import Path
 
+from benchmarks.provenance import write_json
+
 REPO = Path(__file__).resolve().parents[2]
 
 
@@ -126,7 +128,7 @@ def main() -> None:
         )
     if args.json is not None:
         payload = {"seconds": seconds, "files": {f: dict(c) for f, c in table.items()}}
-        args.json.write_text(json.dumps(payload, indent=1))
+        write_json(args.json, payload, indent=1)
 
 
 if __name__ == "__main__":

@@ -27,9 +27,7 @@ Arguments after ``--`` are extra recipe overrides.
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
 import re
 import signal
 import subprocess
@@ -41,6 +39,7 @@ from pathlib import Path
 
 import torch
 
+from benchmarks.provenance import provenance, write_json
 from torchrl_dual.checkpoint import state_differences
 
 REPO = Path(__file__).resolve().parents[2]
@@ -101,29 +100,6 @@ def run_and_kill(command: list[str], after_frames: int, delay: float, env: dict)
     return {"evaluated_at": killed_after, "exit_code": code, "last_line": lines[-1]}
 
 
-def source_version(tree: Path) -> str:
-    """``<commit>`` of the source tree the recipe ran from (``+dirty`` with local edits)."""
-    git = ["git", "-C", str(tree)]
-    commit = subprocess.run([*git, "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
-    dirty = subprocess.run(
-        [*git, "status", "--porcelain", "--untracked-files=no", "--", "torchrl_dual", "recipes"],
-        capture_output=True,
-        text=True,
-    )
-    return commit.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
-
-
-def cpu_model() -> str:
-    """The CPU's model name (Linux), else the platform's machine string."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return f"{line.split(':', 1)[1].strip()}, {os.cpu_count()} cores"
-    except OSError:
-        pass
-    return platform.machine()
-
-
 def count_leaves(state: object) -> int:
     """The compared leaves of a checkpoint state (tensors, arrays, numbers, strings)."""
     if isinstance(state, dict) or hasattr(state, "batch_size"):
@@ -168,12 +144,13 @@ def main() -> None:
     run_to_end(command(killed, "resume=true"), env)
     a, b = final_state(whole), final_state(killed)
     differ = state_differences(a, b, ignore=WALL_CLOCK)
+    code = provenance(args.code or REPO)  # the source tree the recipe ran from
     result = {
         "algo": args.algo,
         "budget": args.budget,
         "seed": args.seed,
         "overrides": args.overrides,
-        "code": source_version(args.code or REPO),
+        "code": code["commit"] + ("+dirty" if code["dirty"] else ""),
         "killed_after_evaluation_at_frames": kill["evaluated_at"],
         "kill_delay_seconds": args.kill_delay,
         "checkpoint_frames_at_kill": at_kill["frames"],
@@ -181,7 +158,7 @@ def main() -> None:
         "entries_compared": count_leaves(a),
         "differences": differ,
         "whole_run_seconds": round(seconds, 1),
-        "machine": cpu_model(),
+        "machine": f"{code['cpu']}, {os.cpu_count()} cores",
         "torch": torch.__version__,
         "date": time.strftime("%Y-%m-%d"),
     }
@@ -195,7 +172,7 @@ def main() -> None:
         + ("all bitwise equal" if not differ else f"{len(differ)} differ: {differ[:20]}")
     )
     if args.json:
-        args.json.write_text(json.dumps(result, indent=2) + "\n")
+        write_json(args.json, result, indent=2, tree=args.code or REPO)
     sys.exit(1 if differ else 0)
 
 

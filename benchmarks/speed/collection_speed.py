@@ -21,7 +21,6 @@ Example:
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import statistics
@@ -33,6 +32,7 @@ import torch
 from torchrl.collectors import Collector
 from torchrl.envs.utils import ExplorationType
 
+from benchmarks.provenance import write_json
 from benchmarks.speed.latency_candidates import Config, build_dual_m5
 from torchrl_dual.recipe import CONFIG_DIR, compose_checked
 from torchrl_dual.recipe.kits import build as env_kits
@@ -169,7 +169,10 @@ def main(argv: list[str] | None = None) -> dict:
             else:
                 os.environ["MINARI_DATASETS_PATH"] = previous
     base = args.num_envs[0]
-    print(f"| env | collector.num_envs | env steps/s (median) | / num_envs={base} |")
+    print(
+        f"| env | collector.num_envs | env steps/s (median) "
+        f"| / num_envs={base} (median of per-round ratios) |"
+    )
     print("|---|---|---|---|")
     for name, result in results.items():
         for count, row in result["num_envs"].items():
@@ -178,7 +181,7 @@ def main(argv: list[str] | None = None) -> dict:
             )
     out = {"machine": machine, "args": {k: str(v) for k, v in vars(args).items()}, **results}
     if args.json is not None:
-        args.json.write_text(json.dumps(out, indent=2))
+        write_json(args.json, out, indent=2)
     return out
 
 

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import functools
-import json
 import os
 import time
 from collections.abc import Callable, Iterator
@@ -46,6 +45,7 @@ from torchrl.envs import DoubleToFloat, EnvBase, GymEnv
 from torchrl.envs.utils import ExplorationType
 
 from benchmarks.learning.backends import connect_ray
+from benchmarks.provenance import write_json
 from torchrl_dual.envs import make_pointmaze_env
 from torchrl_dual.recipe.settings.o2o import INSTALL_RAY, ray_installed
 from torchrl_dual.transforms import PreviousTransition
@@ -218,7 +218,7 @@ def run_settings(args: argparse.Namespace) -> None:
     print(f"load average at the end: {os.getloadavg()[0]:.1f} (2 cores)")
     if args.json is not None:
         keys = ("env", "policy", "collector", "workers", "steps_per_second")
-        args.json.write_text(json.dumps([dict(zip(keys, r, strict=True)) for r in results]))
+        write_json(args.json, [dict(zip(keys, r, strict=True)) for r in results])
 
 
 if __name__ == "__main__":

@@ -25,6 +25,8 @@ import tarfile
 import tempfile
 from pathlib import Path
 
+from benchmarks.provenance import write_json
+
 REPO = Path(__file__).resolve().parents[2]
 
 SHORT_BUDGET = (
@@ -122,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
         f"\n{args.updates} actor+critic updates per run, batch and networks of budget=default, "
         "1 thread; CPU ms per update, median over rounds"
     )
-    print(f"{'algo':8s} {'before':>8s} {'after':>8s} {'speed-up':>9s}")
+    print(f"{'algo':8s} {'before':>8s} {'after':>8s} {'speed-up (ratio of medians)':>9s}")
     rows = {}
     for algo, sides in times.items():
         before, after = statistics.median(sides["before"]), statistics.median(sides["after"])
@@ -134,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
             "after": args.after or "working tree",
             "updates": args.updates,
         }
-        args.json.write_text(json.dumps({**meta, "algos": rows}, indent=1) + "\n")
+        write_json(args.json, {**meta, "algos": rows}, indent=1)
     return 0
 
 

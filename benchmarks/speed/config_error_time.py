@@ -17,13 +17,14 @@ Usage: ``python -m benchmarks.speed.config_error_time [--repeats 7] [--json out.
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import statistics
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+from benchmarks.provenance import write_json
 
 COMMANDS = {
     "bad value": ["-m", "torchrl_dual.recipe", "budget.online_frames=-5"],
@@ -66,10 +67,11 @@ def main() -> None:
         f"median wall seconds over {args.repeats} runs ({platform.processor() or platform.machine()})"
     )
     for name, seconds in medians.items():
-        print(f"  {name:<24} {seconds:6.2f} s   x{seconds / floor:5.1f} of python")
-    print(f"bad value / import torch: {medians['bad value'] / medians['import torch']:.2f}")
+        print(f"  {name:<24} {seconds:6.2f} s   x{seconds / floor:5.1f} of python's median")
+    ratio = medians["bad value"] / medians["import torch"]
+    print(f"bad value / import torch (ratio of medians): {ratio:.2f}")
     if args.json is not None:
-        args.json.write_text(json.dumps({"repeats": args.repeats, "seconds": medians}, indent=1))
+        write_json(args.json, {"repeats": args.repeats, "seconds": medians}, indent=1)
 
 
 if __name__ == "__main__":

@@ -33,6 +33,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from benchmarks.provenance import write_json
 from benchmarks.speed.gpu_projection import PAPER, project_from_probe
 
 REPO = Path(__file__).resolve().parents[2]
@@ -170,7 +171,7 @@ def main(argv: list[str] | None = None) -> dict:
     hours = {k: round(v, 3) for k, v in report["paper_hours"].items() if k != "inputs"}
     print(f"budget=paper on AntMaze, projected from these figures only (hours): {hours}")
     if args.json is not None:
-        args.json.write_text(json.dumps(report, indent=2))
+        write_json(args.json, report, indent=2)
     return report
 
 

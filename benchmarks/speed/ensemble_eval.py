@@ -88,7 +88,7 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=4)
     args = parser.parse_args()
     torch.set_num_threads(1)
-    print("| members | loop (ms) | vmapped (ms) | loop / vmapped |")
+    print("| members | loop (ms) | vmapped (ms) | loop / vmapped (ratio of medians) |")
     print("|---:|---:|---:|---:|")
     for members in args.members:
         loop, vmapped = compare(members, args)

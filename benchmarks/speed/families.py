@@ -22,7 +22,6 @@ the time limit). Single-process, one thread: a GPU or more cores change every li
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import tempfile
@@ -33,6 +32,7 @@ import torch
 from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from benchmarks.provenance import write_json
 from torchrl_dual.recipe import CONFIG_DIR as RECIPE_CONFIG_DIR
 
 REPO = Path(__file__).resolve().parents[2]
@@ -202,7 +202,7 @@ def main() -> None:
         hours = r["paper_budget_cpu_hours"]
         print(f"| {r['family']} | " + " | ".join(f"{hours[p]:.1f}" for p in parts) + " |")
     if args.json is not None:
-        args.json.write_text(json.dumps(rows, indent=1, default=float))
+        write_json(args.json, rows, indent=1, default=float)
         print(f"\nwrote {args.json}")
 
 

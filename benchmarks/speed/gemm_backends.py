@@ -32,7 +32,6 @@ The trace needs PyTorch built with MKL (the x86 wheels); the numbers are this ma
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import re
 import statistics
@@ -45,6 +44,7 @@ from pathlib import Path
 
 import torch
 
+from benchmarks.provenance import write_json
 from torchrl_dual.recipe import CONFIG_DIR as RECIPE_CONFIG_DIR
 
 REPO = Path(__file__).resolve().parents[2]
@@ -256,6 +256,7 @@ def main(argv: list[str] | None = None) -> int:
     backends = compare_backends(timed, args.rounds, args.reps)
     print(
         f"\n{'GEMM (column-major)':<24}{'ms/update':>10}{'MKL us':>9}{'oneDNN us':>11}{'ratio':>8}"
+        "  (MKL / oneDNN: ratio of the medians over rounds)"
     )
     projected_gemm = gemm_ms
     for shape in timed:
@@ -286,7 +287,7 @@ def main(argv: list[str] | None = None) -> int:
             "torch": torch.__version__,
             "date": time.strftime("%Y-%m-%d"),
         }
-        args.json.write_text(json.dumps(result, indent=2) + "\n")
+        write_json(args.json, result, indent=2)
         print(f"wrote {args.json}")
     return 0
 

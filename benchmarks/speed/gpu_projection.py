@@ -2,8 +2,8 @@
 merge of several of its JSON reports into one.
 
 The projection of one ``budget=paper`` AntMaze run (1M planner updates, 5 × 20k
-distillation updates, 1M offline and 0.5M online actor-critic updates, 1M online steps, a
-posterior refit every 10k updates over all transitions) takes, for each update and acting
+distillation updates, 1M offline and 1M online actor-critic updates (``PAPER``'s
+``utd_ratio``), 1M online steps, a posterior refit every 10k updates over all transitions) takes, for each update and acting
 figure, the fastest mode that ran, and adds two CPU-bound terms measured on the CPU
 (docs/benchmarks.md, 2026-12-02): the env and collector cost of an online step
 (``--env-step-ms``, 3.9 ms: the 5.2 ms online step less its 1.3 ms policy) and the 21
@@ -20,7 +20,7 @@ Examples:
     >>> results["laplace"] = {"eager": {"per_second_1k": 10.0}}
     >>> hours = paper_hours(results, env_step_ms=3.9, eval_hours=0.4)
     >>> round(hours["planner"], 3), round(hours["total"], 2)  # 1M updates at 100/s
-    (2.778, 9.29)
+    (2.778, 12.07)
     >>> del results["laplace"]
     >>> print(paper_hours(results, env_step_ms=3.9, eval_hours=0.4))  # incomplete
     None
@@ -32,12 +32,14 @@ import json
 
 PAPER = {
     "planner_updates": 1_000_000, "distill_updates": [20_000] * 5, "offline_updates": 1_000_000,
-    "online_frames": 1_000_000, "frames_per_batch": 1000, "utd_ratio": 0.5,
+    "online_frames": 1_000_000, "frames_per_batch": 1000, "utd_ratio": 1.0,
     "laplace_refit_every": 10_000, "eval_every": 50_000, "eval_episodes": 100,
     "dataset_transitions": 1_000_000,
 }  # fmt: skip
 """``budget=paper`` (``torchrl_dual/recipe/config/budget/paper.yaml``) and DUAL's online
-``utd_ratio``: what :func:`project_from_probe` multiplies the measured rates by."""
+``utd_ratio`` there (CORL's one update per env step: ``settings/references.py``
+``BUDGET_SETTINGS``): what :func:`project_paper` and :func:`project_from_probe` multiply the
+measured rates by."""
 
 UPDATES = ("planner", "distillation", "actor_critic")
 ACTING = {"act_b1": 1, "act_b64": 64}
@@ -58,18 +60,30 @@ def best_modes(results: dict) -> dict[str, str | None]:
     return {name: best(results, name)[0] for name in (*UPDATES, *ACTING)}
 
 
+def _refit_transitions(online_updates: float) -> float:
+    """Transitions the posterior refits read: ``D_offline`` once after the offline phase,
+    then ``D_offline`` and half the online frames (on average) every refit."""
+    p = PAPER
+    refits = online_updates / p["laplace_refit_every"]
+    return p["dataset_transitions"] + refits * (p["dataset_transitions"] + p["online_frames"] / 2)
+
+
 def project_paper(results: dict, env_step_ms: float, eval_hours: float) -> dict[str, float]:
     """Hours of one ``budget=paper`` AntMaze run from the measured rates (see the module
     docstring for the terms and the CPU-bound inputs)."""
+    p = PAPER
+    online_updates = p["online_frames"] * p["utd_ratio"]
     hours = {
-        "planner": 1_000_000 / best(results, "planner")[1],
-        "distillation": 100_000 / best(results, "distillation")[1],
-        "actor_critic": 1_000_000 / best(results, "actor_critic")[1],
-        # a fit after the offline phase, then every 10k of the 0.5M online updates over
-        # 1M..2M transitions: about 1M + 50 x 1.5M = 76M transitions
-        "laplace": 76_000 / results["laplace"]["eager"]["per_second_1k"],
-        "online_updates": 500_000 / best(results, "actor_critic")[1],
-        "online_steps": 1_000_000 * (env_step_ms / 1000 + 1 / best(results, "act_b1")[1]),
+        "planner": p["planner_updates"] / best(results, "planner")[1],
+        "distillation": sum(p["distill_updates"]) / best(results, "distillation")[1],
+        "actor_critic": p["offline_updates"] / best(results, "actor_critic")[1],
+        # a fit after the offline phase, then every 10k online updates over 1M..2M
+        # transitions: 1M + 100 x 1.5M = 151M transitions at 1M online updates
+        "laplace": _refit_transitions(online_updates)
+        / 1000
+        / results["laplace"]["eager"]["per_second_1k"],
+        "online_updates": online_updates / best(results, "actor_critic")[1],
+        "online_steps": p["online_frames"] * (env_step_ms / 1000 + 1 / best(results, "act_b1")[1]),
     }
     hours = {k: v / 3600 for k, v in hours.items()}
     hours["evaluation"] = eval_hours
@@ -93,6 +107,7 @@ def merge(paths: list[str], env_step_ms: float, eval_hours: float) -> dict:
     for report in reports[1:]:
         for name, modes in report["results"].items():
             results.setdefault(name, {}).update(modes)
+    merged["merged_from"] = [report.get("provenance") for report in reports]  # where measured
     merged["best_modes"] = best_modes(results)
     merged["paper_hours"] = paper_hours(results, env_step_ms, eval_hours)
     return merged
@@ -104,8 +119,8 @@ def project_from_probe(probe: dict) -> dict:
 
     The online phase is 1M frames at the probe's cost per frame (collection, acting and
     its updates at ``utd_ratio``), plus the refits (a fit of ``D_offline`` after the
-    offline phase, then one every 10k online updates over 1M..1.5M transitions: 76M
-    transitions in all) and 21 evaluations of 100 episodes (after the offline phase and
+    offline phase, then one every 10k online updates over 1M..2M transitions: 151M
+    transitions in all at 1M online updates) and 21 evaluations of 100 episodes (after the offline phase and
     every 50k frames), each at the probe's measured cost. A probe at another ``utd_ratio``
     than the paper's is refused.
 
@@ -114,10 +129,10 @@ def project_from_probe(probe: dict) -> dict:
         ...     "planner_updates_per_s": 500.0, "distill_updates_per_s": 250.0,
         ...     "offline_updates_per_s": 400.0, "laplace_s_per_1k_transitions": 0.01,
         ...     "evaluation_s": 30.0, "evaluation_episodes": 100,
-        ...     "online_s_per_frame": 0.002, "online_utd_ratio": 0.5}}
+        ...     "online_s_per_frame": 0.002, "online_utd_ratio": 1.0}}
         >>> hours = project_from_probe(probe)
         >>> round(hours["planner"], 3), round(hours["total"], 2)
-        (0.556, 2.3)
+        (0.556, 2.51)
         >>> hours["inputs"]["online_s_per_frame"]["measured"]["machine"]
         'm'
     """
@@ -127,10 +142,7 @@ def project_from_probe(probe: dict) -> dict:
             f"the probe ran online.utd_ratio={r['online_utd_ratio']}, budget=paper's DUAL "
             f"runs {p['utd_ratio']}: rerun the probe at the paper's ratio."
         )
-    online_updates = p["online_frames"] * p["utd_ratio"]
-    refit_transitions = p["dataset_transitions"] + (online_updates / p["laplace_refit_every"]) * (
-        p["dataset_transitions"] + p["online_frames"] / 2
-    )
+    refit_transitions = _refit_transitions(p["online_frames"] * p["utd_ratio"])
     evaluations = 1 + p["online_frames"] // p["eval_every"]
     per_episode = r["evaluation_s"] / r["evaluation_episodes"]
     seconds = {

@@ -46,6 +46,7 @@ from dataclasses import asdict
 import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from benchmarks.provenance import with_provenance
 from benchmarks.speed.gpu_projection import (
     ACTING,
     UPDATES,
@@ -237,7 +238,7 @@ def main(argv: list[str] | None = None) -> dict:
         report = with_probe(merge(args.merge, args.env_step_ms, args.eval_hours), args.probe)
         if args.json:
             with open(args.json, "w") as f:
-                json.dump(report, f, indent=1)
+                json.dump(with_provenance(report), f, indent=1)
         print(json.dumps(printed(report), indent=1))
         return report
     modes = tuple(m for m in args.modes if m != "cudagraphs" or args.device.startswith("cuda"))
@@ -265,7 +266,7 @@ def main(argv: list[str] | None = None) -> dict:
     def write(results: dict) -> None:
         if args.json:
             with open(args.json, "w") as f:
-                json.dump(report_of(results), f, indent=1)
+                json.dump(with_provenance(report_of(results)), f, indent=1)
 
     only = tuple(args.only or (*UPDATES, *ACTING, "laplace"))
     report = report_of(
@@ -275,7 +276,7 @@ def main(argv: list[str] | None = None) -> dict:
     report = with_probe(report, args.probe)
     if args.probe and args.json:
         with open(args.json, "w") as f:
-            json.dump(report, f, indent=1)
+            json.dump(with_provenance(report), f, indent=1)
     print(json.dumps(printed(report), indent=1))
     return report
 

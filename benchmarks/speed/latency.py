@@ -24,7 +24,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import statistics
 import time
@@ -34,6 +33,7 @@ from tensordict import TensorDict
 from tensordict.nn import TensorDictModuleBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from benchmarks.provenance import write_json
 from benchmarks.speed.latency_candidates import BUILDERS, Config
 
 REFERENCES = ("mlp_actor", "planner_n32")
@@ -94,7 +94,8 @@ def markdown_table(rows: dict[str, dict[str, float]]) -> str:
         return f"{rows[name]['median'] / rows[ref]['median']:.3g}" if ref in rows else "n/a"
 
     lines = [
-        "| name | median ms | p90 ms | ratio vs mlp_actor | ratio vs planner_n32 |",
+        "| name | median ms | p90 ms | vs mlp_actor (ratio of medians) "
+        "| vs planner_n32 (ratio of medians) |",
         "|---|---:|---:|---:|---:|",
     ]
     for name, row in rows.items():
@@ -200,8 +201,7 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
             exploration[args.exploration],
         )
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(medians, f, indent=2)
+        write_json(args.json, medians, indent=2)
     return medians
 
 

@@ -29,7 +29,6 @@ TensorDict and dispatcher overhead between the kernels.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import statistics
@@ -42,6 +41,7 @@ from pathlib import Path
 import torch
 
 from benchmarks.learning.reference_d3rlpy import venv_python
+from benchmarks.provenance import write_json
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -281,7 +281,7 @@ def main(argv: list[str] | None = None) -> dict:
             tops = ", ".join(f"{k} {v:.2f}" for k, v in p["top_kernels_ms"].items())
             print(f"  {algo} top kernels (self ms): {tops}")
     if args.json is not None:
-        args.json.write_text(json.dumps(result, indent=2))
+        write_json(args.json, result, indent=2)
     return result
 
 

@@ -23,7 +23,6 @@ The run directory is read only: its checkpoint is loaded from a temporary copy.
 from __future__ import annotations
 
 import argparse
-import json
 import shutil
 import sys
 import tempfile
@@ -35,6 +34,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.objectives.utils import _vmap_func  # TorchRL's own ensemble evaluation
 
+from benchmarks.provenance import write_json
 from torchrl_dual.data import monte_carlo_returns
 from torchrl_dual.recipe import ALGORITHMS, O2ORun
 
@@ -110,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
             f"{figures['underestimated']:>6.2f} {figures['corr_q_mc']:>6.2f}"
         )
     if args.json is not None:
-        args.json.write_text(json.dumps(rows, indent=1))
+        write_json(args.json, rows, indent=1)
     return 0
 
 

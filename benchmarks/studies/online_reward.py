@@ -26,6 +26,8 @@ import json
 from math import comb
 from pathlib import Path
 
+from benchmarks.provenance import write_json
+
 REPO = Path(__file__).resolve().parents[2]
 
 
@@ -136,7 +138,7 @@ def main() -> None:
             )
         out["mcnemar"] = {"against": args.against, "tests": tests}
     if args.json:
-        args.json.write_text(json.dumps(out, indent=1) + "\n")
+        write_json(args.json, out, indent=1)
 
 
 if __name__ == "__main__":

@@ -25,7 +25,6 @@ The run directory is read only (its checkpoint is loaded from a temporary copy).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 from pathlib import Path
@@ -35,6 +34,7 @@ from omegaconf import OmegaConf
 from tensordict import TensorDictBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from benchmarks.provenance import write_json
 from benchmarks.studies.critic_calibration import load_run
 from torchrl_dual.recipe import O2ORun
 from torchrl_dual.recipe.kits.build import make_train_env
@@ -123,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
                 f"{s['p90']:>7.3f} {s['vs_offline']:>8.2f}x {s['lambda_d']:>7.3f} {stds}"
             )
     if args.json is not None:
-        args.json.write_text(json.dumps(rows, indent=1) + "\n")
+        write_json(args.json, rows, indent=1)
     return 0
 
 

@@ -31,6 +31,7 @@ import torch
 from benchmarks.learning.backends import machine
 from benchmarks.learning.cells import CELLS
 from benchmarks.learning.stats import equivalence, fmt, t_interval
+from benchmarks.provenance import write_json
 
 REPO = Path(__file__).resolve().parents[2]
 SCRIPT = REPO / "recipes" / "torchrl_trainer.py"
@@ -150,7 +151,7 @@ def main(argv: list[str] | None = None) -> None:
         + " ".join(argv or sys.argv[1:]),
     }
     if args.json:
-        args.json.write_text(json.dumps(out, indent=1))
+        write_json(args.json, out, indent=1)
     print(report(records, args.budget, args.cell))
 
 

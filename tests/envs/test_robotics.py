@@ -47,3 +47,13 @@ def test_the_real_package_registers_the_mazes_quietly():
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "True"
     assert "AdroitHand" not in proc.stderr
+
+
+def test_pen_drop_termination_refuses_an_env_that_is_not_the_pen():
+    import gymnasium as gym
+    import pytest
+
+    from torchrl_dual.envs import PenDropTermination
+
+    with pytest.raises(TypeError, match="needs Gymnasium-Robotics' AdroitHandPen, got"):
+        PenDropTermination(gym.make("Pendulum-v1"))

@@ -121,7 +121,10 @@ CASES = [
         "exploration.transition_model=oracle",
         "exploration.transition_model=oracle: unknown option; choose one of frozen, shared",
     ),
-    ("online.offline_fraction=1.0", "online.offline_fraction=1.0: must lie in (0, 1)"),
+    (
+        "online.offline_fraction=1.0",
+        "online.offline_fraction=1.0: must be a number in (0, 1) or 'joint'",
+    ),
     (
         "augment.kind=edis",
         "augment.kind=edis: unknown option; choose one of none, planner",

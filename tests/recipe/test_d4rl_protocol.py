@@ -122,6 +122,33 @@ def test_online_and_evaluation_envs_play_the_task_in_the_data_s_maze(minari_path
     assert torch.all(rollout["next", "reward"] == -1.0)  # r = 0 far from the goal, IQL's r - 1
 
 
+def test_the_ant_s_clock_key_sets_the_time_limit_in_simulated_seconds(minari_path, tmp_path):
+    """The data's ant steps 0.05 s (timestep 0.01 x frame skip 5), D4RL's 0.1 s (0.02 x 5):
+    env.horizon_seconds=d4rl gives D4RL's 70 s of umaze, 1400 steps; a number is seconds;
+    env.max_episode_steps still wins; unset, D4RL's 700 steps (35 s here)."""
+    cases = {(): 700, ("env.horizon_seconds=d4rl",): 1400, ("env.horizon_seconds=10",): 200}
+    cases[("env.horizon_seconds=d4rl", "env.max_episode_steps=50")] = 50
+    data = env_kits.make_offline_dataset(compose(tmp_path, "env=antmaze"))
+    for overrides, steps in cases.items():
+        cfg = compose(tmp_path, "env=antmaze", *overrides)
+        for eval_env in (False, True):
+            env = minari_gym_env(cfg, data, eval_env=eval_env, shifted=False)
+            assert env.spec.max_episode_steps == steps, overrides
+            assert env.unwrapped.ant_env.dt == pytest.approx(0.05)
+            env.close()
+
+
+def test_goal_noise_redraws_d4rl_s_goal_in_its_square_at_each_reset(minari_path, tmp_path):
+    data = env_kits.make_offline_dataset(compose(tmp_path, "env=antmaze"))
+    for noise in (False, True):
+        cfg = compose(tmp_path, "env=antmaze", f"env.goal_noise={str(noise).lower()}")
+        env = minari_gym_env(cfg, data, eval_env=True, shifted=False)
+        goals = np.array([env.env.reset(seed=s)[0]["desired_goal"] for s in range(20)])
+        # D4RL's square: the G cell's corner (-4, 4) + U(0, 1) + U(0, 0.5) per axis
+        assert np.all(goals >= GOAL - 0.75) and np.all(goals <= GOAL + 0.75)
+        assert (goals.std(0) > 0.1).all() == noise and (goals.std(0) == 0).all() != noise
+
+
 def test_a_random_policy_scores_0_in_the_kit_s_evaluator(minari_path, tmp_path):
     cfg = compose(tmp_path, "env=antmaze", "budget.eval_episodes=3")
     data = env_kits.make_offline_dataset(cfg)
@@ -224,6 +251,39 @@ def test_pen_runs_at_d4rl_s_100_step_horizon(minari_path, tmp_path):
         minari_gym_env(minari_cfg, data, eval_env=True, shifted=False).spec.max_episode_steps == 200
     )
     assert (data.reference_min, data.reference_max) == (96.262799, 3076.8331017826877)
+
+
+def _drop_the_pen(env):
+    """Puts the pen 0.2 below its start (its first slide joint points down in the world);
+    returns the unwrapped ``AdroitHandPen``."""
+    pen = env.unwrapped
+    qpos, qvel = pen.data.qpos.copy(), pen.data.qvel.copy()
+    qpos[24] += 0.2
+    pen.set_state(qpos, qvel)
+    return pen
+
+
+def test_a_dropped_pen_ends_the_episode_as_d4rl_s_does(minari_path, tmp_path):
+    """D4RL's pen_v0.py: done once the pen's height is below 0.075 (with the -5 penalty,
+    which Gymnasium-Robotics' dense reward keeps); protocol=minari keeps the data set's
+    env, which never terminates."""
+    cfg = compose(tmp_path, "env=adroit")
+    data = env_kits.make_offline_dataset(cfg)
+    for protocol, ends in (("d4rl", True), ("minari", False)):
+        run_cfg = compose(tmp_path, "env=adroit", f"env.protocol={protocol}")
+        for eval_env in (False, True):
+            env = minari_gym_env(run_cfg, data, eval_env=eval_env, shifted=False)
+            env.reset(seed=0)
+            still = np.zeros(env.action_space.shape, np.float32)
+            _, _, terminated, _, _ = env.step(still)
+            assert not terminated  # the pen starts in the hand, at height 0.25
+            pen = _drop_the_pen(env)
+            _, reward, terminated, truncated, info = env.step(still)
+            assert pen.data.xpos[pen.obj_body_id][2] < 0.075
+            assert reward < -4  # D4RL's drop penalty, -5 plus the orientation term
+            assert (terminated, truncated) == (ends, False), (protocol, eval_env)
+            assert info.get("pen_dropped", False) == ends
+            env.close()
 
 
 def test_locomotion_scores_with_d4rl_s_references(minari_path, tmp_path):

@@ -12,7 +12,8 @@ column); ``umaze-diverse``, ``medium-*`` and ``large-*`` are the registered
 ``AntMaze_Large-v4`` / ``AntMaze_Large_Diverse_GR-v4`` with the scripts' evaluation maps
 (D4RL's ``*_TEST`` maps); ``mujoco/<robot>/medium-v0`` are the v5 MuJoCo envs without
 references (Minari's MuJoCo data sets are not D4RL imports); ``D4RL/<task>/cloned-v2`` are
-``AdroitHand<Task>-v1`` at the scripts' time limits, with references. The reference values
+``AdroitHand<Task>-v1`` at the registered time limit (200) the published sets record,
+with references. The reference values
 are stand-ins of the right kind (random < expert), not the published numbers, and the data
 is uniform random actions: it exercises loading, flattening, boundaries, envs and scores,
 not learning.
@@ -93,16 +94,11 @@ STANDINS: dict[str, StandIn] = {
     "mujoco/halfcheetah/medium-v0": StandIn("HalfCheetah-v5"),
     "mujoco/walker2d/medium-v0": StandIn("Walker2d-v5"),
     "D4RL/pen/cloned-v2": StandIn("AdroitHandPen-v1", references=(96.26, 3076.83)),
-    # the generation scripts' time limits of the cloned sets: door 300, hammer 625, relocate 530
-    "D4RL/door/cloned-v2": StandIn(
-        "AdroitHandDoor-v1", {"max_episode_steps": 300}, references=(-56.51, 2880.57)
-    ),
-    "D4RL/hammer/cloned-v2": StandIn(
-        "AdroitHandHammer-v1", {"max_episode_steps": 625}, references=(-274.86, 12794.13)
-    ),
-    "D4RL/relocate/cloned-v2": StandIn(
-        "AdroitHandRelocate-v1", {"max_episode_steps": 530}, references=(-6.43, 4233.88)
-    ),
+    # the published sets record the registered time limit, 200 (Minari's data set pages,
+    # "Environment Specs": max_episode_steps 200), not the generation scripts' 300 / 625 / 530
+    "D4RL/door/cloned-v2": StandIn("AdroitHandDoor-v1", references=(-56.51, 2880.57)),
+    "D4RL/hammer/cloned-v2": StandIn("AdroitHandHammer-v1", references=(-274.86, 12794.13)),
+    "D4RL/relocate/cloned-v2": StandIn("AdroitHandRelocate-v1", references=(-6.43, 4233.88)),
 }
 """Published Minari id -> :class:`StandIn`."""
 

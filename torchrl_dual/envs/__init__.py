@@ -7,6 +7,7 @@ from torchrl_dual.envs.d4rl_antmaze import (
     D4RLAntMazeTask,
     SingleGoalAntMaze,
 )
+from torchrl_dual.envs.d4rl_pen import PenDropTermination
 from torchrl_dual.envs.flat_observation import FlatObservation, flat_dim, make_flat_env
 from torchrl_dual.envs.frozenlake import (
     FROZENLAKE_MAPS,
@@ -63,6 +64,7 @@ __all__ = [
     "D4RL_ANTMAZE_MAPS",
     "D4RLAntMazeTask",
     "SingleGoalAntMaze",
+    "PenDropTermination",
     "FlatObservation",
     "flat_dim",
     "make_flat_env",

@@ -13,9 +13,10 @@ that never end). :class:`D4RLAntMazeTask` maps D4RL's task onto the Minari maze:
   in reverse order (Gymnasium-Robotics puts row 0 at the top, ``+y`` downwards; D4RL puts
   row ``i`` at ``y = 4 i``): the ``R``/``G`` cells and the direction of D4RL's goal noise are
   carried over accordingly. Minari's ``umaze`` data map is D4RL's upside down (the same
-  world layout); its ``medium``/``large`` maps (and ``umaze-diverse``'s, whose walls read the
-  same both ways and which has no ``G`` cell) keep D4RL's rows, a mirror image of D4RL's
-  world, which the mirror-symmetric Ant cannot tell apart;
+  world layout); ``umaze-diverse``'s (the registered ``U_MAZE``: walls that read the same
+  both ways, no ``G`` cell) is taken the same way, so the task sits where D4RL's does; its
+  ``medium``/``large`` maps keep D4RL's rows, a mirror image of D4RL's world, which the
+  mirror-symmetric Ant cannot tell apart;
 * the goal is D4RL's ``G`` cell centre plus the mean of its goal noise, ``+0.75`` along
   D4RL's ``+x`` and ``+y`` (``_rowcol_to_xy`` adds ``U(0, 0.25 s)``, ``goal_sampler`` another
   ``U(0, 0.5) * 0.25 s``, cell size ``s = 4``): D4RL's ``-v2`` envs redraw the goal in that
@@ -79,6 +80,20 @@ D4RL_ANTMAZE_MAPS: dict[str, list[list[int | str]]] = {
 row ``i`` at D4RL's ``y = 4 i``."""
 D4RL_ANTMAZE_HORIZONS = {"umaze": 700, "medium": 1000, "large": 1000}
 """``max_episode_steps`` of D4RL's ``antmaze-<maze>-*-v2`` registrations."""
+D4RL_ANT_STEP_SECONDS = 0.1
+"""Simulated seconds per step of D4RL's ant: ``timestep="0.02"`` (``locomotion/assets/ant.xml``)
+x frame skip 5 (``locomotion/ant.py``). Gymnasium-Robotics' ant, which Minari's data were
+recorded with, steps 0.05 s (timestep 0.01 x 5): D4RL's 700 steps are 70 s, 35 s here."""
+
+
+def d4rl_horizon_seconds(dataset: str) -> float:
+    """D4RL's episode length in simulated seconds for a Minari AntMaze data set name.
+
+    Examples:
+        >>> d4rl_horizon_seconds("umaze-diverse"), d4rl_horizon_seconds("large-play")
+        (70.0, 100.0)
+    """
+    return D4RL_ANTMAZE_HORIZONS[d4rl_maze_of(dataset)] * D4RL_ANT_STEP_SECONDS
 
 
 def d4rl_maze_of(dataset: str) -> str:

@@ -3,7 +3,9 @@
 Gymnasium-Robotics 1.2.1-1.4.2 prints, on import, a notice (from ``farama_notifications``)
 that its ``AdroitHand{Relocate,Hammer,Door}Dense-v1`` rewards changed in 1.2.1. Every
 PointMaze or AntMaze run and each of its collector workers printed it; none of these uses
-those envs (nor does ``env=adroit``: the D4RL data sets' Adroit envs are the sparse ones).
+those envs (``env=adroit`` does: the D4RL data sets' Adroit envs are the dense
+``AdroitHand*-v1``, whose reward change docs/reproducing.md describes; the notice says
+nothing more).
 :func:`register_robotics_envs` drops that one line from what the import writes to stderr
 and passes everything else on.
 """

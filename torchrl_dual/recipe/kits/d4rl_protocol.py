@@ -10,12 +10,16 @@ AntMaze        D4RL's single-goal task in the data's maze     Minari's goal-cond
                terminals relabelled to its goal,              ends, evaluation in the data set's
                ``desired_goal`` not observed, D4RL's          ``eval_env`` (whose U-maze is
                horizon), score 100 x success rate             turned, Minari issue #304)
-Adroit         D4RL's horizon (pen 100, others 200) and       the data set's env spec and
-               references                                     references
+Adroit         D4RL's horizon (pen 100, others 200), its      the data set's env spec and
+               references, Pen's end when the pen drops       references
+               (:class:`~torchrl_dual.envs.PenDropTermination`)
 locomotion     D4RL's random / expert references              none (no normalized score)
 =============  ============================================  =================================
 
-``env.max_episode_steps`` and ``env.reference_returns``, when set, win over both.
+``env.max_episode_steps`` and ``env.reference_returns``, when set, win over both; AntMaze's
+``env.horizon_seconds`` sets the time limit in simulated seconds (:func:`horizon_of_seconds`:
+D4RL's ant steps 0.1 s, the data's 0.05 s) and ``env.goal_noise`` redraws D4RL's goal at
+each reset.
 """
 
 from __future__ import annotations
@@ -28,7 +32,7 @@ from omegaconf import DictConfig
 
 from torchrl_dual.data.d4rl_references import D4RL_HORIZONS, d4rl_references
 from torchrl_dual.envs import register_robotics_envs, release_maze_xml
-from torchrl_dual.envs.d4rl_antmaze import D4RLAntMazeTask, d4rl_maze_of
+from torchrl_dual.envs.d4rl_antmaze import D4RLAntMazeTask, d4rl_horizon_seconds, d4rl_maze_of
 from torchrl_dual.recipe.settings.envs import FAMILIES
 from torchrl_dual.recipe.settings.errors import UserError
 
@@ -50,6 +54,7 @@ class DataProtocol:
         antmaze_task (D4RLAntMazeTask, optional): D4RL's single AntMaze goal.
         evaluate_in_eval_env (bool): evaluate in the data set's ``eval_env`` rather than
             the env of its data.
+        pen_drop_ends (bool): a Pen episode ends when the pen drops (D4RL's pen).
     """
 
     name: str
@@ -58,6 +63,7 @@ class DataProtocol:
     references: tuple[float, float] | None = None
     antmaze_task: D4RLAntMazeTask | None = None
     evaluate_in_eval_env: bool = False
+    pen_drop_ends: bool = False
 
 
 @functools.lru_cache(maxsize=8)
@@ -93,8 +99,37 @@ def data_protocol(cfg: DictConfig) -> DataProtocol:
             antmaze_task=task,
         )
     return DataProtocol(
-        "d4rl", max_episode_steps=D4RL_HORIZONS[env.task], references=d4rl_references(env.task)
+        "d4rl",
+        max_episode_steps=D4RL_HORIZONS[env.task],
+        references=d4rl_references(env.task),
+        pen_drop_ends=env.get("task") == "pen",
     )
+
+
+@functools.lru_cache(maxsize=8)
+def ant_step_seconds(dataset_id: str) -> float:
+    """Simulated seconds per step of the ant of a Minari AntMaze data set's env."""
+    import minari
+
+    register_robotics_envs()
+    env = release_maze_xml(minari.load_dataset(dataset_id).recover_environment())
+    try:
+        return float(env.unwrapped.ant_env.dt)
+    finally:
+        env.close()
+
+
+def horizon_of_seconds(cfg: DictConfig) -> int | None:
+    """The time limit in steps that ``env.horizon_seconds`` gives (AntMaze; ``None``
+    when it is unset): the seconds (``d4rl``: D4RL's, 0.1 s x 700 / 1000) at the data's
+    env step."""
+    seconds = cfg.env.get("horizon_seconds")
+    if seconds is None:
+        return None
+    if seconds == "d4rl":
+        seconds = d4rl_horizon_seconds(cfg.env.dataset)
+    step = ant_step_seconds(FAMILIES[cfg.env.kind].dataset_id(cfg.env))
+    return max(1, round(float(seconds) / step))
 
 
 def protocol_metadata(protocol: DataProtocol) -> dict[str, Any]:

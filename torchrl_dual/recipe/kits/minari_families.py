@@ -21,8 +21,9 @@ task, D4RL's horizons and references) comes from :mod:`~torchrl_dual.recipe.kits
   (``recover_environment()``; under ``protocol=minari`` the evaluation uses
   ``recover_environment(eval_env=True)``: same id, version and kwargs as the data), at the
   protocol's time limit, AntMaze wrapped in :class:`~torchrl_dual.envs.SingleGoalAntMaze`
-  under ``d4rl``, under ``env.shift`` (online only), behind the same
-  :class:`~torchrl_dual.envs.FlatObservation` map as the data; their observation space
+  and Pen in :class:`~torchrl_dual.envs.PenDropTermination` under ``d4rl``, under
+  ``env.shift`` (online only), behind the same :class:`~torchrl_dual.envs.FlatObservation`
+  map as the data; their observation space
   must match the data set's (:func:`check_observation_layout`).
 * Scores are D4RL-normalized with the protocol's references (``d4rl``: D4RL's; ``minari``:
   the data set's ``ref_min_score`` / ``ref_max_score``) or ``env.reference_returns``;
@@ -48,6 +49,7 @@ from torchrl_dual.data import OfflineDataset, load_minari_dataset
 from torchrl_dual.data.goal_relabel import relabel_to_goal
 from torchrl_dual.envs import (
     FlatObservation,
+    PenDropTermination,
     apply_shift,
     make_flat_env,
     register_robotics_envs,
@@ -56,7 +58,11 @@ from torchrl_dual.envs import (
 from torchrl_dual.envs.d4rl_antmaze import D4RL_SUCCESS_RADIUS, SingleGoalAntMaze
 from torchrl_dual.evaluation import evaluate_episodes
 from torchrl_dual.recipe.kits.build import Evaluator
-from torchrl_dual.recipe.kits.d4rl_protocol import data_protocol, protocol_metadata
+from torchrl_dual.recipe.kits.d4rl_protocol import (
+    data_protocol,
+    horizon_of_seconds,
+    protocol_metadata,
+)
 from torchrl_dual.recipe.settings.envs import FAMILIES
 from torchrl_dual.recipe.settings.errors import UserError
 from torchrl_dual.recipe.settings.references import reward_transform
@@ -112,9 +118,13 @@ def observation_normalizer(data: OfflineDataset, enabled: bool) -> tuple[np.ndar
 
 
 def _time_limit(cfg: DictConfig, dataset_id: str) -> int | None:
-    """``env.max_episode_steps``, else the protocol's, else the data set's env spec."""
+    """``env.max_episode_steps``, else AntMaze's ``env.horizon_seconds``, else the
+    protocol's, else the data set's env spec."""
     if cfg.env.max_episode_steps is not None:
         return int(cfg.env.max_episode_steps)
+    steps = horizon_of_seconds(cfg)
+    if steps is not None:
+        return steps
     protocol = data_protocol(cfg)
     if protocol.max_episode_steps is not None:
         return protocol.max_episode_steps
@@ -183,7 +193,9 @@ def minari_gym_env(cfg: DictConfig, data: OfflineDataset, *, eval_env: bool, shi
     raw = release_maze_xml(dataset.recover_environment(eval_env=eval_env, **kwargs))
     check_observation_layout(dataset.observation_space, raw.observation_space, dataset_id)
     if protocol.antmaze_task is not None:
-        raw = SingleGoalAntMaze(raw, protocol.antmaze_task)
+        raw = SingleGoalAntMaze(raw, protocol.antmaze_task, goal_noise=env.goal_noise)
+    if protocol.pen_drop_ends:
+        raw = PenDropTermination(raw)
     if shifted:
         raw = apply_shift(raw, env.shift, scale=env.shift_scale, kind=env.kind)
     meta = data.metadata

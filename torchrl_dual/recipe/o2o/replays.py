@@ -5,6 +5,9 @@
   :class:`~torchrl.data.OfflineToOnlineReplayBuffer`; every batch takes
   ``online.offline_fraction`` of its transitions uniformly from ``D_offline`` and the rest
   uniformly from ``D_online``.
+  With ``online.offline_fraction=joint`` (``budget=paper``'s IQL and DUAL: CORL's) the two
+  are one buffer: every transition of ``D_offline ∪ D_online`` is equally likely
+  (:class:`JointReplay`), so the offline share falls as ``D_online`` grows.
 * ``balanced`` (``replay/balanced.yaml``): OFF2ON's balanced replay (Lee et al. 2022):
   :class:`~torchrl_dual.data.BalancedReplayBuffer` draws each transition of
   ``D_offline ∪ D_online`` in proportion to a clipped power of the density ratio
@@ -22,6 +25,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+import torch
 from tensordict import TensorDictBase
 from torchrl.data import OfflineToOnlineReplayBuffer, RandomSampler, ReplayBuffer
 
@@ -68,8 +72,31 @@ class Replay:
         """Restores :meth:`state_dict` (after the online transitions were extended)."""
 
 
+class JointReplay(Replay):
+    """``D_offline ∪ D_online`` as one buffer, CORL's fine-tuning replay: each of the
+    ``B`` transitions of a batch is any stored transition with equal probability. Drawn as
+    ``k ~ Binomial(B, N_off / (N_off + N_on))`` uniform offline transitions and ``B − k``
+    uniform online ones, which is the distribution of ``B`` uniform draws (with
+    replacement) from the union, over TorchRL's ``OfflineToOnlineReplayBuffer`` (its own
+    fixed share unused).
+    """
+
+    def __init__(self, buffer: OfflineToOnlineReplayBuffer, batch_size: int) -> None:
+        super().__init__(buffer)
+        self.batch_size = batch_size
+
+    def sample(self) -> TensorDictBase:
+        offline, online = self.buffer.offline_buffer, self.buffer.online_buffer
+        share = len(offline) / (len(offline) + len(online))
+        size = torch.tensor(float(self.batch_size))
+        k = int(torch.binomial(size, torch.tensor(share)))
+        parts = [b.sample(n) for b, n in ((offline, k), (online, self.batch_size - k)) if n]
+        return parts[0] if len(parts) == 1 else torch.cat(parts, 0)
+
+
 def make_mixed_replay(run: O2ORun) -> Replay:
-    """TorchRL's ``OfflineToOnlineReplayBuffer`` with ``online.offline_fraction``.
+    """TorchRL's ``OfflineToOnlineReplayBuffer`` with ``online.offline_fraction``
+    (``joint``: :class:`JointReplay`).
 
     Its offline share is drawn from a buffer over the same storage as
     ``run.offline_buffer`` but without a default batch size: TorchRL 0.14 samples it with
@@ -79,14 +106,14 @@ def make_mixed_replay(run: O2ORun) -> Replay:
     """
     cfg = run.cfg
     offline = run.offline_buffer
-    return Replay(
-        OfflineToOnlineReplayBuffer(
-            ReplayBuffer(storage=offline.storage, sampler=RandomSampler()),
-            online_capacity=online_capacity(run),
-            offline_fraction=cfg.online.offline_fraction,
-            batch_size=cfg.online.batch_size,
-        )
+    joint = cfg.online.offline_fraction == "joint"
+    buffer = OfflineToOnlineReplayBuffer(
+        ReplayBuffer(storage=offline.storage, sampler=RandomSampler()),
+        online_capacity=online_capacity(run),
+        offline_fraction=0.5 if joint else cfg.online.offline_fraction,
+        batch_size=cfg.online.batch_size,
     )
+    return JointReplay(buffer, cfg.online.batch_size) if joint else Replay(buffer)
 
 
 class BalancedReplay(Replay):

@@ -19,7 +19,7 @@ from typing import Any
 from omegaconf import DictConfig
 
 from torchrl_dual.recipe.settings.errors import ConfigError
-from torchrl_dual.recipe.settings.rules import Integer, Real, key
+from torchrl_dual.recipe.settings.rules import Choice, Either, Integer, Real, key
 
 
 @dataclass(frozen=True)
@@ -62,8 +62,13 @@ class Algorithm:
 class OnlineSettings:
     """Algorithm 1, online phase (lines 10-18)."""
 
-    offline_fraction: float = key(
-        Real(0, 1, low_open=True, high_open=True), "share of each batch from D_offline"
+    offline_fraction: Any = key(
+        Either(
+            (Real(0, 1, low_open=True, high_open=True), Choice(("joint",))),
+            "must be a number in (0, 1) or 'joint'",
+        ),
+        "share of each batch from D_offline; joint: D_offline and D_online as one buffer, "
+        "every transition equally likely (CORL's replay; replay=mixed only)",
     )
     utd_ratio: float = key(Real(0), "gradient updates per collected frame")
     batch_size: int = key(Integer(1), "transitions per update")

@@ -193,8 +193,21 @@ class DiffuserSettings:
     sampler: str = key(Choice(SAMPLERS), "sampler of the exploration plans (random latent)")
 
 
+@dataclass
+class DiffuserOnlineSettings(OnlineSettings):
+    """The Diffuser's online phase: it draws its own window batches, so a fixed share."""
+
+    offline_fraction: float = key(
+        Real(0, 1, low_open=True, high_open=True), "share of each window batch from D_offline"
+    )
+
+
 DIFFUSER = AlgorithmSettings(
-    sections={"planner": PlannerSettings, "diffuser": DiffuserSettings, "online": OnlineSettings},
+    sections={
+        "planner": PlannerSettings,
+        "diffuser": DiffuserSettings,
+        "online": DiffuserOnlineSettings,
+    },
     critics=("iql",),  # the critic section is not read: the Diffuser has no critic
     check=check_planner_window,
 )

@@ -216,6 +216,16 @@ class AntMazeSettings(MinariSettings):
     """``env/antmaze.yaml``: Minari ``D4RL/antmaze/<dataset>-<version>``."""
 
     shift: str = key(Choice(SHIFTS_BY_KIND["antmaze"]), "online-only dynamics shift")
+    goal_noise: bool = key(
+        Flag(), "protocol=d4rl: redraw the goal in D4RL's 1.5 x 1.5 square at each reset"
+    )
+    horizon_seconds: Any = key(
+        Maybe(
+            Either((Real(0, low_open=True), Choice(("d4rl",))), "must be a number > 0 or 'd4rl'")
+        ),
+        "episode length in simulated seconds, at the env's 0.05 s step (d4rl: D4RL's "
+        "700 / 1000 steps of 0.1 s); null: the protocol's step count",
+    )
 
 
 @dataclass

@@ -7,6 +7,8 @@ exactly the O2O benchmark of CORL", Appendix A). Two tables, one concept:
 * :data:`REWARD_TRANSFORMS`: the reward transform ``r' = scale·r + shift`` of each
   reference, used where ``env.reward_scale`` / ``env.reward_shift`` are ``null``
   (:func:`reward_transform`);
+* :data:`BUDGET_SETTINGS`: what a budget's protocol sets per algorithm (``budget=paper``:
+  CORL's one-buffer replay and one update per env step for IQL and DUAL);
 * :data:`REFERENCE_SETTINGS`: every other setting that differs from the recipe's default
   there, read by the config through the ``${reference:<key>,<default>}`` interpolation
   (``critic/calql.yaml``, ``algo/calql.yaml``, the families' ``env/*.yaml``): the value of
@@ -73,12 +75,34 @@ critic's reference on that family where they differ from the recipe's defaults (
 AntMaze: the authors' code; on Adroit's cloned data: CORL's). Read through the
 ``reference`` interpolation (:func:`reference_setting`)."""
 
+_CORL_FINETUNE_IQL = {
+    # CORL's algorithms/finetune/iql.py (commit eeeeef2): ReplayBuffer(buffer_size) is
+    # loaded with the D4RL data (load_d4rl_dataset), every online step appends its
+    # transition (add_transition; buffer_size 10M in configs/finetune/iql/*: nothing is
+    # evicted) and replay_buffer.sample draws np.random.randint(0, size): one buffer,
+    # every offline and online transition equally likely ...
+    "online.offline_fraction": "joint",
+    # ... and the loop `for t in range(offline_iterations + online_iterations)` does one
+    # env step and one trainer.train(batch) per online iteration: 1 update per env step
+    "online.utd_ratio": 1.0,
+}
+BUDGET_SETTINGS: dict[str, dict[str, dict[str, Any]]] = {
+    "paper": {"iql": dict(_CORL_FINETUNE_IQL), "dual": dict(_CORL_FINETUNE_IQL)},
+}
+"""``budget.name`` -> ``algo`` -> ``{dotted config key: value}``: what a budget's protocol
+sets for an algorithm, read through the same ``reference`` interpolation (and before
+:data:`REFERENCE_SETTINGS`). ``budget=paper`` runs IQL and DUAL (which the paper runs on
+CORL's IQL, Appendix A) with CORL's offline-to-online replay and update ratio; the other
+budgets keep the recipe's own (``online.offline_fraction`` 0.5, ``online.utd_ratio`` 0.5,
+``algo/*.yaml``)."""
+
 RESOLVER = "reference"
 """The OmegaConf resolver name: ``${reference:critic.depth,2}``."""
 
 
 def reference_setting(key: str, default: Any, *, _root_: DictConfig) -> Any:
-    """The value of ``key`` for the run's ``env.kind`` and ``critic.name`` in
+    """The value of ``key`` for the run's ``budget.name`` and ``algo`` in
+    :data:`BUDGET_SETTINGS`, else for its ``env.kind`` and ``critic.name`` in
     :data:`REFERENCE_SETTINGS`, else ``default`` (the ``reference`` resolver).
 
     Examples:
@@ -91,7 +115,19 @@ def reference_setting(key: str, default: Any, *, _root_: DictConfig) -> Any:
         >>> cfg.env.kind = "pointmaze"
         >>> cfg.critic.depth, cfg.critic.lagrange_gap
         (2, None)
+        >>> cfg = OmegaConf.create({"algo": "dual", "budget": {"name": "paper"},
+        ...     "online": {"utd_ratio": "${reference:online.utd_ratio,0.5}"}})
+        >>> cfg.online.utd_ratio
+        1.0
+        >>> cfg.budget.name = "default"
+        >>> cfg.online.utd_ratio
+        0.5
     """
+    budget = OmegaConf.select(_root_, "budget.name", default=None)
+    algo = OmegaConf.select(_root_, "algo", default=None)
+    protocol = BUDGET_SETTINGS.get(budget, {}).get(algo, {})
+    if key in protocol:
+        return protocol[key]
     kind = OmegaConf.select(_root_, "env.kind", default=None)
     critic = OmegaConf.select(_root_, "critic.name", default=None)
     return REFERENCE_SETTINGS.get(kind, {}).get(critic, {}).get(key, default)
