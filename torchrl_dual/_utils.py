@@ -50,6 +50,24 @@ def check_finite(value: Tensor, role: str, fix: str) -> None:
         raise ValueError(f"{role} holds {bad} NaN/inf entries; {fix}")
 
 
+def require_finite(value: Tensor, what: str, tensordict: TensorDictBase) -> None:
+    """``ValueError`` naming ``what`` and where ``tensordict`` (the batch ``value`` was
+    computed from) first holds a NaN or inf, if ``value`` is not finite; skipped where
+    :func:`host_reads_allowed` is ``False``.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> td = TensorDict(observation=torch.tensor([[1.0], [float("inf")]]), batch_size=[2])
+        >>> require_finite(td["observation"].sum(), "the loss", td)
+        Traceback (most recent call last):
+        ...
+        ValueError: the loss is not finite; the batch's 'observation' is not finite at batch index 1: clean the data.
+    """
+    if host_reads_allowed() and not bool(torch.isfinite(value).all()):
+        raise ValueError(f"{what} is not finite; {first_non_finite(tensordict)}")
+
+
 def first_non_finite(tensordict: TensorDictBase) -> str:
     """Where a batch first holds a NaN or inf, as a sentence for an error message: the
     key and the batch index of its first non-finite float entry, or, for a finite batch,

@@ -150,20 +150,6 @@ def test_online_keys_share_the_key_and_offline_keys_do_not():
         assert key(offline) != base, offline
 
 
-def test_a_key_added_later_keeps_the_caches_of_before_at_its_former_value():
-    """``compile.cudagraphs`` came after caches were written: at ``false`` (what ran
-    before) the key is the one of a config without it; ``true`` is another entry."""
-    fresh = f"output_dir={tempfile.mkdtemp()}"
-    cfg = compose_checked(RECIPE_CONFIG_DIR, ["budget=smoke", fresh])
-    before = offline_key_config(cfg, DualLearner.online_keys)
-    container = OmegaConf.to_container(cfg, resolve=True)
-    del container["compile"]["cudagraphs"]  # the config as it was before the key
-    assert before == offline_key_config(OmegaConf.create(container), DualLearner.online_keys)
-    assert "cudagraphs" not in before["compile"]
-    cfg.compile.cudagraphs = True
-    assert offline_key_config(cfg, DualLearner.online_keys)["compile"]["cudagraphs"] is True
-
-
 def test_a_new_offline_phase_revision_is_a_new_entry(monkeypatch):
     """A code change that alters the offline stages (a bumped revision) must not reuse the
     snapshots written before it."""

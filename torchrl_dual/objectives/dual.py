@@ -12,7 +12,7 @@ from torch import nn
 from torchrl.data import TensorSpec
 from torchrl.objectives.common import LossModule
 
-from torchrl_dual._utils import first_non_finite, host_reads_allowed
+from torchrl_dual._utils import require_finite
 from torchrl_dual.modules.actors.last_layer_actor import LastLayerActor
 from torchrl_dual.objectives.weighted_map_actor import WeightedMAPActorLoss
 
@@ -62,8 +62,9 @@ class DUALLoss(LossModule):
         reduction (str, optional): ``"none"`` | ``"mean"`` | ``"sum"``, set on both parts.
             Defaults to each part's own (``"mean"``).
         check_finite (bool): raise, naming the batch's first non-finite entry, when a
-            critic term is NaN or infinite (a host read per update; skipped under
-            ``torch.compile`` and CUDA-graph capture). Defaults to ``True``.
+            critic term, the actor's input or Eq. 7's weights hold a NaN or inf (a host
+            read each; skipped under ``torch.compile`` and CUDA-graph capture). Defaults
+            to ``True``; ``False`` skips them all.
 
     Examples:
         >>> import torch
@@ -132,6 +133,7 @@ class DUALLoss(LossModule):
             max_weight=max_weight,
             entropy_coef=entropy_coef,
             action_spec=action_spec,
+            check_finite=check_finite,
         )
         self.__dict__["critic"] = critic  # their state is adopted below: one module tree
         self.__dict__["actor_objective"] = objective
@@ -140,7 +142,14 @@ class DUALLoss(LossModule):
         self._adopt()
         if reduction is not None:
             self.reduction = reduction
-        self.check_finite = check_finite
+
+    @property
+    def check_finite(self) -> bool:
+        return self.actor_objective.check_finite
+
+    @check_finite.setter
+    def check_finite(self, value: bool) -> None:
+        self.actor_objective.check_finite = value
 
     # ------------------------------------------------------------------ one module tree
     def _parts(self) -> tuple[LossModule, LossModule]:
@@ -255,12 +264,9 @@ class DUALLoss(LossModule):
         """The critic's terms (Alg. 1 lines 7 and 15), checked finite when
         ``check_finite``; no metadata."""
         terms = self.critic.critic_terms(tensordict)
-        if self.check_finite and host_reads_allowed():
+        if self.check_finite:
             for name, term in terms.items():
-                if not bool(torch.isfinite(term).all()):
-                    raise ValueError(
-                        f"DUALLoss: {name} is not finite; {first_non_finite(tensordict)}"
-                    )
+                require_finite(term, f"DUALLoss's {name}", tensordict)
         return terms, {}
 
     def actor_loss(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, dict]:

@@ -13,7 +13,7 @@ from torchrl.data import TensorSpec
 from torchrl.objectives.common import LossModule
 from torchrl.objectives.utils import _vmap_func  # TorchRL's own ensemble evaluation
 
-from torchrl_dual._utils import check_finite, first_non_finite, host_reads_allowed, read_loss_input
+from torchrl_dual._utils import check_finite, read_loss_input, require_finite
 from torchrl_dual.modules.actors.action_box import ActionBox
 from torchrl_dual.modules.actors.last_layer_actor import LastLayerActor
 
@@ -70,6 +70,9 @@ class WeightedMAPActorLoss(LossModule):
             ``Unbounded`` one for a space without bounds); required by ``"sac"``, whose
             Q is read at the sample clamped to it.
         reduction (str): ``"none"`` | ``"mean"`` | ``"sum"``. Defaults to ``"mean"``.
+        check_finite (bool): raise on a NaN or inf in the observation, the action or the
+            advantage weights, naming the batch's first bad entry (a host read each;
+            skipped under ``torch.compile`` and CUDA-graph capture). Defaults to ``True``.
 
     Examples:
         >>> import torch
@@ -131,6 +134,7 @@ class WeightedMAPActorLoss(LossModule):
         entropy_coef: float = 0.2,
         action_spec: TensorSpec | None = None,
         reduction: str = "mean",
+        check_finite: bool = True,
     ) -> None:
         super().__init__()
         if not isinstance(actor, LastLayerActor):
@@ -165,6 +169,7 @@ class WeightedMAPActorLoss(LossModule):
         self.max_weight = max_weight
         self.entropy_coef = entropy_coef
         self.reduction = reduction
+        self.check_finite = check_finite
 
     @classmethod
     def from_iql(cls, actor: LastLayerActor, iql_loss, **kwargs) -> WeightedMAPActorLoss:
@@ -230,11 +235,8 @@ class WeightedMAPActorLoss(LossModule):
             self.value_network, self.value_params, tensordict, self.tensor_keys.value
         ).squeeze(-1)
         weights = torch.exp(self.temperature * (q - v)).clamp_max(self.max_weight)
-        if host_reads_allowed() and not bool(torch.isfinite(weights).all()):
-            raise ValueError(
-                f"WeightedMAPActorLoss: the advantage weights are not finite; "
-                f"{first_non_finite(tensordict)}"
-            )
+        if self.check_finite:
+            require_finite(weights, "WeightedMAPActorLoss's advantage weights", tensordict)
         return weights
 
     # ------------------------------------------------------------------ loss
@@ -256,7 +258,8 @@ class WeightedMAPActorLoss(LossModule):
                     f"the batch's {role} is {value.dtype} and the actor's weights {dtype}: "
                     f"cast one to the other (batch.to({dtype}) or loss.to({value.dtype}))."
                 )
-            check_finite(value, role, "clean the batch first.")
+            if self.check_finite:
+                check_finite(value, role, "clean the batch first.")
             values.append(value)
         return values[0], values[1]
 

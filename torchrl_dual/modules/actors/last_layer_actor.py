@@ -135,7 +135,7 @@ class LastLayerActor(nn.Module):
             >>> from torchrl_dual.modules import LinearHeadActor
             >>> actor = LinearHeadActor(MLP(in_features=3, out_features=2, num_cells=[8]), 2)
             >>> with torch.no_grad():
-            ...     actor.log_std.fill_(1.0)
+            ...     _ = actor.log_std.fill_(1.0)
             >>> actor.reset_parameters_recursive()
             >>> actor.std
             tensor([0.3000, 0.3000], grad_fn=<ExpBackward0>)
