@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import torch
@@ -178,11 +179,15 @@ class WeightedMAPActorLoss(LossModule):
         :class:`~torchrl_dual.objectives.CalQLLoss` (no V: ``weighting="sac"`` or
         ``"uniform"`` only)."""
         value_network = getattr(iql_loss, "value_network", None)
+        with warnings.catch_warnings():  # TorchRL's warning is for a forward pass without
+            # a target updater; here the critic's targets are only referenced
+            warnings.filterwarnings("ignore", message="No target network updater")
+            target_params = iql_loss.target_qvalue_network_params
         loss = cls(
             actor,
             qvalue_network=iql_loss.qvalue_network,
             value_network=value_network,
-            qvalue_params=iql_loss.target_qvalue_network_params,
+            qvalue_params=target_params,
             value_params=getattr(iql_loss, "value_network_params", None),
             **kwargs,
         )
