@@ -49,7 +49,7 @@ autosummary_imported_members = True
 autodoc_member_order = "bysource"
 autodoc_typehints = "signature"
 autodoc_typehints_format = "short"
-autodoc_class_signature = "separated"  # the class line, then __init__'s signature
+toc_object_entries_show_parents = "hide"  # "On this page": `forward()`, not `DUALLoss.forward()`
 autodoc_preserve_defaults = True  # `CONFIG_DIR / "x"` stays an expression, not a path
 napoleon_google_docstring = True
 napoleon_numpy_docstring = False
@@ -117,13 +117,7 @@ html_theme_options = {
     "navbar_align": "left",
     "show_toc_level": 2,
     "navigation_with_keys": False,
-    "icon_links": [
-        {
-            "name": "TorchRL",
-            "url": "https://github.com/pytorch/rl",
-            "icon": "fa-brands fa-github",
-        }
-    ],
+    "header_links_before_dropdown": 6,
     "footer_start": ["copyright"],
     "footer_end": ["sphinx-version"],
 }

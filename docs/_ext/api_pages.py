@@ -113,7 +113,7 @@ def module_page(module_name: str, entries: list[Export]) -> str:
     """The reST of ``api/<module>.rst``: the module's docstring, its own names in
     ``autosummary`` tables (one page each), then its re-exports as links."""
     lines = [
-        _title(f"``{module_name}``"),
+        _title(module_name),
         f".. automodule:: {module_name}\n",
         f".. currentmodule:: {module_name}\n",
     ]
@@ -235,12 +235,35 @@ def _escape_lone_bars(app, what, name, obj, options, lines) -> None:
         lines[i] = "".join(parts)
 
 
+def _init_signature(app, what, name, obj, options, signature, return_annotation):
+    """``autodoc-process-signature``: TorchRL's ``LossModule`` and tensordict's modules
+    define ``__new__(cls, *args, **kwargs)``, which autodoc would show as every subclass's
+    signature; show the class's ``__init__`` instead."""
+    if what != "class" or signature != "(*args, **kwargs)" or not name.startswith(PACKAGE):
+        return None
+    from sphinx.util.inspect import signature as init_signature
+    from sphinx.util.inspect import stringify_signature
+
+    sig = init_signature(obj.__init__, bound_method=True)
+    text = stringify_signature(sig, show_return_annotation=False, unqualified_typehints=True)
+    return text, return_annotation
+
+
+# autosummary's one-line summaries end at the first ". ": not at the paper's abbreviations
+SUMMARY_ABBREVIATIONS = ("Alg.", "Eq.", "Eqs.", "Sec.", "Thm.", "Fig.", " l.", "(l.")
+
+
 def _generate(app, config) -> None:
     write(Path(app.srcdir) / "api")
 
 
 def setup(app) -> dict:
+    import sphinx.ext.autosummary as autosummary
+
     app.setup_extension("sphinx.ext.autodoc")
+    abbreviations = autosummary.WELL_KNOWN_ABBREVIATIONS
+    autosummary.WELL_KNOWN_ABBREVIATIONS = (*abbreviations, *SUMMARY_ABBREVIATIONS)
+    app.connect("autodoc-process-signature", _init_signature)
     app.connect("config-inited", _generate)  # before autosummary reads the sources
     app.connect("autodoc-process-docstring", _fill_data_docstring)
     app.connect("autodoc-process-docstring", _escape_lone_bars)

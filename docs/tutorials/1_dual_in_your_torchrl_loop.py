@@ -68,7 +68,7 @@ for episode in range(6):
     rollout["episode"] = torch.full((40,), episode)
     episodes.append(rollout.select(*TRANSITION_KEYS))
 transitions = validate_transitions(torch.cat(episodes))
-print(transitions)
+print(transitions.batch_size, list(transitions.keys(True, True)))
 
 # %%
 # The diffusion planner (Eq. 3; Alg. 1 lines 3-4)
