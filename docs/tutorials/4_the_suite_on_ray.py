@@ -63,7 +63,7 @@ assert learning.main(flags) == 0, "a run failed: its stderr is printed above"
 # What a run leaves
 # -----------------
 # One JSON per run: the scores over the run, the seconds and CPU-seconds of each stage,
-# and the host, commit and config it ran with.
+# and the machine, commit and overrides it ran with.
 
 result_path = root / "results" / "smoke" / "frozenlake8x8_slip" / "iql" / "seed0.json"
 result = json.loads(result_path.read_text())
