@@ -8,7 +8,7 @@ names nothing else exports (``torchrl_dual.PlannerActor`` is documented as
 per leaf module that is the canonical home of a name) lists its names in ``autosummary``
 tables, which write the per-name pages; re-exports link to their canonical page.
 
-Run by Sphinx at ``builder-inited`` (``setup``), so a name added to an ``__all__`` gets its
+Run by Sphinx at ``config-inited`` (``setup``), so a name added to an ``__all__`` gets its
 page at the next build; ``tests/test_docs_api.py`` checks the generated sources (and a
 built ``objects.inv``) against every ``__all__``. Importable without Sphinx.
 """
@@ -211,13 +211,14 @@ def data_docstring(qualified: str) -> list[str] | None:
 
 def _fill_data_docstring(app, what, name, obj, options, lines) -> None:
     """``autodoc-process-docstring``: a re-exported constant gets its own doc comment, not
-    its type's docstring (``tuple``'s, ``dict``'s), and its value when that is short."""
+    its type's docstring (``tuple``'s, ``dict``'s), and its value when that is short. Runs
+    after napoleon, which would read a first line ``a: b`` as an attribute's type."""
     if what != "data" or not name.startswith(PACKAGE):
         return
     lines[:] = data_docstring(name) or []
     value = repr(obj)
-    if len(value) <= 100:
-        lines += ["", f"Value: ``{value}``"]
+    if isinstance(obj, (str, int, float, tuple, frozenset)) and len(value) <= 100:
+        lines += ["", f"The value is ``{value}``."]
 
 
 _QUOTED = re.compile(r"(``.*?``|`[^`]*`)")
@@ -265,6 +266,6 @@ def setup(app) -> dict:
     autosummary.WELL_KNOWN_ABBREVIATIONS = (*abbreviations, *SUMMARY_ABBREVIATIONS)
     app.connect("autodoc-process-signature", _init_signature)
     app.connect("config-inited", _generate)  # before autosummary reads the sources
-    app.connect("autodoc-process-docstring", _fill_data_docstring)
+    app.connect("autodoc-process-docstring", _fill_data_docstring, priority=600)
     app.connect("autodoc-process-docstring", _escape_lone_bars)
     return {"parallel_read_safe": True, "parallel_write_safe": True}
