@@ -3,20 +3,20 @@
 :func:`register_configs` stores dataclass configs with ``_target_`` next to TorchRL's own
 groups, so a run composed from TorchRL's groups can pick DUAL's parts:
 
-========================  ===================================================
-group=name                target
-========================  ===================================================
-``loss=dual``                  :class:`~torchrl_dual.objectives.DUALLoss` (Alg. 1 l. 7-8, Eq. 7)
-``loss=dual_iql_critic``       :class:`~torchrl_dual.objectives.IQLCriticLoss` (its critic)
-``loss=dual_diffusion_planner``  :class:`~torchrl_dual.objectives.DiffusionPlannerLoss` (Eq. 3)
-``loss=dual_distillation``     :class:`~torchrl_dual.objectives.DistillationLoss` (Alg. 1 l. 5)
-``exploration=shift_aware_noise``  :class:`~torchrl_dual.modules.ShiftAwareNoise` (Eq. 10)
-``hook=laplace_refit``         :class:`~torchrl_dual.trainers.LaplaceRefitHook` (Eq. 8)
-``hook=dual_signals``          :class:`~torchrl_dual.trainers.DUALSignalsLogHook` (Eq. 9-10)
-``hook=normalized_score``      :class:`~torchrl_dual.trainers.NormalizedScoreLogHook`
+===================================  =================================================================
+group=name                           target
+===================================  =================================================================
+``loss=dual``                        :class:`~torchrl_dual.objectives.DUALLoss` (Alg. 1 l. 7-8, Eq. 7)
+``loss=dual_iql_critic``             :class:`~torchrl_dual.objectives.IQLCriticLoss` (its critic)
+``loss=dual_diffusion_planner``      :class:`~torchrl_dual.objectives.DiffusionPlannerLoss` (Eq. 3)
+``loss=dual_distillation``           :class:`~torchrl_dual.objectives.DistillationLoss` (Alg. 1 l. 5)
+``exploration=shift_aware_noise``    :class:`~torchrl_dual.modules.ShiftAwareNoise` (Eq. 10)
+``hook=laplace_refit``               :class:`~torchrl_dual.trainers.LaplaceRefitHook` (Eq. 8)
+``hook=dual_signals``                :class:`~torchrl_dual.trainers.DUALSignalsLogHook` (Eq. 9-10)
+``hook=normalized_score``            :class:`~torchrl_dual.trainers.NormalizedScoreLogHook`
 ``replay_buffer=offline_to_online``  TorchRL's ``OfflineToOnlineReplayBuffer`` (fixed offline share)
-``trainer=dual``               :class:`~torchrl_dual.trainers.DUALTrainer`
-========================  ===================================================
+``trainer=dual``                     :class:`~torchrl_dual.trainers.DUALTrainer`
+===================================  =================================================================
 
 Fields holding modules (the actor, the planner, the collector, ...) default to ``None``:
 modules are not config values, so build a partial from the config and complete it with
