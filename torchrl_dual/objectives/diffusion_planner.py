@@ -86,12 +86,12 @@ class DiffusionPlannerLoss(TrajectoryWindowLoss):
 
     def denoising_loss(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, dict]:
         """Per-window loss of Eq. (3) in v-parameterisation and diagnostics."""
-        x0, mask = self._windows(self.model, tensordict)
-        batch = x0.shape[:-2]
-        t = torch.rand(batch, device=x0.device)
-        eps = torch.randn_like(x0)
-        z = self.model.noise(x0, t, eps)
-        with self.model_params.to_module(self.model):
+        with self.model_params.to_module(self.model):  # the normalizer's statistics too
+            x0, mask = self._windows(self.model, tensordict)
+            batch = x0.shape[:-2]
+            t = torch.rand(batch, device=x0.device, dtype=x0.dtype)
+            eps = torch.randn_like(x0)
+            z = self.model.noise(x0, t, eps)
             x_hat, _, v_hat = self.model.predict(z, t, x0, mask)
         loss = masked_mean((v_hat - self.model.v_target(x0, t, eps)) ** 2, mask)
         metadata = {"x0_error": masked_mean((x_hat - x0) ** 2, mask).mean().detach()}
