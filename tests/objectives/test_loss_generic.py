@@ -152,8 +152,9 @@ def make_iql(keys: Mapping[str, str]) -> Case:
 
 
 def make_cql(keys: Mapping[str, str]) -> Case:
-    loss = CQLLoss(_tanh_normal(keys, return_log_prob=True), _q(keys), num_random=2,
-                   action_spec=SPEC)
+    loss = CQLLoss(
+        _tanh_normal(keys, return_log_prob=True), _q(keys), num_random=2, action_spec=SPEC
+    )
     loss.set_keys(action=_keys(keys)[1])
     return Case(loss, _transitions(keys), vmaps=True)
 
@@ -196,8 +197,9 @@ def make_so2(keys: Mapping[str, str]) -> Case:
 
 
 def make_calql(keys: Mapping[str, str]) -> Case:
-    loss = CalQLLoss(_tanh_normal(keys, return_log_prob=True), _q(keys), num_random=2,
-                     action_spec=SPEC)
+    loss = CalQLLoss(
+        _tanh_normal(keys, return_log_prob=True), _q(keys), num_random=2, action_spec=SPEC
+    )
     loss.set_keys(action=_keys(keys)[1])
     batch = _transitions(keys, mc_return=torch.randn(B, 1))
     return Case(loss, batch, vmaps=True)
@@ -255,7 +257,7 @@ def test_loss_entries_are_differentiable_terms_and_the_rest_are_metrics(name):
             assert value.requires_grad, f"{name}: {key} is detached; name a metric otherwise"
         else:
             assert not value.requires_grad, f"{name}: metric {key} carries a graph"
-    for key, value in terms.items():  # each term alone, as TorchRL's per-term .backward()
+    for value in terms.values():  # each term alone, as TorchRL's per-term .backward()
         value.sum().backward(retain_graph=True)
 
 

@@ -33,7 +33,9 @@ class DiffusionPlannerLoss(TrajectoryWindowLoss):
     ε-prediction is undefined. The one-step student also samples there.
 
     Args:
-        model (TrajectoryDiffusion): the planner, whose normalizer is fitted.
+        model (TrajectoryDiffusion): the planner, whose normalizer is fitted (an unfitted
+            one raises). The windows must have its dtype: a float64 batch for a float32
+            planner is an error naming both (cast one, e.g. ``loss.double()``).
 
     Keyword Args:
         action_condition_prob (float): probability that ``a_0`` is also given, which
@@ -53,6 +55,7 @@ class DiffusionPlannerLoss(TrajectoryWindowLoss):
         >>> from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
         >>> layout = TrajectoryLayout(obs_dim=3, action_dim=2, horizon=4)
         >>> model = TrajectoryDiffusion(layout, hidden=32, depth=1)
+        >>> _ = model.normalizer.fit(torch.randn(64, 3), torch.randn(64, 2))  # offline data
         >>> loss_fn = DiffusionPlannerLoss(model)
         >>> windows = TensorDict(
         ...     {"observation": torch.randn(8, 5, 3), "action": torch.randn(8, 5, 2)},

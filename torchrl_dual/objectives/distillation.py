@@ -53,6 +53,7 @@ class DistillationLoss(TrajectoryWindowLoss):
         >>> from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
         >>> layout = TrajectoryLayout(obs_dim=3, action_dim=2, horizon=4)
         >>> teacher = TrajectoryDiffusion(layout, num_steps=4, hidden=32, depth=1)
+        >>> _ = teacher.normalizer.fit(torch.randn(64, 3), torch.randn(64, 2))  # offline data
         >>> student = copy.deepcopy(teacher)
         >>> student.num_steps = 2
         >>> loss_fn = DistillationLoss(student, teacher)

@@ -206,9 +206,7 @@ class SO2QLoss(LossModule):
     def _make_vmap(self) -> None:
         """The ensemble's ``vmap`` over the members, with TorchRL's ``vmap_randomness``
         (``"different"`` when the Q network holds a random module such as dropout)."""
-        self._ensemble = _vmap_func(
-            self.qvalue_network, (None, 0), randomness=self.vmap_randomness
-        )
+        self._ensemble = _vmap_func(self.qvalue_network, (None, 0), randomness=self.vmap_randomness)
 
     def reset_parameters_recursive(self) -> None:
         """Re-initialises the Q ensemble and its target; the actor belongs to the actor's
