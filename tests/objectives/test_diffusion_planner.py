@@ -99,9 +99,9 @@ def test_without_a_mask_s0_is_always_known_and_a0_with_the_given_probability(
 ):
     layout = make_layout()
     spy = MaskSpy()
-    DiffusionPlannerLoss(
-        _as_fitted(TrajectoryDiffusion(layout, spy)), action_condition_prob=0.5
-    )(make_windows(batch=400))
+    DiffusionPlannerLoss(_as_fitted(TrajectoryDiffusion(layout, spy)), action_condition_prob=0.5)(
+        make_windows(batch=400)
+    )
     mask = spy.masks[-1]
     s0, s0_a0 = layout.condition_mask("s0"), layout.condition_mask("s0_a0")
     assert (mask[:, 0, : layout.obs_dim]).all()
