@@ -123,3 +123,24 @@ def test_a_lock_held_elsewhere_is_refused_by_acquire(tmp_path):
         holder.wait()
     assert acquire_run_directory(tmp_path) is True  # its end released it
     release_run_directory(tmp_path)
+
+
+def test_a_forked_child_of_the_holder_does_not_keep_its_lock(tmp_path):
+    """A collector's worker forked by a run that then dies does not hold the directory."""
+    script = (
+        "import os, sys; from torchrl_dual.recipe.o2o.run_lock import acquire_run_directory; "
+        f"acquire_run_directory({str(tmp_path)!r}); child = os.fork()\n"
+        "if child == 0: sys.stdin.read(); os._exit(0)\n"
+        "print(child, flush=True); os._exit(0)"
+    )
+    holder = subprocess.Popen([sys.executable, "-c", script], cwd=REPO, stdin=subprocess.PIPE,
+                              stdout=subprocess.PIPE, text=True,
+                              env={**os.environ, "PYTHONPATH": str(REPO)})  # fmt: skip
+    try:
+        child = int(holder.stdout.readline())
+        holder.wait()  # the holder is gone, its forked child lives on
+        os.kill(child, 0)
+        assert acquire_run_directory(tmp_path) is True
+        release_run_directory(tmp_path)
+    finally:
+        holder.stdin.close()

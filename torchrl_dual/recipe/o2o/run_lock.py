@@ -3,11 +3,12 @@
 Two runs into one directory would write the same checkpoint, logs and ``summary.json``.
 A run takes ``<output_dir>/.lock`` before it writes anything (the command line before
 Hydra creates the directory, :class:`~torchrl_dual.recipe.O2ORun` before it checks for a
-checkpoint), with an exclusive ``flock``: a second process is refused with one line
-naming the directory and the process that runs there. The kernel releases the lock when
-its process ends, however it ends, so the file a crashed or killed run leaves behind
-(naming a process that is gone) is stale and the next run takes it over. Within one
-process the lock is held once, however many times it is asked for; it is released by
+checkpoint), with an exclusive POSIX record lock (``fcntl.lockf``): a second process is
+refused with one line naming the directory and the process that runs there. The kernel
+releases the lock when its process ends, however it ends, and a forked child (a
+collector's worker) does not inherit it, so the file a crashed or killed run leaves
+behind (naming a process that is gone) is stale and the next run takes it over. Within
+one process the lock is held once, however many times it is asked for; it is released by
 the :func:`run_directory_lock` block that took it, or when the process ends.
 """
 
@@ -69,8 +70,8 @@ def acquire_run_directory(output_dir: str | Path) -> bool:
                 f"cannot create {path} ({err.strerror}); choose a directory you can write to",
             ) from None
         try:
-            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
+            fcntl.lockf(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except (BlockingIOError, PermissionError):  # EAGAIN or EACCES: held elsewhere
             holder = _owner_text(lock)
             lock.close()
             raise UserError(
