@@ -8,8 +8,8 @@ controls (a check the controls fail would not be TorchRL's convention):
 * every ``loss_*`` entry is a differentiable term (``.backward()`` on each works;
   TorchRL's ``Trainer`` sums them), every other entry is a detached metric;
 * the input tensordict's entries are unchanged (new entries may be written);
-* ``reset_parameters_recursive()`` re-initialises what the loss owns and nothing it only
-  reads;
+* ``reset_parameters_recursive()`` re-initialises the weights the loss owns, and neither
+  its buffers (statistics, a frozen teacher) nor the modules it only reads;
 * ``loss.double()`` (and ``loss.to("cuda")`` on a GPU) carries every tensor the loss
   reads: its forward never touches a tensor left behind by the cast;
 * keys renamed with ``set_keys`` (and networks reading the renamed entries) give the same
@@ -28,7 +28,7 @@ from __future__ import annotations
 import copy
 import io
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import pytest
 import torch
@@ -72,7 +72,6 @@ class Case:
     batch: TensorDict
     reads: tuple[nn.Module, ...] = ()
     vmaps: bool = False
-    extra: dict = field(default_factory=dict)
 
 
 # ----------------------------------------------------------------------------- builders
@@ -286,10 +285,14 @@ def test_reset_parameters_recursive_resets_what_the_loss_owns_only(name):
         for value in owned.values():
             value.add_(1000.0)
     shifted = {k: v.detach().clone() for k, v in owned.items()}
+    state = {k: v.clone() for k, v in case.loss.named_buffers() if k not in owned}
     read = [floating_state(module) for module in case.reads]
     case.loss.reset_parameters_recursive()
     kept = [k for k, v in owned.items() if torch.equal(v, shifted[k])]
     assert not kept, f"{name}: reset_parameters_recursive left {kept} as they were"
+    buffers = dict(case.loss.named_buffers())  # statistics, a frozen teacher: not weights
+    changed = [k for k, v in state.items() if not torch.equal(buffers[k], v)]
+    assert not changed, f"{name}: reset_parameters_recursive changed the buffers {changed}"
     for module, before in zip(case.reads, read, strict=True):
         after = floating_state(module)
         changed = [k for k in before if not torch.equal(before[k], after[k])]
