@@ -1,69 +1,93 @@
 """DUAL through TorchRL's ``Trainer``: the recipe's builders, TorchRL's training loop.
 
-``python recipes/torchrl_trainer.py`` composes a run from TorchRL's ConfigStore groups
-plus DUAL's (``torchrl_dual.trainers.register_configs``: ``trainer=dual``) and calls
-``instantiate(cfg.trainer)(...).train()``. The networks, data and env come from the
-recipe's builders (``recipe`` lists recipe overrides, e.g. ``env=pointmaze_umaze``), so
-nothing is built twice; the loop, hooks and checkpoint are TorchRL's
-(docs/pipeline.md, "With TorchRL's trainers").
+    python recipes/torchrl_trainer.py                              # U-maze, smoke budget
+    python recipes/torchrl_trainer.py seed=1 env=frozenlake trainer.save_trainer_file=dual.pt
 
-    python recipes/torchrl_trainer.py                                  # U-maze, smoke budget
-    python recipes/torchrl_trainer.py 'recipe=["budget=smoke","seed=1"]' trainer.save_trainer_file=dual.pt
-
-The budget (frames, updates per batch, refit interval) is the recipe's ``budget``; the
-``trainer`` group sets the rest of TorchRL's trainer arguments.
+The command line is the recipe's (``torchrl-dual``'s overrides; ``budget`` defaults to
+``smoke`` here) plus ``trainer.*`` keys, which set TorchRL's trainer config ``trainer=dual``
+(``torchrl_dual.trainers.register_configs``). The data, env, networks and offline stages
+come from the recipe's builders, so nothing is built twice; the budget (frames, updates
+per batch, refit interval) is the recipe's ``budget``; the loop, hooks and checkpoint are
+TorchRL's (docs/pipeline.md, "With TorchRL's trainers"). A bad override, like any of the
+recipe's user errors, ends in one ``error:`` line and exit code 2; a finished run prints
+its final normalized score.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import sys
+from collections.abc import Sequence
 from typing import Any
 
-import hydra
+from hydra import compose, initialize
 from hydra.core.config_store import ConfigStore
+from hydra.errors import HydraException
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
-from torchrl.data import LazyTensorStorage, OfflineToOnlineReplayBuffer, ReplayBuffer
-from torchrl.trainers import OptimizationStepper
+from omegaconf.errors import OmegaConfBaseException
 
-from torchrl_dual.recipe import CONFIG_DIR, DualLearner, O2ORun, compose_checked
-from torchrl_dual.trainers import NormalizedScoreLogHook, dual_collector, register_configs
+from torchrl_dual.recipe import CONFIG_DIR, ConfigError, compose_checked, user_errors
 
-
-class RunUpdateStepper(OptimizationStepper):
-    """The recipe learner's critic-then-actor update (IQL, then Eq. 7) as a TorchRL
-    optimization step; its optimizers are the learner's, saved with its modules."""
-
-    def __init__(self, run: O2ORun) -> None:
-        self.run = run
-
-    def step(self, trainer: Any, sub_batch):
-        from tensordict import TensorDict
-
-        return TensorDict(self.run.update(sub_batch.to(self.run.cfg.device)), batch_size=[])
+DEFAULTS = {"budget": "budget=smoke", "progress": "progress=false"}
+"""Recipe overrides the script adds unless the command line sets the key."""
 
 
-@dataclass
-class TorchRLTrainerConfig:
-    """The example's top-level config: TorchRL's ``trainer`` group, and recipe overrides."""
-
-    defaults: list = field(default_factory=lambda: ["_self_", {"trainer": "dual"}])
-    recipe: list = field(default_factory=lambda: ["budget=smoke", "progress=false"])
-    trainer: Any = None
-
-
-# TorchRL's groups share names with the recipe's (logger/csv); compose_checked composes the
-# recipe's tree apart from them and from this app's running Hydra
-register_configs()
-ConfigStore.instance().store(name="torchrl_trainer", node=TorchRLTrainerConfig)
+def split_overrides(argv: Sequence[str]) -> tuple[list[str], list[str]]:
+    """``(recipe overrides, trainer overrides)``: ``trainer.*`` keys are TorchRL's."""
+    trainer = [o for o in argv if o.lstrip("+~").startswith("trainer.")]
+    recipe = [o for o in argv if o not in trainer]
+    given = {o.lstrip("+~").split("=", 1)[0] for o in recipe}
+    return [*(o for key, o in DEFAULTS.items() if key not in given), *recipe], trainer
 
 
-def build_trainer(cfg: DictConfig):
+def compose_configs(argv: Sequence[str]) -> tuple[DictConfig, DictConfig]:
+    """The recipe's validated config and TorchRL's ``trainer=dual`` config for the command
+    line ``argv``.
+
+    Raises:
+        ConfigError: anything the recipe's command line refuses, another ``algo`` than
+            ``dual``, or a ``trainer.*`` override Hydra cannot apply.
+    """
+    from torchrl_dual.trainers import register_configs
+
+    recipe, overrides = split_overrides(argv)
+    recipe_cfg = compose_checked(CONFIG_DIR, recipe)  # the recipe's tree, apart from TorchRL's
+    if recipe_cfg.algo != "dual":
+        raise ConfigError(
+            "algo", recipe_cfg.algo, "this script trains DUAL; run the recipe for the others"
+        )
+    register_configs()
+    ConfigStore.instance().store(
+        name="torchrl_trainer", node={"defaults": ["_self_", {"trainer": "dual"}]}
+    )
+    try:
+        with initialize(version_base=None):
+            return recipe_cfg, compose("torchrl_trainer", overrides=overrides).trainer
+    except (HydraException, OmegaConfBaseException) as err:
+        message = str(err).splitlines()[0].rstrip(".")  # Hydra's hint to append is not ours
+        cause = "" if err.__cause__ is None else f": {str(err.__cause__).splitlines()[0]}"
+        raise ConfigError(None, None, message + cause) from err
+
+
+def build_trainer(recipe_cfg: DictConfig, trainer_cfg: DictConfig) -> Any:
     """The recipe's DUAL parts, assembled by the stored ``trainer=dual`` config."""
-    recipe_cfg = compose_checked(CONFIG_DIR, list(cfg.recipe))
+    from torchrl.data import LazyTensorStorage, OfflineToOnlineReplayBuffer, ReplayBuffer
+    from torchrl.trainers import OptimizationStepper
+
+    from torchrl_dual.recipe import DualLearner, O2ORun
+    from torchrl_dual.trainers import NormalizedScoreLogHook, dual_collector
+
+    class RunUpdateStepper(OptimizationStepper):
+        """The recipe learner's critic-then-actor update (IQL, then Eq. 7) as a TorchRL
+        optimization step; its optimizers are the learner's, saved with its modules."""
+
+        def step(self, trainer: Any, sub_batch):
+            from tensordict import TensorDict
+
+            return TensorDict(run.update(sub_batch.to(recipe_cfg.device)), batch_size=[])
+
     run = O2ORun(recipe_cfg, DualLearner)
-    learner = run.learner
-    budget = recipe_cfg.budget
+    learner, budget = run.learner, recipe_cfg.budget
     # D_offline without the recipe's episode ids, which collected batches do not carry
     offline = ReplayBuffer(storage=LazyTensorStorage(len(run.data)))
     offline.extend(run.data.transitions.exclude("episode"))
@@ -73,9 +97,9 @@ def build_trainer(cfg: DictConfig):
         offline_fraction=float(recipe_cfg.online.offline_fraction),
         batch_size=int(recipe_cfg.online.batch_size),
     )
-    # the budget is the recipe's (recipe=[budget...]), so both paths run the same one
+    # the budget is the recipe's, so both paths run the same one
     trainer_cfg = OmegaConf.merge(
-        cfg.trainer,
+        trainer_cfg,
         {
             "total_frames": int(budget.online_frames),
             "refit_interval": int(budget.laplace_refit_every),
@@ -84,7 +108,6 @@ def build_trainer(cfg: DictConfig):
             ),
         },
     )
-    total = int(trainer_cfg.total_frames)
     # the recipe's evaluator (budget.eval_episodes deterministic episodes, its normalized
     # score) every budget.eval_every frames, as the recipe evaluates
     evaluation = NormalizedScoreLogHook(
@@ -96,10 +119,10 @@ def build_trainer(cfg: DictConfig):
             run.env,
             learner.policy,
             frames_per_batch=int(budget.frames_per_batch),
-            total_frames=total,
+            total_frames=int(trainer_cfg.total_frames),
         ),
         policy=learner.policy,
-        stepper=RunUpdateStepper(run),
+        stepper=RunUpdateStepper(),
         replay_buffer=replay,
         offline_stages=learner.offline_stages(),
         weight_fn=learner.loss.actor_objective.advantage_weights,
@@ -112,9 +135,23 @@ def build_trainer(cfg: DictConfig):
     return trainer
 
 
-@hydra.main(version_base=None, config_name="torchrl_trainer")
-def main(cfg: DictConfig) -> None:
-    build_trainer(cfg).train()
+def main(argv: Sequence[str] | None = None) -> Any:
+    """Trains DUAL for the command line's overrides, prints its final score and returns
+    the trainer."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if {"-h", "--help"} & set(argv):
+        print(__doc__)
+        return None
+    with user_errors(debug="debug=true" in argv):
+        trainer = build_trainer(*compose_configs(argv))
+    trainer.train()
+    score = trainer._modules["normalized_score"].evaluate()["normalized_score"]
+    print(
+        f"[dual] TorchRL Trainer: {trainer.collected_frames} online frames, final "
+        f"normalized score {float(score):.1f}",
+        flush=True,
+    )
+    return trainer
 
 
 if __name__ == "__main__":

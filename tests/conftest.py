@@ -27,7 +27,7 @@ from torchrl_dual.diffusion import (
 
 # ``tests/`` holds no ``__init__.py``; make ``import toy`` work from any test directory.
 sys.path.insert(0, str(Path(__file__).parent))
-from toy import bimodal_transitions  # noqa: E402
+from toy import bimodal_transitions, identity_statistics  # noqa: E402
 
 HIDDEN = 32
 DEPTH = 1
@@ -89,7 +89,8 @@ def create_mock_model(
     seed: int = 0,
     denoiser: nn.Module | None = None,
 ) -> TrajectoryDiffusion:
-    """A tiny planner; with ``fit`` its normalizer holds non-trivial statistics."""
+    """A tiny planner; with ``fit`` its normalizer holds non-trivial statistics, without
+    it the identity (mean 0, std 1, declared fitted: :func:`toy.identity_statistics`)."""
     layout = layout or create_mock_layout()
     with torch.random.fork_rng():  # seeded weights, global generator left as it was
         torch.manual_seed(seed)
@@ -101,6 +102,8 @@ def create_mock_model(
         obs = torch.randn(256, layout.obs_dim, generator=gen) * 3.0 + 1.5
         act = torch.rand(256, layout.action_dim, generator=gen) * 2.0 - 1.0
         model.normalizer.fit(obs, act)
+    else:
+        identity_statistics(model.normalizer)
     return model
 
 

@@ -156,6 +156,16 @@ def run_script(script: str, *args: str) -> subprocess.CompletedProcess:
     )
 
 
+def run_console_script(name: str, *args: str) -> subprocess.CompletedProcess:
+    """The installed console script ``name`` (``torchrl-dual``) with ``args``: its entry
+    point as the package metadata declares it, run in this process as :func:`run_script`
+    runs a script."""
+    from importlib.metadata import entry_points
+
+    (entry,) = entry_points(group="console_scripts", name=name)
+    return _run_main([name, *args], [name, *args], str(REPO), lambda: entry.load()())
+
+
 def run_module(module: str, *args: str) -> subprocess.CompletedProcess:
     """``python -m <module> <args>`` from the repo root (a benchmark:
     ``benchmarks.speed.latency``), run in this process as :func:`run_script` runs a

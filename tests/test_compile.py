@@ -58,7 +58,9 @@ class HostReads(TorchDispatchMode):
 
 def _planner(steps: int) -> TrajectoryDiffusion:
     torch.manual_seed(0)
-    return TrajectoryDiffusion(TrajectoryLayout(OBS, ACT, H), num_steps=steps, hidden=16, depth=1)
+    model = TrajectoryDiffusion(TrajectoryLayout(OBS, ACT, H), num_steps=steps, hidden=16, depth=1)
+    model.normalizer.fit(torch.randn(64, OBS) * 2 + 1, torch.rand(64, ACT) * 2 - 1)
+    return model
 
 
 def _windows() -> TensorDict:

@@ -50,7 +50,12 @@ ALLOWED: dict[str, tuple[str, ...]] = {
     "recipe.settings": ("recipe.settings",),
     # the entry: the schema, the signal handling (plain Python), and the loop inside run()
     # once the config is valid (torch-free up to there: tests/recipe/test_settings_light.py)
-    "recipe.cli": ("recipe.settings", "recipe.o2o.interrupts", "recipe.o2o.loop"),
+    "recipe.cli": (
+        "recipe.settings",
+        "recipe.o2o.interrupts",
+        "recipe.o2o.run_lock",
+        "recipe.o2o.loop",
+    ),
     "recipe.kits": (
         "recipe.kits",
         "recipe.settings",

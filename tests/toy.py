@@ -22,7 +22,7 @@ from torchrl.data import TensorSpec
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import IQLLoss
 
-from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
+from torchrl_dual.diffusion import Normalizer, TrajectoryDiffusion, TrajectoryLayout
 from torchrl_dual.modules import (
     LaplaceEnsembleActor,
     LinearHeadActor,
@@ -229,6 +229,15 @@ def ensemble_training_data(
         n, action_dim, generator=gen
     )
     return TensorDict({"observation": observation, "action": action}, [n])
+
+
+def identity_statistics(normalizer: Normalizer) -> Normalizer:
+    """``normalizer`` with mean 0 and std 1 declared fitted (a fitted ``state_dict``
+    loaded): the tests' by-hand computations then read the windows as they are."""
+    state = normalizer.state_dict()
+    state["fitted"] = torch.ones((), dtype=torch.bool)
+    normalizer.load_state_dict(state)
+    return normalizer
 
 
 def ensemble_actor(kind: str, make_model, data: TensorDict | None = None, seed: int = 0):

@@ -85,10 +85,26 @@ def _has_d3rlpy(python: Path) -> bool:
     return probe.returncode == 0
 
 
+ALGOS = ("iql", "calql")
+"""The recipe's algorithms with a d3rlpy reference (``reference_learners.REFERENCES``)."""
+
+
+def check_overrides(argv: list[str]) -> None:
+    """One ``error:`` line and exit code 2 for a command line the recipe refuses or an
+    ``algo`` without a reference, before the reference venv is built."""
+    from torchrl_dual.recipe import CONFIG_DIR, ConfigError, compose_checked, user_errors
+
+    with user_errors(debug="debug=true" in argv):
+        cfg = compose_checked(CONFIG_DIR, argv)
+        if cfg.algo not in ALGOS:
+            raise ConfigError("algo", cfg.algo, "no d3rlpy reference; choose one of iql, calql")
+
+
 def main(argv: list[str]) -> None:
     if argv[:1] == ["--setup"]:
         print(build_venv())
         return
+    check_overrides(argv)
     try:
         import d3rlpy  # noqa: F401
     except ImportError:

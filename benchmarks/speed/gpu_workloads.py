@@ -60,9 +60,9 @@ TINY = Sizes(obs_dim=5, action_dim=2, horizon=4, hidden=16, depth=1, batch=8,
 # ----------------------------------------------------------------------------- builders
 def _planner(s: Sizes, num_steps: int, device: str) -> TrajectoryDiffusion:
     layout = TrajectoryLayout(s.obs_dim, s.action_dim, s.horizon)
-    return TrajectoryDiffusion(layout, num_steps=num_steps, hidden=s.hidden, depth=s.depth).to(
-        device
-    )
+    model = TrajectoryDiffusion(layout, num_steps=num_steps, hidden=s.hidden, depth=s.depth)
+    model.normalizer.fit(torch.randn(512, s.obs_dim), torch.rand(512, s.action_dim) * 2 - 1)
+    return model.to(device)
 
 
 def _windows(s: Sizes, device: str) -> TensorDict:

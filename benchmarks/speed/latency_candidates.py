@@ -94,8 +94,17 @@ def build_mlp_actor(cfg: Config) -> TensorDictModuleBase:
 
 def _planner(cfg: Config, num_steps: int) -> TensorDictModuleBase:
     layout = TrajectoryLayout(cfg.obs_dim, cfg.action_dim, cfg.horizon)
-    model = TrajectoryDiffusion(layout, num_steps=num_steps, hidden=cfg.hidden, depth=cfg.depth)
+    model = _fitted(TrajectoryDiffusion(layout, num_steps=num_steps, hidden=cfg.hidden,
+                                        depth=cfg.depth))  # fmt: skip
     return PlannerPolicy(model, action_low=-1.0, action_high=1.0)
+
+
+def _fitted(model: TrajectoryDiffusion) -> TrajectoryDiffusion:
+    """``model`` with its normalizer fitted on random states and actions (the statistics'
+    values do not change the cost)."""
+    layout = model.layout
+    model.normalizer.fit(torch.randn(512, layout.obs_dim), torch.rand(512, layout.action_dim))
+    return model
 
 
 def build_planner_n32(cfg: Config) -> TensorDictModuleBase:
@@ -121,7 +130,8 @@ def _dual(
     actor's (and the transition model's) sampling steps, ``uncertainty`` the ensemble
     (``laplace.uq``)."""
     layout = TrajectoryLayout(cfg.obs_dim, cfg.action_dim, cfg.horizon)
-    model = TrajectoryDiffusion(layout, num_steps=num_steps, hidden=cfg.hidden, depth=cfg.depth)
+    model = _fitted(TrajectoryDiffusion(layout, num_steps=num_steps, hidden=cfg.hidden,
+                                        depth=cfg.depth))  # fmt: skip
     actor = PlannerActor(model)
     if transition == "shared":
         transition_model = TransitionModel(model, frozen=False)

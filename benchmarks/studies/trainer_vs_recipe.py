@@ -51,10 +51,8 @@ def load_trainer_script():
 def run_seed(cell: str, budget: str, seed: int, output_dir: Path) -> dict:
     """One seed through the trainer path: its scores after the offline stages and at each
     evaluation, and its CPU seconds."""
-    from hydra import compose, initialize
-
     script = load_trainer_script()
-    recipe = [
+    argv = [
         *CELLS[cell].overrides,
         "algo=dual",
         f"budget={budget}",
@@ -62,15 +60,10 @@ def run_seed(cell: str, budget: str, seed: int, output_dir: Path) -> dict:
         "progress=false",
         "num_threads=1",
         f"output_dir={output_dir}",
-    ]
-    overrides = [
-        "recipe=[" + ",".join(f"'{r}'" for r in recipe) + "]",
         "trainer.progress_bar=false",
     ]
-    with initialize(version_base=None):
-        cfg = compose("torchrl_trainer", overrides=overrides)
     start = time.process_time()
-    trainer = script.build_trainer(cfg)
+    trainer = script.build_trainer(*script.compose_configs(argv))
     evaluation = trainer._modules["normalized_score"]
     offline: dict[str, float] = {}
     # after the offline stages (registered first at setup): the score Alg. 1 starts from

@@ -16,6 +16,7 @@ import pytest
 import torch
 from tensordict import TensorDict
 from torch import nn
+from toy import identity_statistics
 
 from torchrl_dual.diffusion import NoiseSchedule, TrajectoryDiffusion, TrajectoryLayout
 from torchrl_dual.objectives import DiffusionPlannerLoss, DistillationLoss
@@ -143,6 +144,7 @@ def windows(batch: int, seed: int) -> TensorDict:
 def test_eq3_loss_is_the_masked_mean_v_error_computed_by_hand():
     torch.manual_seed(1)
     model = TrajectoryDiffusion(LAYOUT, hidden=16, depth=1)
+    identity_statistics(model.normalizer)
     data = windows(6, seed=2)
     loss_fn = DiffusionPlannerLoss(model, reduction="none")
     torch.manual_seed(3)
@@ -176,6 +178,7 @@ def test_the_distillation_target_and_weight_computed_by_hand():
     teacher = TrajectoryDiffusion(LAYOUT, GaussianOracle("cosine"), num_steps=8)
     torch.manual_seed(4)
     student = TrajectoryDiffusion(LAYOUT, num_steps=4, hidden=16, depth=1)
+    identity_statistics(student.normalizer)
     data = windows(8, seed=5)
     loss_fn = DistillationLoss(student, teacher, reduction="none")
     torch.manual_seed(6)

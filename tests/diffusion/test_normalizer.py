@@ -70,3 +70,47 @@ def test_fit_with_the_wrong_dimension_shows_expected_and_given_shapes():
     obs, act = _data()
     with pytest.raises(ValueError, match=r"observation of shape \[N, 3\], got \(200, 4\)"):
         Normalizer(3, 2).fit(torch.randn(200, 4), act)
+
+
+NOT_FITTED = (
+    r"^Normalizer is not fitted: call normalizer.fit\(observations, actions\) on the offline "
+    r"data \(a planner's is model.normalizer\) or load a fitted state_dict first\.$"
+)
+
+
+@pytest.mark.parametrize(
+    "method",
+    ["normalize_observation", "denormalize_observation", "normalize_action", "denormalize_action"],
+)
+def test_an_unfitted_normalizer_refuses_to_normalise(method):
+    """Its mean-0 / std-1 statistics would silently leave the data in raw units."""
+    norm = Normalizer(3, 2)
+    value = torch.zeros(4, 3 if "observation" in method else 2)
+    with pytest.raises(RuntimeError, match=NOT_FITTED):
+        getattr(norm, method)(value)
+    obs, act = _data()
+    norm.fit(obs, act)
+    assert getattr(norm, method)(value).shape == value.shape
+
+
+def test_loading_a_state_dict_carries_whether_it_was_fitted():
+    obs, act = _data()
+    fitted, unfitted = Normalizer(3, 2).fit(obs, act), Normalizer(3, 2)
+    target = Normalizer(3, 2)
+    target.load_state_dict(fitted.state_dict())
+    torch.testing.assert_close(target.normalize_action(act), fitted.normalize_action(act))
+    target.load_state_dict(unfitted.state_dict())
+    with pytest.raises(RuntimeError, match=NOT_FITTED):
+        target.normalize_action(act)
+
+
+@pytest.mark.parametrize("grad", [False, True])  # the one-step shortcut, the plain path
+def test_a_planner_whose_normalizer_was_never_fitted_is_refused_wherever_it_is_used(grad):
+    from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
+    from torchrl_dual.modules import PlannerActor, PlannerSampler
+
+    model = TrajectoryDiffusion(TrajectoryLayout(3, 2, 4), num_steps=1, hidden=8, depth=1)
+    with torch.set_grad_enabled(grad), pytest.raises(RuntimeError, match=NOT_FITTED):
+        PlannerActor(model)(torch.zeros(4, 3))
+    with pytest.raises(RuntimeError, match=NOT_FITTED):
+        PlannerSampler(model)(torch.zeros(4, 3))

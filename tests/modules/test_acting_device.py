@@ -43,6 +43,7 @@ class _HostOps(TorchDispatchMode):
 def _policy(num_steps: int, transition: str, uncertainty: str):
     torch.manual_seed(0)
     model = TrajectoryDiffusion(TrajectoryLayout(OBS, ACT, 4), num_steps=num_steps, hidden=16)
+    model.normalizer.fit(torch.randn(64, OBS), torch.rand(64, ACT) * 2 - 1)
     actor = PlannerActor(model)
     if transition == "shared":
         transition_model = TransitionModel(model, frozen=False)

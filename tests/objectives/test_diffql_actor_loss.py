@@ -65,11 +65,11 @@ def test_the_loss_is_bc_plus_eta_times_the_normalised_q_term_by_hand(eta):
     out = loss(batch)
     bc, q = _by_hand(loss, batch, seed=3)
     q_term = -q.mean() / q.abs().mean()
-    torch.testing.assert_close(out["loss_bc"], bc.mean())
-    torch.testing.assert_close(out["loss_q"], q_term)
+    torch.testing.assert_close(out["bc_term"], bc.mean())
+    torch.testing.assert_close(out["q_term"], q_term)
     torch.testing.assert_close(out["q_pi"], q.mean())
     torch.testing.assert_close(out["loss_actor"], bc.mean() + eta * q_term)
-    assert not out["loss_bc"].requires_grad and not out["loss_q"].requires_grad
+    assert not out["bc_term"].requires_grad and not out["q_term"].requires_grad
     assert out["loss_actor"].requires_grad
 
 
@@ -77,7 +77,7 @@ def test_the_q_normaliser_is_detached_and_never_divides_by_zero():
     actor = _actor()
     zero = DiffQLActorLoss(actor, lambda s, a: 0.0 * a.sum(-1), _box, eta=1.0)
     out = zero(_batch())
-    assert torch.isfinite(out["loss_actor"]) and out["loss_q"] == 0  # |Q| clamped at 1e-6
+    assert torch.isfinite(out["loss_actor"]) and out["q_term"] == 0  # |Q| clamped at 1e-6
     # detached normaliser: d(−mean Q / c)/dQ = −1 / (B c), c = mean |Q| held fixed
     q = torch.tensor([-2.0, 1.0, 3.0], requires_grad=True)
     loss = DiffQLActorLoss(actor, lambda s, a: q, _box, eta=1.0)
@@ -102,7 +102,7 @@ def test_reduction_none_is_per_sample_and_its_mean_and_sum_match_the_reduced_los
         outs[reduction] = loss(batch)
     mean = outs["mean"]
     none, total = outs["none"], outs["sum"]
-    for key in ("loss_actor", "loss_bc", "loss_q"):
+    for key in ("loss_actor", "bc_term", "q_term"):
         assert none[key].shape == (B,), key
         torch.testing.assert_close(none[key].mean(), mean[key])
         torch.testing.assert_close(total[key], none[key].sum())
@@ -114,7 +114,7 @@ def test_it_is_a_torchrl_loss_module_with_settable_keys():
     loss = DiffQLActorLoss(_actor(), _q_value, _box, eta=1.0)
     assert isinstance(loss, LossModule)
     assert loss.in_keys == ["observation", "action"]
-    assert loss.out_keys == ["loss_actor", "loss_bc", "loss_q", "q_pi"]
+    assert loss.out_keys == ["loss_actor", "bc_term", "q_term", "q_pi"]
     torch.manual_seed(5)
     expected = loss(_batch())
     loss.set_keys(observation="obs", action=("data", "act"))
@@ -170,10 +170,10 @@ def test_reduction_none_keeps_a_two_dimensional_batch():
     batch = _batch().reshape(2, B // 2)
     torch.manual_seed(6)
     out = loss(batch)
-    assert out["loss_actor"].shape == out["loss_bc"].shape == (2, B // 2)
+    assert out["loss_actor"].shape == out["bc_term"].shape == (2, B // 2)
     torch.manual_seed(6)
     flat = loss(_batch())
-    torch.testing.assert_close(out["loss_bc"].reshape(-1), flat["loss_bc"])
+    torch.testing.assert_close(out["bc_term"].reshape(-1), flat["bc_term"])
 
 
 def _iql_critic(seed: int = 0):

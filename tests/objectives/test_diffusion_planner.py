@@ -8,9 +8,16 @@ import statistics
 import pytest
 import torch
 from torch import nn
+from toy import identity_statistics
 
 from torchrl_dual.diffusion import TrajectoryDiffusion
 from torchrl_dual.objectives import DiffusionPlannerLoss, train_planner
+
+
+def _as_fitted(model: TrajectoryDiffusion) -> TrajectoryDiffusion:
+    identity_statistics(model.normalizer)
+    return model
+
 
 pytestmark = pytest.mark.usefixtures("seeded")
 
@@ -77,7 +84,7 @@ def test_set_keys_rejects_an_unknown_key_name(make_model):
 def test_a_provided_condition_mask_is_passed_to_the_denoiser(mask_key, make_layout, make_windows):
     layout = make_layout()
     spy = MaskSpy()
-    loss_fn = DiffusionPlannerLoss(TrajectoryDiffusion(layout, spy))
+    loss_fn = DiffusionPlannerLoss(_as_fitted(TrajectoryDiffusion(layout, spy)))
     if mask_key != "condition_mask":
         loss_fn.set_keys(condition_mask=mask_key)
     windows = make_windows()
@@ -92,7 +99,7 @@ def test_without_a_mask_s0_is_always_known_and_a0_with_the_given_probability(
 ):
     layout = make_layout()
     spy = MaskSpy()
-    DiffusionPlannerLoss(TrajectoryDiffusion(layout, spy), action_condition_prob=0.5)(
+    DiffusionPlannerLoss(_as_fitted(TrajectoryDiffusion(layout, spy)), action_condition_prob=0.5)(
         make_windows(batch=400)
     )
     mask = spy.masks[-1]
@@ -266,7 +273,7 @@ def _model_with_known_statistics(layout) -> TrajectoryDiffusion:
     norm.obs_std.copy_(torch.tensor([2.0, 0.5, 1.0]))
     norm.action_mean.copy_(torch.tensor([0.3, -0.1]))
     norm.action_std.copy_(torch.tensor([0.5, 2.0]))
-    return model
+    return _as_fitted(model)  # declared fitted with the statistics above
 
 
 def _varied_masks(layout, batch: int) -> torch.Tensor:
@@ -327,17 +334,28 @@ def test_the_loss_is_eq_3_in_v_form_computed_by_hand(make_layout, make_windows):
     assert expected[1] == 0 and expected[0] > 0  # nothing free, one entry free
 
 
-def test_double_precision_windows_are_read_in_the_default_dtype(make_model, make_windows):
-    """Windows stored in float64 give the float32 loss of the same windows."""
+def test_windows_of_another_dtype_than_the_planner_are_refused_naming_both(
+    make_model, make_windows
+):
+    """No silent cast: float64 windows for a float32 planner are an error naming both
+    dtypes and the two fixes; cast either way, the loss runs in that dtype."""
     loss_fn = DiffusionPlannerLoss(make_model())
     windows = make_windows()
-    torch.manual_seed(3)
-    expected = loss_fn(windows)
-    torch.manual_seed(3)
-    out = loss_fn(windows.double())
-    assert out["loss_diffusion"].dtype == torch.float32
-    torch.testing.assert_close(out["loss_diffusion"], expected["loss_diffusion"])
-    torch.testing.assert_close(out["x0_error"], expected["x0_error"])
+    with pytest.raises(
+        TypeError,
+        match=r"^observation is torch.float64 but the planner's weights are torch.float32: cast "
+        r"the batch \(batch.to\(torch.float32\)\) or the loss \(loss.to\(torch.float64\)\)\.$",
+    ):
+        loss_fn(windows.double())
+    assert loss_fn(windows)["loss_diffusion"].dtype == torch.float32
+    assert loss_fn.double()(windows.double())["loss_diffusion"].dtype == torch.float64
+
+
+def test_an_unfitted_normalizer_is_refused(make_layout, make_windows):
+    """A planner whose normalizer was never fitted would train on raw units."""
+    loss_fn = DiffusionPlannerLoss(TrajectoryDiffusion(make_layout(), hidden=8, depth=1))
+    with pytest.raises(RuntimeError, match=r"^Normalizer is not fitted: call normalizer.fit"):
+        loss_fn(make_windows())
 
 
 @pytest.mark.parametrize("key", ["observation", "action"])
@@ -355,5 +373,5 @@ def test_random_draws_follow_the_data_device_not_torch_s_default_device(
 ):
     """``t``, ``ε`` and the ``a_0``-known draw are made where the windows live."""
     layout = make_layout()
-    loss_fn = DiffusionPlannerLoss(TrajectoryDiffusion(layout, _LinearV(0.6, 0.5)))
+    loss_fn = DiffusionPlannerLoss(_as_fitted(TrajectoryDiffusion(layout, _LinearV(0.6, 0.5))))
     draws_follow_the_data(loss_fn, make_windows(layout), ("loss_diffusion", "x0_error"))

@@ -9,6 +9,7 @@ import statistics
 import pytest
 import torch
 from tensordict import TensorDict
+from toy import identity_statistics
 
 from torchrl_dual.diffusion import TrajectoryDiffusion
 from torchrl_dual.objectives import DistillationLoss, progressive_distillation
@@ -479,6 +480,7 @@ def test_the_loss_is_the_truncated_snr_weighted_error_to_the_two_step_target_by_
     layout = make_layout()
     teacher = TrajectoryDiffusion(layout, _LinearV(0.8, -0.3), num_steps=2 * student_steps)
     student = TrajectoryDiffusion(layout, _LinearV(0.2, 0.4), num_steps=student_steps)
+    identity_statistics(student.normalizer)
     gen = torch.Generator().manual_seed(4)
     observation = torch.randn(batch, layout.length, layout.obs_dim, generator=gen)
     action = torch.randn(batch, layout.length, layout.action_dim, generator=gen)
@@ -491,7 +493,7 @@ def test_the_loss_is_the_truncated_snr_weighted_error_to_the_two_step_target_by_
         {"observation": observation, "action": action, "condition_mask": mask},
         [batch, layout.length],
     )
-    x0 = torch.cat([observation, action], -1)  # unfitted normalizers: identity
+    x0 = torch.cat([observation, action], -1)  # identity statistics
     torch.manual_seed(8)
     i = torch.randint(1, student_steps + 1, (batch,)).double()
     eps = torch.randn(batch, *layout.window_shape)
@@ -515,5 +517,6 @@ def test_random_draws_follow_the_data_device_not_torch_s_default_device(
     layout = make_layout()
     teacher = TrajectoryDiffusion(layout, _LinearV(0.8, -0.3), num_steps=4)
     student = TrajectoryDiffusion(layout, _LinearV(0.2, 0.4), num_steps=2)
+    identity_statistics(student.normalizer)
     loss_fn = DistillationLoss(student, teacher)
     draws_follow_the_data(loss_fn, make_windows(layout), ("loss_distillation", "target_gap"))

@@ -472,3 +472,21 @@ def test_the_loss_compiles_without_a_graph_break():
     torch._dynamo.reset()
     out = torch.compile(loss, fullgraph=True, backend="eager")(batch)
     assert torch.isfinite(out["loss_qvalue"])
+
+
+def test_vmap_randomness_reaches_the_ensemble_evaluation():
+    """TorchRL's rule: ``"different"`` for a Q network with dropout (each member its own
+    mask), settable; ``"error"`` then makes vmap refuse the random op, so the setting is the
+    one the ensemble runs with."""
+    torch.manual_seed(0)
+    dropout_q = ValueOperator(
+        MLP(in_features=OBS + ACT, out_features=1, num_cells=[8], dropout=0.5),
+        in_keys=["observation", "action"],
+    )
+    loss = SO2QLoss(_mock_actor(), dropout_q, action_spec=Bounded(-1.0, 1.0, shape=(ACT,)),
+                    num_qvalue_nets=E)  # fmt: skip
+    assert loss.vmap_randomness == "different"
+    assert torch.isfinite(loss(_mock_batch())["loss_qvalue"])
+    loss.set_vmap_randomness("error")
+    with pytest.raises(RuntimeError, match="randomness"):
+        loss(_mock_batch())

@@ -361,6 +361,7 @@ def test_both_transition_models_give_the_policy_a_shift_distance(source, smoke_c
     layout = TrajectoryLayout(obs_dim, env.action_spec.shape[-1], cfg.planner.horizon)
     torch.manual_seed(0)
     teacher = TrajectoryDiffusion(layout, num_steps=1, hidden=32, depth=1)
+    teacher.normalizer.fit(torch.randn(64, obs_dim), torch.rand(64, layout.action_dim) * 2 - 1)
     sections = DualSections.of(cfg)
     actor = make_actor(sections.actor, 1, teacher)
     transition = make_transition_model(source, 1, teacher, actor)

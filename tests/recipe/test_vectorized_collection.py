@@ -86,6 +86,7 @@ def test_dual_s_exploration_policy_acts_for_each_env_of_a_batch_as_for_it_alone(
     that env alone gives (up to the rounding of batched matrix products)."""
     torch.manual_seed(0)
     model = TrajectoryDiffusion(TrajectoryLayout(6, 2, 4), num_steps=1, hidden=32, depth=1)
+    model.normalizer.fit(torch.randn(64, 6), torch.rand(64, 2) * 2 - 1)
     policy = make_dual_policy(
         PlannerActor(model),
         Bounded(-1.0, 1.0, shape=(2,)),

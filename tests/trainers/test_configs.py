@@ -99,7 +99,7 @@ def test_the_recipe_composes_while_torchrl_s_configs_are_stored():
 
 
 def test_the_recipe_composes_inside_a_running_hydra_app():
-    """A user's Hydra app (``recipes/torchrl_trainer.py``) calls compose_checked while its
+    """A user's Hydra app calls compose_checked while its
     own GlobalHydra is initialized: the recipe composes apart, and the app's Hydra is back
     afterwards."""
     from hydra import compose, initialize

@@ -3,8 +3,6 @@ then its offline stages resumed from the trainer's checkpoint."""
 
 import math
 
-from hydra import compose, initialize
-
 from benchmarks.studies.trainer_vs_recipe import load_trainer_script
 from tests.recipe_runner import TINY
 
@@ -18,20 +16,21 @@ def cfg_eval_every(recipe: list[str]) -> int:
     return int(compose_checked(CONFIG_DIR, recipe).budget.eval_every)
 
 
-def test_script_trains_dual_on_umaze_and_resumes_offline_stages(tmp_path):
+def test_script_trains_dual_on_umaze_and_resumes_offline_stages(tmp_path, capsys):
     script = load_trainer_script()
     recipe = [*TINY_UMAZE, f"output_dir={tmp_path / 'run'}"]
     save = tmp_path / "trainer.pt"
-    overrides = [
-        "recipe=[" + ",".join(f"'{r}'" for r in recipe) + "]",
+    argv = [  # the recipe's command line, plus TorchRL's trainer.* keys
+        *recipe,
         "trainer.progress_bar=false",
         f"trainer.save_trainer_file={save}",
         "trainer.save_trainer_interval=1",
     ]
-    with initialize(version_base=None):
-        cfg = compose("torchrl_trainer", overrides=overrides)
-    trainer = script.build_trainer(cfg)
-    trainer.train()
+    trainer = script.main(argv)
+    score = trainer._modules["normalized_score"].evaluate()["normalized_score"]
+    assert capsys.readouterr().out.splitlines()[-1] == (
+        f"[dual] TorchRL Trainer: 100 online frames, final normalized score {score:.1f}"
+    )
     assert trainer.offline_stages.done == ["planner", "distillation", "actor_critic", "laplace"]
     assert trainer.collected_frames == 100 and trainer._optim_count == 50
     # the refit hook runs once per collected batch, when >= 10 updates passed: 2 batches
@@ -44,7 +43,7 @@ def test_script_trains_dual_on_umaze_and_resumes_offline_stages(tmp_path):
     assert save.exists()
 
     calls = []
-    resumed = script.build_trainer(cfg)
+    resumed = script.build_trainer(*script.compose_configs(argv))
     for i, (name, _stage) in enumerate(resumed.offline_stages.stages):
         resumed.offline_stages.stages[i] = (name, lambda n=name: calls.append(n))
     resumed.load_from_file(save)

@@ -10,7 +10,10 @@ class Normalizer(nn.Module):
     """Standardises observations and actions with statistics of the offline data.
 
     The statistics are buffers, so they are saved and restored with the model's
-    ``state_dict`` and follow ``.to(device)``.
+    ``state_dict`` and follow ``.to(device)``. A normalizer must be fitted (:meth:`fit`, or
+    a fitted ``state_dict`` loaded) before it normalises anything: the unfitted statistics
+    (mean 0, std 1) would silently train and sample in raw units, so every
+    ``normalize_*`` / ``denormalize_*`` call before then raises.
 
     Args:
         obs_dim (int): state dimension.
@@ -27,6 +30,10 @@ class Normalizer(nn.Module):
         >>> _ = norm.fit(obs, act)
         >>> torch.allclose(norm.denormalize_observation(norm.normalize_observation(obs)), obs, atol=1e-5)
         True
+        >>> Normalizer(obs_dim=3, action_dim=1).normalize_action(act)
+        Traceback (most recent call last):
+        ...
+        RuntimeError: Normalizer is not fitted: call normalizer.fit(observations, actions) on the offline data (a planner's is model.normalizer) or load a fitted state_dict first.
     """
 
     def __init__(self, obs_dim: int, action_dim: int, *, eps: float = 1e-3) -> None:
@@ -37,6 +44,17 @@ class Normalizer(nn.Module):
         self.register_buffer("action_mean", torch.zeros(action_dim))
         self.register_buffer("action_std", torch.ones(action_dim))
         self.register_buffer("fitted", torch.zeros((), dtype=torch.bool))
+        self._fitted = False  # host copy of ``fitted``: checking it never syncs a device
+        self.register_load_state_dict_post_hook(_refresh_fitted)
+
+    def check_fitted(self) -> None:
+        """Raises unless :meth:`fit` ran or a fitted ``state_dict`` was loaded."""
+        if not self._fitted:
+            raise RuntimeError(
+                "Normalizer is not fitted: call normalizer.fit(observations, actions) on the "
+                "offline data (a planner's is model.normalizer) or load a fitted state_dict "
+                "first."
+            )
 
     @torch.no_grad()
     def fit(self, observation: torch.Tensor, action: torch.Tensor) -> Normalizer:
@@ -59,16 +77,26 @@ class Normalizer(nn.Module):
         self.action_mean.copy_(action.mean(0))
         self.action_std.copy_(action.std(0).clamp_min(self.eps))
         self.fitted.fill_(True)
+        self._fitted = True
         return self
 
     def normalize_observation(self, observation: torch.Tensor) -> torch.Tensor:
+        self.check_fitted()
         return (observation - self.obs_mean) / self.obs_std
 
     def denormalize_observation(self, observation: torch.Tensor) -> torch.Tensor:
+        self.check_fitted()
         return observation * self.obs_std + self.obs_mean
 
     def normalize_action(self, action: torch.Tensor) -> torch.Tensor:
+        self.check_fitted()
         return (action - self.action_mean) / self.action_std
 
     def denormalize_action(self, action: torch.Tensor) -> torch.Tensor:
+        self.check_fitted()
         return action * self.action_std + self.action_mean
+
+
+def _refresh_fitted(module: Normalizer, incompatible_keys) -> None:
+    """After ``load_state_dict``: the host copy of ``fitted`` from the loaded buffer."""
+    module._fitted = bool(module.fitted)

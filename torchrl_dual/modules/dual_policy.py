@@ -85,6 +85,7 @@ def make_dual_policy(
         >>> from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
         >>> from torchrl_dual.modules import PlannerActor, TransitionModel
         >>> student = TrajectoryDiffusion(TrajectoryLayout(3, 2, 4), num_steps=1, hidden=32, depth=1)
+        >>> _ = student.normalizer.fit(torch.randn(64, 3), torch.rand(64, 2) * 2 - 1)
         >>> policy = make_dual_policy(
         ...     PlannerActor(student), Bounded(-1.0, 1.0, shape=(2,)),
         ...     transition_model=TransitionModel.frozen_copy(student))

@@ -24,6 +24,10 @@ def normalized_windows(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Reads ``[B, H + 1]`` windows, checks them, returns ``(x_0, mask)`` normalized.
 
+    Call it with the loss's parameters in ``model`` (``params.to_module(model)``), so that
+    the normalizer's statistics are the ones a cast or device move carried. The windows
+    must have the dtype of those statistics (no silent cast).
+
     The conditioning mask is read from ``mask_key`` when present; otherwise ``s_0``
     is always known and ``a_0`` is known with probability ``action_condition_prob``
     (one network then serves as policy ``p(τ | s_0)`` and as transition model
@@ -32,6 +36,7 @@ def normalized_windows(
     layout = model.layout
     observation = read_loss_input(tensordict, observation_key, "observation")
     action = read_loss_input(tensordict, action_key, "action")
+    dtype = model.normalizer.obs_mean.dtype
     for role, value, dim in (
         ("observation", observation, layout.obs_dim),
         ("action", action, layout.action_dim),
@@ -42,6 +47,11 @@ def normalized_windows(
                 f"{role} must have shape [batch, {expected[0]}, {expected[1]}] "
                 f"(windows of H + 1 = {layout.length} steps, dim {dim}), got "
                 f"{tuple(value.shape)}. Sample windows with WindowReplayBuffer."
+            )
+        if value.dtype != dtype:
+            raise TypeError(
+                f"{role} is {value.dtype} but the planner's weights are {dtype}: cast the "
+                f"batch (batch.to({dtype})) or the loss (loss.to({value.dtype}))."
             )
         check_finite(value, role, "clean the data first.")
     x0 = model.normalized_window(observation, action)
@@ -57,7 +67,7 @@ def normalized_windows(
             f"{mask_key!r} must be a boolean mask ending with {layout.window_shape}, got "
             f"dtype {mask.dtype} and shape {tuple(mask.shape)}."
         )
-    return x0.to(torch.get_default_dtype()), mask.expand_as(x0)
+    return x0, mask.expand_as(x0)
 
 
 def masked_mean(error: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

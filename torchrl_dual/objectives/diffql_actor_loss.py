@@ -31,10 +31,13 @@ def min_q(
     action: torch.Tensor,
     *,
     key: NestedKey = "state_action_value",
+    observation_key: NestedKey = "observation",
+    action_key: NestedKey = "action",
 ) -> torch.Tensor:
     """``min_k Q_k(s, a)`` of the critics ``qvalue_params`` (leading dimension ``k``, e.g.
     ``IQLLoss.qvalue_network_params``) with detached weights, ``[*B]``: gradients reach
-    ``action`` (and through it the actor), never the critic.
+    ``action`` (and through it the actor), never the critic. The network reads ``s`` and
+    ``a`` under ``observation_key`` and ``action_key`` and writes ``Q`` under ``key``.
 
     Examples:
         >>> from torch import nn
@@ -51,7 +54,9 @@ def min_q(
         >>> torch.equal(q, torch.minimum(q1, 2 * q1).squeeze(-1)), q.requires_grad
         (True, True)
     """
-    td = TensorDict(observation=observation, action=action, batch_size=observation.shape[:-1])
+    td = TensorDict(batch_size=observation.shape[:-1])
+    td.set(observation_key, observation)
+    td.set(action_key, action)
     values = []
     for member in qvalue_params.detach().unbind(0):
         with member.to_module(qvalue_network, preserve_module_state=False):  # traceable
@@ -68,7 +73,9 @@ class DiffQLActorLoss(LossModule):
     (:func:`min_q` with critic weights detached, from :meth:`from_iql`) and the
     normaliser ``mean |Q|`` is detached, so the Q-term is invariant to the critic's scale
     and trains the actor only. A TorchRL ``LossModule``: its keys are set with
-    :meth:`set_keys` (``observation``, ``action``), its output is a ``TensorDict``.
+    :meth:`set_keys` (``observation``, ``action``), its output is a ``TensorDict`` whose
+    one differentiable term is ``loss_actor``; its two parts are the detached metrics
+    ``bc_term`` (``L_bc``) and ``q_term`` (the normalised Q-term before ``η``).
 
     Args:
         actor (DiffusionActor): TorchRL's DDPM actor.
@@ -95,7 +102,7 @@ class DiffQLActorLoss(LossModule):
         ...                    batch_size=[8])
         >>> out = loss(batch)
         >>> sorted(out.keys())
-        ['loss_actor', 'loss_bc', 'loss_q', 'q_pi']
+        ['bc_term', 'loss_actor', 'q_pi', 'q_term']
         >>> out["loss_actor"].backward()
         >>> all(p.grad is not None for p in actor.parameters())
         True
@@ -117,7 +124,7 @@ class DiffQLActorLoss(LossModule):
         action: NestedKey = "action"
 
     default_keys = _AcceptedKeys
-    out_keys = ["loss_actor", "loss_bc", "loss_q", "q_pi"]
+    out_keys = ["loss_actor", "bc_term", "q_term", "q_pi"]
 
     def __init__(
         self,
@@ -145,6 +152,10 @@ class DiffQLActorLoss(LossModule):
         if keys:
             self.bc_loss.set_keys(**keys)
 
+    def reset_parameters_recursive(self) -> None:
+        """Re-initialises the actor; the critic behind ``q_value`` is only read."""
+        self.bc_loss.reset_parameters_recursive()
+
     @classmethod
     def from_iql(
         cls,
@@ -156,7 +167,8 @@ class DiffQLActorLoss(LossModule):
         reduction: str = "mean",
     ) -> DiffQLActorLoss:
         """The loss on the twin Q networks of a TorchRL ``IQLLoss`` (its current, not its
-        target, weights; :func:`min_q`)."""
+        target, weights; :func:`min_q`), which read the state under this loss's
+        ``tensor_keys.observation`` and the action under ``iql_loss.tensor_keys.action``."""
 
         def q_value(observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
             return min_q(
@@ -165,9 +177,12 @@ class DiffQLActorLoss(LossModule):
                 observation,
                 action,
                 key=iql_loss.tensor_keys.state_action_value,
+                observation_key=loss.tensor_keys.observation,  # as renamed by set_keys
+                action_key=iql_loss.tensor_keys.action,
             )
 
-        return cls(actor, q_value, box, eta=eta, reduction=reduction)
+        loss = cls(actor, q_value, box, eta=eta, reduction=reduction)
+        return loss
 
     def sample_actions(self, observation: torch.Tensor) -> torch.Tensor:
         """``a_π``, differentiable with respect to the actor's weights."""
@@ -194,8 +209,8 @@ class DiffQLActorLoss(LossModule):
             q_pi = q.detach()
         return TensorDict(
             loss_actor=bc + self.eta * q_term,
-            loss_bc=bc.detach(),
-            loss_q=q_term.detach(),
+            bc_term=bc.detach(),
+            q_term=q_term.detach(),
             q_pi=q_pi,
         )
 

@@ -33,7 +33,9 @@ class DiffusionPlannerLoss(TrajectoryWindowLoss):
     ε-prediction is undefined. The one-step student also samples there.
 
     Args:
-        model (TrajectoryDiffusion): the planner, whose normalizer is fitted.
+        model (TrajectoryDiffusion): the planner, whose normalizer is fitted (an unfitted
+            one raises). The windows must have its dtype: a float64 batch for a float32
+            planner is an error naming both (cast one, e.g. ``loss.double()``).
 
     Keyword Args:
         action_condition_prob (float): probability that ``a_0`` is also given, which
@@ -53,6 +55,7 @@ class DiffusionPlannerLoss(TrajectoryWindowLoss):
         >>> from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
         >>> layout = TrajectoryLayout(obs_dim=3, action_dim=2, horizon=4)
         >>> model = TrajectoryDiffusion(layout, hidden=32, depth=1)
+        >>> _ = model.normalizer.fit(torch.randn(64, 3), torch.randn(64, 2))  # offline data
         >>> loss_fn = DiffusionPlannerLoss(model)
         >>> windows = TensorDict(
         ...     {"observation": torch.randn(8, 5, 3), "action": torch.randn(8, 5, 2)},
@@ -86,12 +89,12 @@ class DiffusionPlannerLoss(TrajectoryWindowLoss):
 
     def denoising_loss(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, dict]:
         """Per-window loss of Eq. (3) in v-parameterisation and diagnostics."""
-        x0, mask = self._windows(self.model, tensordict)
-        batch = x0.shape[:-2]
-        t = torch.rand(batch, device=x0.device)
-        eps = torch.randn_like(x0)
-        z = self.model.noise(x0, t, eps)
-        with self.model_params.to_module(self.model):
+        with self.model_params.to_module(self.model):  # the normalizer's statistics too
+            x0, mask = self._windows(self.model, tensordict)
+            batch = x0.shape[:-2]
+            t = torch.rand(batch, device=x0.device, dtype=x0.dtype)
+            eps = torch.randn_like(x0)
+            z = self.model.noise(x0, t, eps)
             x_hat, _, v_hat = self.model.predict(z, t, x0, mask)
         loss = masked_mean((v_hat - self.model.v_target(x0, t, eps)) ** 2, mask)
         metadata = {"x0_error": masked_mean((x_hat - x0) ** 2, mask).mean().detach()}

@@ -53,6 +53,7 @@ class DistillationLoss(TrajectoryWindowLoss):
         >>> from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
         >>> layout = TrajectoryLayout(obs_dim=3, action_dim=2, horizon=4)
         >>> teacher = TrajectoryDiffusion(layout, num_steps=4, hidden=32, depth=1)
+        >>> _ = teacher.normalizer.fit(torch.randn(64, 3), torch.randn(64, 2))  # offline data
         >>> student = copy.deepcopy(teacher)
         >>> student.num_steps = 2
         >>> loss_fn = DistillationLoss(student, teacher)
@@ -86,13 +87,15 @@ class DistillationLoss(TrajectoryWindowLoss):
                 f"student {student.num_steps}; set student.num_steps = {teacher.num_steps // 2}."
             )
         self.convert_to_functional(student, "student")
-        # The teacher is frozen: a private copy whose weights are buffers, never parameters
-        # (the caller's teacher is neither modified nor reset by reset_parameters_recursive).
-        teacher = copy.deepcopy(teacher).requires_grad_(False)
-        self.teacher_buffers = TensorDictParams(
-            TensorDict.from_module(teacher).detach().clone(), no_convert=True
-        )
-        self.__dict__["teacher"] = teacher
+        # The teacher is frozen: a private copy of its weights as buffers, never parameters
+        # (the caller's teacher is neither modified nor reset by reset_parameters_recursive),
+        # and a copy of the module without weights of its own (on the meta device) that
+        # runs with them: a cast or device move of the loss carries the only copy.
+        weights = TensorDict.from_module(teacher).detach().clone()
+        with weights.to("meta").to_module(teacher):
+            frame = copy.deepcopy(teacher).requires_grad_(False)
+        self.teacher_buffers = TensorDictParams(weights, no_convert=True)
+        self.__dict__["teacher"] = frame
         self.action_condition_prob = action_condition_prob
         self.reduction = reduction
 
@@ -111,14 +114,15 @@ class DistillationLoss(TrajectoryWindowLoss):
         with self.teacher_buffers.to_module(teacher):
             z_mid = teacher.ddim_step(z, t, mid, cond, mask)
             z_s = teacher.ddim_step(z_mid, mid, s, cond, mask)
-        alpha_t, sigma_t = teacher._scales(t, z)
-        alpha_s, sigma_s = teacher._scales(s, z)
+            alpha_t, sigma_t = teacher._scales(t, z)
+            alpha_s, sigma_s = teacher._scales(s, z)
         ratio = sigma_s / sigma_t
         return torch.where(mask, cond, (z_s - ratio * z) / (alpha_s - ratio * alpha_t))
 
     def distillation_loss(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, dict]:
         """Per-window truncated-SNR weighted x-error against the two-step target."""
-        x0, mask = self._windows(self.student, tensordict)
+        with self.student_params.to_module(self.student):  # the normalizer's statistics too
+            x0, mask = self._windows(self.student, tensordict)
         batch = x0.shape[:-2]
         i = torch.randint(1, self.student.num_steps + 1, batch, device=x0.device).to(x0.dtype)
         t = i / self.student.num_steps

@@ -201,7 +201,17 @@ class SO2QLoss(LossModule):
         self.target_reduction, self.next_action = target_reduction, next_action
         self.entropy_coef, self.gamma = entropy_coef, gamma
         self.loss_function, self.reduction = loss_function, reduction
-        self._ensemble = _vmap_func(self.qvalue_network, (None, 0), randomness="different")
+        self._make_vmap()
+
+    def _make_vmap(self) -> None:
+        """The ensemble's ``vmap`` over the members, with TorchRL's ``vmap_randomness``
+        (``"different"`` when the Q network holds a random module such as dropout)."""
+        self._ensemble = _vmap_func(self.qvalue_network, (None, 0), randomness=self.vmap_randomness)
+
+    def reset_parameters_recursive(self) -> None:
+        """Re-initialises the Q ensemble and its target; the actor belongs to the actor's
+        loss and is left as it is."""
+        self._reset_module_parameters("qvalue_network", self.qvalue_network)
 
     def _forward_value_estimator_keys(self, **kwargs) -> None:
         pass

@@ -106,6 +106,7 @@ def run_updates(
         >>> from torchrl_dual.objectives import DiffusionPlannerLoss
         >>> from tensordict import TensorDict
         >>> model = TrajectoryDiffusion(TrajectoryLayout(2, 1, 3), hidden=16, depth=1)
+        >>> _ = model.normalizer.fit(torch.randn(64, 2), torch.randn(64, 1))
         >>> loss = DiffusionPlannerLoss(model)
         >>> batch = lambda: TensorDict({"observation": torch.randn(4, 4, 2),
         ...     "action": torch.randn(4, 4, 1)}, batch_size=[4, 4])

@@ -28,6 +28,7 @@ from hydra.errors import HydraException, OverrideParseException
 from omegaconf import DictConfig, OmegaConf
 
 from torchrl_dual.recipe.o2o.interrupts import signals_as_interrupts
+from torchrl_dual.recipe.o2o.run_lock import run_directory_lock
 from torchrl_dual.recipe.settings.algos import ALGORITHMS
 from torchrl_dual.recipe.settings.errors import ConfigError, UserError, unknown_key, user_errors
 from torchrl_dual.recipe.settings.schema import validate_config
@@ -163,8 +164,7 @@ def _recipe_composition(config_dir: Path) -> Iterator[None]:
       :func:`torchrl_dual.trainers.register_configs`) ran in the process ("Error merging
       'logger/csv' with schema");
     * sets aside a running Hydra app's ``GlobalHydra`` (``initialize_config_dir`` refuses
-      to start inside one), so a Hydra app of the user's, e.g.
-      ``recipes/torchrl_trainer.py``, can call :func:`compose_checked`.
+      to start inside one), so a Hydra app of the user's can call :func:`compose_checked`.
 
     Both are as they were afterwards (``tests/trainers/test_configs.py`` composes the recipe
     next to TorchRL's store and inside a running app)."""
@@ -189,22 +189,27 @@ def _debug(overrides: Sequence[str]) -> bool:
 
 def check_command_line(
     config_dir: str | Path, config_name: str = "config", argv: Sequence[str] | None = None
-) -> None:
-    """Exits with 2 and one ``error:`` line if the command line's config is not valid.
+) -> DictConfig | None:
+    """Exits with 2 and one ``error:`` line if the command line's config is not valid;
+    returns the composed config (``None`` for what is left to Hydra unchecked).
 
     Leaves ``--help``, ``--cfg``, ``--info``, ``--multirun`` and the options that pick
     another config to Hydra; a multirun checks each job's config when it starts.
     """
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
-        with contextlib.redirect_stderr(io.StringIO()):
+        with contextlib.redirect_stderr(io.StringIO()) as usage:
             args = get_args_parser().parse_args(argv)
-    except SystemExit:  # a bad flag: Hydra's own argparse reports it when it parses
-        return
+    except SystemExit as stop:  # a bad flag: argparse's message, without its usage block
+        if not stop.code:  # --version
+            raise
+        message = usage.getvalue().strip().splitlines()[-1].split(": error: ", 1)[-1]
+        with user_errors():
+            raise ConfigError(None, None, f"{message}; see --help for the options") from None
     if any(getattr(args, flag) for flag in _PASS_THROUGH + _OTHER_CONFIG):
-        return
+        return None
     with user_errors(debug=_debug(args.overrides)):
-        compose_checked(config_dir, args.overrides, config_name)
+        return compose_checked(config_dir, args.overrides, config_name)
 
 
 def hydra_task(cfg: DictConfig) -> Any:
@@ -227,7 +232,9 @@ def hydra_task(cfg: DictConfig) -> Any:
 
 def main() -> None:
     """Runs the recipe for the command line's overrides (``sys.argv``): one ``error:``
-    line and exit code 2 for a bad config, then Hydra's ``main`` on :data:`CONFIG_DIR`.
+    line and exit code 2 for a bad config or an ``output_dir`` another run is writing
+    (:mod:`~torchrl_dual.recipe.o2o.run_lock`, taken before Hydra writes its files
+    there), then Hydra's ``main`` on :data:`CONFIG_DIR`.
     Ctrl-C or SIGTERM before the run begins (while the command line is checked and Hydra
     sets up) ends it with one line and exit code 130; within the run,
     :func:`hydra_task` and :func:`~torchrl_dual.recipe.run_o2o` take them.
@@ -238,10 +245,14 @@ def main() -> None:
     """
     with signals_as_interrupts():  # SIGTERM as Ctrl-C from the start, not only in the run
         try:
-            check_command_line(CONFIG_DIR)  # composition and config errors: one line, exit 2
-            hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="config")(
-                hydra_task
-            )()
+            cfg = check_command_line(CONFIG_DIR)  # composition and config errors: exit 2
+            with contextlib.ExitStack() as lock:
+                if cfg is not None:  # the run's directory, before Hydra writes into it
+                    with user_errors(debug=bool(cfg.get("debug", False))):
+                        lock.enter_context(run_directory_lock(cfg.output_dir))
+                hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="config")(
+                    hydra_task
+                )()
         except KeyboardInterrupt as stop:  # before hydra_task's run began: nothing saved
             signal_name = stop.args[0] if stop.args else "SIGINT"
             print(

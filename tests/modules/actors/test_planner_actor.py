@@ -168,9 +168,9 @@ def test_an_incompatible_transition_model_falls_back_to_two_correct_calls(
     elif incompatible == "sample-latent":
         transition = TransitionModel(fine_tuned(actor.model), latent="sample")
     else:
-        transition = TransitionModel(
-            TrajectoryDiffusion(actor.model.layout, num_steps=1, hidden=16, depth=1)
-        )
+        other = TrajectoryDiffusion(actor.model.layout, num_steps=1, hidden=16, depth=1)
+        other.normalizer.load_state_dict(actor.model.normalizer.state_dict())
+        transition = TransitionModel(other)
 
     def not_taken(*args):
         raise AssertionError("the one-pass shortcut does not apply to this transition model")

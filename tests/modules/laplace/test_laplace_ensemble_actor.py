@@ -383,6 +383,17 @@ def test_fit_laplace_names_a_missing_observation_key(make_model):
         policy.fit_laplace([TensorDict({"obs": torch.zeros(3, OBS)}, [3])])
 
 
+@pytest.mark.parametrize("batches", [[], [TensorDict({"observation": torch.zeros(0, OBS)}, [0])]])
+def test_fit_laplace_on_no_data_says_what_data_it_needs(make_model, batches):
+    policy = LaplaceEnsembleActor(_actor("linear_head", make_model))
+    with pytest.raises(
+        ValueError,
+        match=r"^fit_laplace got no data: pass TensorDict batches of states under "
+        r"'observation', e\.g\. \[offline_data\] \(Eq\. 8 fits on the whole data set\)\.$",
+    ):
+        policy.fit_laplace(batches)
+
+
 def test_without_sample_action_the_ensemble_leaves_the_draw_to_the_next_module(make_model):
     policy = _fitted_policy("linear_head", make_model)
     policy.sample_action = False

@@ -51,12 +51,15 @@ class PlannerActor(LastLayerActor):
     Examples:
         >>> import torch
         >>> from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
+        >>> observations, actions = torch.randn(64, 3), torch.rand(64, 2) * 2 - 1  # offline data
         >>> model = TrajectoryDiffusion(TrajectoryLayout(3, 2, 4), num_steps=1, hidden=32, depth=1)
+        >>> _ = model.normalizer.fit(observations, actions)
         >>> actor = PlannerActor(model)
         >>> actor(torch.randn(7, 3)).shape
         torch.Size([7, 2])
-        >>> eight = PlannerActor(TrajectoryDiffusion(TrajectoryLayout(3, 2, 4), num_steps=8,
-        ...                                           hidden=32, depth=1))
+        >>> planner = TrajectoryDiffusion(TrajectoryLayout(3, 2, 4), num_steps=8, hidden=32, depth=1)
+        >>> _ = planner.normalizer.fit(observations, actions)
+        >>> eight = PlannerActor(planner)
         >>> eight(torch.randn(7, 3)).shape, eight.sample_actions(torch.randn(7, 3), 5).shape
         (torch.Size([7, 2]), torch.Size([5, 7, 2]))
     """

@@ -191,14 +191,21 @@ class LaplaceEnsembleActor(ActionBounds, TensorDictModuleBase):
         """
         actor = self.actor
         self.laplace.reset()
+        states = 0
         for batch in batches:
             observation = read_key(batch, self.in_keys[0], "LaplaceEnsembleActor.fit_laplace")
+            states += observation.numel() // max(observation.shape[-1], 1)
             features, context = actor.encode(observation)
             weights = None if weight_fn is None else weight_fn(batch)
             jacobian = None
             if actor.noise_after_squash:
                 jacobian = actor.mean_jacobian(actor.head_output(features), context)
             self.laplace.accumulate(features, weights, jacobian)
+        if states == 0:
+            raise ValueError(
+                "fit_laplace got no data: pass TensorDict batches of states under "
+                f"{self.in_keys[0]!r}, e.g. [offline_data] (Eq. 8 fits on the whole data set)."
+            )
         rows = actor.head_rows
         if actor.noise_after_squash:
             noise_variance = actor.std**2

@@ -57,6 +57,7 @@ class LatentEnsembleActor(ActionBounds, TensorDictModuleBase):
         >>> from tensordict import TensorDict
         >>> from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
         >>> model = TrajectoryDiffusion(TrajectoryLayout(3, 2, 4), num_steps=1, hidden=32, depth=1)
+        >>> _ = model.normalizer.fit(torch.randn(64, 3), torch.rand(64, 2) * 2 - 1)
         >>> policy = LatentEnsembleActor(PlannerActor(model), num_samples=5)
         >>> out = policy(TensorDict(observation=torch.randn(4, 3), batch_size=[4]))
         >>> out["action"].shape, bool((out["epistemic_variance"] > 0).all())

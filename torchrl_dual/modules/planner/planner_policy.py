@@ -37,6 +37,7 @@ class PlannerPolicy(TensorDictModuleBase):
         >>> from tensordict import TensorDict
         >>> from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
         >>> model = TrajectoryDiffusion(TrajectoryLayout(3, 2, 4), num_steps=1, hidden=32, depth=1)
+        >>> _ = model.normalizer.fit(torch.randn(64, 3), torch.rand(64, 2) * 2 - 1)
         >>> policy = PlannerPolicy(model, action_low=-1.0, action_high=1.0)
         >>> td = policy(TensorDict({"observation": torch.randn(5, 3)}, batch_size=[5]))
         >>> td["action"].shape, td["planned_next_observation"].shape

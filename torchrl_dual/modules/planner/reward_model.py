@@ -39,7 +39,7 @@ class RewardModel(nn.Module):
         >>> import torch
         >>> from tensordict import TensorDict
         >>> from torchrl_dual.diffusion import Normalizer
-        >>> model = RewardModel(Normalizer(3, 2), hidden=16)
+        >>> model = RewardModel(Normalizer(3, 2).fit(torch.randn(64, 3), torch.randn(64, 2)), hidden=16)
         >>> batch = TensorDict({"observation": torch.randn(6, 3), "action": torch.randn(6, 2),
         ...     "next": {"observation": torch.randn(6, 3), "reward": torch.randn(6, 1),
         ...              "terminated": torch.zeros(6, 1, dtype=torch.bool)}}, batch_size=[6])

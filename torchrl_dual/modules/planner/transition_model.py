@@ -63,6 +63,7 @@ class TransitionModel(TensorDictModuleBase):
         >>> from tensordict import TensorDict
         >>> from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
         >>> model = TrajectoryDiffusion(TrajectoryLayout(3, 2, 4), num_steps=1, hidden=32, depth=1)
+        >>> _ = model.normalizer.fit(torch.randn(64, 3), torch.randn(64, 2))
         >>> transition = TransitionModel.frozen_copy(model)
         >>> td = TensorDict(
         ...     observation=torch.randn(5, 3), previous_observation=torch.randn(5, 3),

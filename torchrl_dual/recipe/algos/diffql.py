@@ -165,7 +165,10 @@ class DiffQLLearner(Learner):
         losses["loss_actor"].backward()
         nn.utils.clip_grad_norm_(self.actor.parameters(), self.settings.max_grad_norm)
         self.actor_optimizer.step()
-        return {k: v.detach() for k, v in {**critic, **losses}.items()}
+        metrics = {**critic, **losses}
+        # logged under the names the recipe's logs have always had
+        metrics["loss_bc"], metrics["loss_q"] = metrics.pop("bc_term"), metrics.pop("q_term")
+        return {k: v.detach() for k, v in metrics.items()}
 
 
 class DiffQLLALearner(LaplaceRefits, DiffQLLearner):

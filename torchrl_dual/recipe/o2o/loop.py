@@ -31,6 +31,7 @@ from torchrl_dual.recipe.o2o.offline_cache import run_offline_stages
 from torchrl_dual.recipe.o2o.plots import online_signals
 from torchrl_dual.recipe.o2o.replays import Replay
 from torchrl_dual.recipe.o2o.run import O2ORun
+from torchrl_dual.recipe.o2o.run_lock import run_directory_lock
 from torchrl_dual.recipe.o2o.stage_checkpoints import offline_interruption
 from torchrl_dual.recipe.o2o.stage_clock import StageClock
 from torchrl_dual.recipe.settings.o2o import COLLECTORS
@@ -53,7 +54,8 @@ def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORu
     Ctrl-C or SIGTERM (``interrupt_at_frames``, ``interrupt_at_offline_updates``) ends it
     early with a checkpoint and one line; before the run is built (data, networks), the
     ``KeyboardInterrupt`` propagates: there is nothing of it to save."""
-    with signals_as_interrupts():  # SIGTERM stops a run as Ctrl-C does
+    # SIGTERM stops a run as Ctrl-C does; the run directory is this run's until it returns
+    with signals_as_interrupts(), run_directory_lock(cfg.output_dir):
         run = O2ORun(cfg, make_learner)
         # ---- Offline phase (its shared stages possibly from offline_cache)
         try:

@@ -35,6 +35,7 @@ from torchrl_dual.recipe.o2o.interrupts import held
 from torchrl_dual.recipe.o2o.learner import Learner
 from torchrl_dual.recipe.o2o.loggers import logs_text, make_logger
 from torchrl_dual.recipe.o2o.plots import plot_learning_curve
+from torchrl_dual.recipe.o2o.run_lock import acquire_run_directory
 from torchrl_dual.recipe.o2o.stage_checkpoints import StageCheckpoints
 from torchrl_dual.recipe.o2o.stage_clock import StageClock
 from torchrl_dual.recipe.o2o.summary import score_text, write_summary
@@ -97,7 +98,8 @@ class O2ORun:
         fingerprint["checkpoint_layout"] = self.checkpoint_layout = CHECKPOINT_LAYOUT
         # may change on resume
         fingerprint["budget"].pop("offline_checkpoint_every", None)
-        check_output_dir(cfg)
+        acquire_run_directory(cfg.output_dir)  # one run per directory (o2o/run_lock.py)
+        check_output_dir(cfg)  # with the lock held: no run can write a checkpoint meanwhile
         self.checkpoint = RunCheckpoint(
             self.output_dir / "checkpoint.pt", fingerprint, free_keys=RESUMABLE_KEYS
         )
