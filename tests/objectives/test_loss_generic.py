@@ -42,12 +42,16 @@ from torchrl.modules import MLP, DiffusionActor, ProbabilisticActor, TanhNormal,
 from torchrl.objectives import CQLLoss, DiffusionBCLoss, IQLLoss, LossModule
 
 from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
+from torchrl_dual.modules import LinearHeadActor
 from torchrl_dual.objectives import (
     CalQLLoss,
     DensityRatioLoss,
     DiffusionPlannerLoss,
     DistillationLoss,
+    DUALLoss,
+    IQLCriticLoss,
     SO2QLoss,
+    WeightedMAPActorLoss,
     make_density_ratio_network,
 )
 from torchrl_dual.objectives.diffql_actor_loss import DiffQLActorLoss
@@ -204,6 +208,30 @@ def make_calql(keys: Mapping[str, str]) -> Case:
     return Case(loss, batch, vmaps=True)
 
 
+def _linear_head_actor() -> LinearHeadActor:
+    return LinearHeadActor(MLP(in_features=OBS, out_features=ACT, num_cells=[8]), ACT)
+
+
+def _iql_critic(keys: Mapping[str, str]) -> IQLCriticLoss:
+    critic = IQLCriticLoss(_q(keys), _value(keys), loss_function="l2", expectile=0.7)
+    critic.set_keys(action=_keys(keys)[1])
+    return critic
+
+
+def make_weighted_map(keys: Mapping[str, str]) -> Case:
+    critic = _iql_critic(keys)
+    loss = WeightedMAPActorLoss.from_iql(_linear_head_actor(), critic)
+    loss.set_keys(**keys)
+    return Case(loss, _transitions(keys), reads=(critic,), vmaps=True)
+
+
+def make_dual(keys: Mapping[str, str]) -> Case:
+    loss = DUALLoss(_linear_head_actor(), _iql_critic(keys))
+    loss.set_keys(**keys)
+    loss.make_value_estimator(gamma=0.99)
+    return Case(loss, _transitions(keys), vmaps=True)
+
+
 def make_density_ratio(keys: Mapping[str, str]) -> Case:
     network = make_density_ratio_network(OBS, ACT, num_cells=(8,), in_keys=_keys(keys))
     online = torch.arange(B) % 2 == 0
@@ -223,6 +251,8 @@ CASES: dict[str, Callable[[Mapping[str, str]], Case]] = {
     "so2": make_so2,
     "calql": make_calql,
     "density_ratio": make_density_ratio,
+    "weighted_map_actor": make_weighted_map,
+    "dual": make_dual,
 }
 
 
