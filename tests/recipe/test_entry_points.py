@@ -51,3 +51,19 @@ def test_bad_input_ends_in_one_line_and_exit_2_at_every_entry_point(entry, overr
 def test_entry_points_refuse_their_own_bad_input(entry, override, says, tmp_path):
     line = failed(ENTRY_POINTS[entry](override, f"output_dir={tmp_path / 'run'}"))
     assert says in line
+
+
+def test_the_recipe_s_flag_parser_is_hydra_s():
+    """``cli.hydra_flags`` mirrors the parser ``@hydra.main`` uses (a private Hydra API,
+    read here only): the same flags, destinations and choices."""
+    from hydra._internal.utils import get_args_parser
+
+    from torchrl_dual.recipe.cli import hydra_flags
+
+    def described(parser):
+        return {
+            action.dest: (sorted(action.option_strings), action.nargs, action.choices)
+            for action in parser._actions
+        }
+
+    assert described(hydra_flags()) == described(get_args_parser())

@@ -12,6 +12,7 @@ code 2, before Hydra creates the output directory.
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import io
 import sys
@@ -21,7 +22,6 @@ from typing import Any
 
 import hydra
 from hydra import compose, initialize_config_dir
-from hydra._internal.utils import get_args_parser  # Hydra's own argv parser (hydra-core 1.3.x)
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import Override, OverrideType
 from hydra.errors import HydraException, OverrideParseException
@@ -35,6 +35,31 @@ from torchrl_dual.recipe.settings.schema import validate_config
 
 CONFIG_DIR = Path(__file__).resolve().parent / "config"
 """The recipe's Hydra config tree (``config.yaml`` and its groups), shipped in the package."""
+
+
+def hydra_flags() -> argparse.ArgumentParser:
+    """The command line ``@hydra.main`` accepts (hydra-core 1.3's flags, public options
+    only; ``tests/recipe/test_entry_points.py`` checks them against Hydra's own parser):
+    the overrides, and the flags this check lets Hydra handle unchecked."""
+    parser = argparse.ArgumentParser(add_help=False)
+    parser.add_argument("overrides", nargs="*")
+    for flags, dest in (
+        (("--help", "-h"), "help"), (("--hydra-help",), "hydra_help"),
+        (("--resolve",), "resolve"), (("--run", "-r"), "run"),
+        (("--multirun", "-m"), "multirun"), (("--shell-completion", "-sc"), "shell_completion"),
+    ):  # fmt: skip
+        parser.add_argument(*flags, dest=dest, action="store_true")
+    parser.add_argument("--version", action="version", version=f"Hydra {hydra.__version__}")
+    parser.add_argument("--cfg", "-c", choices=["job", "hydra", "all"])
+    parser.add_argument(
+        "--info", "-i", nargs="?", const="all",
+        choices=["all", "config", "defaults", "defaults-tree", "plugins", "searchpath"],
+    )  # fmt: skip
+    for flags in (("--package", "-p"), ("--config-path", "-cp"), ("--config-name", "-cn"),
+                  ("--config-dir", "-cd"), ("--experimental-rerun",)):  # fmt: skip
+        parser.add_argument(*flags)
+    return parser
+
 
 # Hydra flags that do not run the task (or run many): Hydra handles them unchecked.
 _PASS_THROUGH = ("help", "hydra_help", "cfg", "info", "shell_completion", "multirun")
@@ -199,7 +224,7 @@ def check_command_line(
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
         with contextlib.redirect_stderr(io.StringIO()) as usage:
-            args = get_args_parser().parse_args(argv)
+            args = hydra_flags().parse_args(argv)
     except SystemExit as stop:  # a bad flag: argparse's message, without its usage block
         if not stop.code:  # --version
             raise
