@@ -114,11 +114,10 @@ def iql_terms(loss: OnePassIQLLoss, batch: TensorDictBase) -> dict[str, torch.Te
 
 
 def calql_terms(loss: CalQLLoss, batch: TensorDictBase) -> dict[str, torch.Tensor]:
-    """Cal-QL: the Bellman loss and the conservative penalty with the Monte-Carlo bound."""
-    terms = {"loss_qvalue": loss.q_loss(batch)[0], "loss_cql": loss.cql_loss(batch)[0]}
-    if loss.with_lagrange:  # the multiplier's loss: its gradient reaches log α' only
-        terms["loss_alpha_prime"] = loss.alpha_prime_loss(batch)[0]
-    return terms
+    """Cal-QL: the Bellman loss and the conservative penalty with the Monte-Carlo bound
+    (and, in the Lagrange form, the multiplier's loss, whose gradient reaches log α' only),
+    in one pass (:meth:`CalQLLoss.critic_terms`)."""
+    return loss.critic_terms(batch)
 
 
 def so2_terms(loss: SO2QLoss, batch: TensorDictBase) -> dict[str, torch.Tensor]:
