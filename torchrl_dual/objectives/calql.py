@@ -23,6 +23,7 @@ from torchrl.objectives.cql import CQLLoss
 from torchrl.objectives.utils import distance_loss
 
 from torchrl_dual._utils import read_loss_input
+from torchrl_dual.objectives.ensemble_q import EnsembleMLP
 
 PENALTY_LAYOUTS = ("calql", "torchrl")
 """How :class:`CalQLLoss` groups the sampled actions inside the logsumexp."""
@@ -197,6 +198,15 @@ class CalQLLoss(CQLLoss):
     @out_keys.setter
     def out_keys(self, values):
         self._out_keys = values
+
+    def _make_vmap(self) -> None:
+        """TorchRL's vmapped Q calls, the ``(None, 0)`` one as :class:`EnsembleMLP` (the
+        same numbers, a faster backward) when the Q network is a plain MLP."""
+        super()._make_vmap()
+        if not self.deactivate_vmap:
+            self._vmap_qvalue_networkN0 = EnsembleMLP.of(
+                self.qvalue_network, self._vmap_qvalue_networkN0
+            )
 
     def _forward_value_estimator_keys(self, **kwargs) -> None:
         super()._forward_value_estimator_keys(**kwargs)
