@@ -13,31 +13,20 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDictBase
 from tensordict.nn import dispatch
 from tensordict.utils import NestedKey
 from torch import Tensor
-from torchrl.envs.utils import ExplorationType, set_exploration_type
-from torchrl.modules.distributions.utils import rsample_and_log_prob
 from torchrl.objectives.cql import CQLLoss
-from torchrl.objectives.utils import distance_loss
 
 from torchrl_dual._utils import read_loss_input
-from torchrl_dual.objectives.ensemble_q import EnsembleMLP
+from torchrl_dual.objectives._one_pass_cql import PARAMS, OnePassCQLLoss
 
 PENALTY_LAYOUTS = ("calql", "torchrl")
 """How :class:`CalQLLoss` groups the sampled actions inside the logsumexp."""
 
-_PARAMS = (
-    "actor_network_params",
-    "qvalue_network_params",
-    "target_actor_network_params",
-    "target_qvalue_network_params",
-)
-"""The functional parameter groups whose weak references TorchRL clears under compile."""
 
-
-class CalQLLoss(CQLLoss):
+class CalQLLoss(OnePassCQLLoss):
     """The Cal-QL critic loss (Nakamoto et al. 2023, Sec. 5 and Alg. 1), a TorchRL ``CQLLoss``.
 
     Everything but the conservative penalty is :class:`~torchrl.objectives.CQLLoss`: the
@@ -73,6 +62,15 @@ class CalQLLoss(CQLLoss):
     with ``G = -inf`` it returns ``CQLLoss``'s outputs (to float precision; tested). Both
     layouts give one penalty per transition (``reduction="none"``), where ``CQLLoss``
     broadcasts its ``cql_q1_loss`` to ``[B, B·num_random]`` (same mean).
+
+    **One pass** (:class:`~torchrl_dual.objectives._one_pass_cql.OnePassCQLLoss`):
+    :meth:`forward` and :meth:`critic_terms` (the critic's ``loss_qvalue``, ``loss_cql``
+    and, in the Lagrange form, ``loss_alpha_prime``) run the actor once on ``s`` and once
+    on ``s'`` and draw the penalty's policy actions from its repeated parameters, with
+    ``CQLLoss``'s draws in its order: the values and gradients of ``q_loss``,
+    ``cql_loss``, ``alpha_prime_loss`` and ``actor_loss`` computed TorchRL's way (bit for
+    bit where the actor's matrix products give a row the same numbers in any batch, as at
+    the recipe's sizes).
 
     The bound comes from the data, computed once per episode with the critic's discount:
     terminated and truncated episodes both stop the sum at their last step (no bootstrap of
@@ -199,168 +197,18 @@ class CalQLLoss(CQLLoss):
     def out_keys(self, values):
         self._out_keys = values
 
-    def _make_vmap(self) -> None:
-        """TorchRL's vmapped Q calls, the ``(None, 0)`` one as :class:`EnsembleMLP` (the
-        same numbers, a faster backward) when the Q network is a plain MLP."""
-        super()._make_vmap()
-        if not self.deactivate_vmap:
-            self._vmap_qvalue_networkN0 = EnsembleMLP.of(
-                self.qvalue_network, self._vmap_qvalue_networkN0
-            )
-
     def _forward_value_estimator_keys(self, **kwargs) -> None:
         super()._forward_value_estimator_keys(**kwargs)
         self._calql_in_keys = None  # renamed keys: recomputed on the next read
 
     @dispatch
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        """``CQLLoss.forward`` in one pass (:meth:`critic_terms`, then the BC, actor and
-        entropy losses) plus ``bound_rate``: the actor runs once on ``s`` (with gradient)
-        and once on ``s'`` (without), where ``CQLLoss`` runs it five times, twice on
-        ``num_random`` copies of the batch. The draws are ``CQLLoss.forward``'s, in its
-        order; the BC and actor losses read two distributions built from the same
-        parameters, as ``CQLLoss``'s two evaluations of the actor give."""
-        keys = self.tensor_keys
-        curr_params = self._dist_params(tensordict, grad=True)
-        critic, td_error = self._critic_terms(tensordict, curr_params.detach())
-        rate = tensordict.get(keys.bound_rate).detach()
-        alpha = self._alpha
-        # actor_bc_loss: a draw from π(·|s), the log-likelihood of the data action
-        dist = self.actor_network.build_dist_from_params(curr_params)
-        _, log_prob = rsample_and_log_prob(dist)
-        bc = alpha * log_prob - dist.log_prob(tensordict.get(keys.action))
-        loss_actor_bc = self._reduce_loss(bc, tensordict=tensordict)
-        # actor_loss: SAC's α·log π(a|s) − min_i Q_i(s, a), a ∼ π(·|s), Q read detached
-        action, log_prob = rsample_and_log_prob(
-            self.actor_network.build_dist_from_params(curr_params)
-        )
-        td_q = tensordict.select(*self.qvalue_network.in_keys, strict=False)
-        td_q.set(keys.action, action)
-        td_q = self._vmap_qvalue_networkN0(td_q, self._cached_detach_qvalue_params)
-        min_q = td_q.get(keys.state_action_value).min(0)[0].squeeze(-1)
-        if log_prob.shape != min_q.shape:
-            raise RuntimeError(f"Losses shape mismatch: {log_prob.shape} and {min_q.shape}")
-        loss_actor = self._reduce_loss(alpha * log_prob - min_q, tensordict=tensordict)
-        log_prob = log_prob.detach()
-        loss_alpha, _ = self.alpha_loss({keys.log_prob: log_prob}, mask_tensordict=tensordict)
-        tensordict.set(keys.priority, td_error.detach().max(0).values)
-        out = {  # CQLLoss.forward's entries, in its order
-            "loss_actor": loss_actor,
-            "loss_actor_bc": loss_actor_bc,
-            "loss_qvalue": critic["loss_qvalue"],
-            "loss_cql": critic["loss_cql"],
-            "loss_alpha": loss_alpha,
-        }
-        if self.with_lagrange:
-            out["loss_alpha_prime"] = critic["loss_alpha_prime"].mean()
-        entropy = -log_prob.mean()
-        if self.reduction == "none":
-            td_out = TensorDict(out, batch_size=tensordict.batch_size)
-            if self.scalar_output_mode == "non_tensor":
-                td_out.set_non_tensor("alpha", self._alpha)
-                td_out.set_non_tensor("entropy", entropy)
-            td_out.set("bound_rate", rate)
-        else:
-            td_out = TensorDict(
-                {**out, "alpha": self._alpha, "entropy": entropy, "bound_rate": rate.mean()}
-            )
-        self._clear_weakrefs(tensordict, td_out, *_PARAMS)
-        return td_out
-
-    def critic_terms(self, tensordict: TensorDictBase) -> dict[str, Tensor]:
-        """The critic's losses in one pass: ``loss_qvalue``, ``loss_cql`` and, with
-        ``with_lagrange``, ``loss_alpha_prime``; the values (and gradients) of
-        :meth:`q_loss`, :meth:`cql_loss` and :meth:`alpha_prime_loss` called in that order
-        with the same seed, computed with the actor evaluated once on ``s`` and once on
-        ``s'`` (its distribution parameters repeated for the ``num_random`` draws of the
-        penalty; ``q_loss`` and ``cql_loss`` evaluate it three times, twice on
-        ``num_random`` copies of the batch). Writes what those methods write into
-        ``tensordict``."""
-        return self._critic_terms(tensordict)[0]
-
-    def _critic_terms(
-        self, tensordict: TensorDictBase, curr_params: TensorDictBase | None = None
-    ) -> tuple[dict[str, Tensor], Tensor]:
-        """:meth:`critic_terms` and the TD errors ``[2, *B]``; ``curr_params``: the actor's
-        distribution parameters at ``s``, detached (computed here if ``None``)."""
-        next_params = self._dist_params(tensordict.get("next"), grad=False)
-        if self.max_q_backup:  # CQLLoss's own target (num_random draws at s')
-            loss_qvalue, metadata = self.q_loss(tensordict)
-            td_error = metadata["td_error"]
-        else:
-            loss_qvalue, td_error = self._q_loss(tensordict, next_params)
-        loss_cql, _ = self._cql_loss(tensordict, curr_params, next_params)
-        terms = {"loss_qvalue": loss_qvalue, "loss_cql": loss_cql}
-        if self.with_lagrange:
-            terms["loss_alpha_prime"] = self.alpha_prime_loss(tensordict)[0]
-        return terms, td_error
-
-    def _dist_params(self, tensordict: TensorDictBase, grad: bool) -> TensorDictBase:
-        """The actor's distribution parameters at ``tensordict``'s actor inputs (``[*B]``),
-        with the gradient to its parameters or, as ``CQLLoss`` samples the penalty's and
-        the target's actions, with its parameters' ``.data`` (autograd mode unchanged: an
-        actor may take another path without it)."""
-        data = tensordict.select(*self.actor_network.in_keys, strict=False)
-        params = self.actor_network_params if grad else self.actor_network_params.data
-        with (
-            set_exploration_type(ExplorationType.RANDOM),
-            params.to_module(self.actor_network, preserve_module_state=False),
-        ):
-            dist_params = self.actor_network.get_dist_params(data)
-        return dist_params.select(*self.actor_network.dist_params_keys)
-
-    def _q_loss(self, tensordict: TensorDictBase, next_params: TensorDictBase):
-        """``CQLLoss.q_loss`` (deterministic or soft backup) with the target action drawn
-        from ``next_params``, the actor's parameters at ``s'``: the loss and the TD errors."""
-        keys = self.tensor_keys
-        with set_exploration_type(ExplorationType.RANDOM):
-            dist = self.actor_network.build_dist_from_params(next_params)
-            next_action, next_log_prob = rsample_and_log_prob(dist)
-        target_td = tensordict.clone(False)
-        next_td = target_td.get("next").select(*self.qvalue_network.in_keys, strict=False)
-        next_td.set(keys.action, next_action)
-        next_td = self._vmap_qvalue_networkN0(next_td, self.target_qvalue_network_params.data)
-        next_value = next_td.get(keys.state_action_value).min(0)[0]
-        alpha = self._alpha  # read as CQLLoss.q_loss does (it clamps log α to its bounds)
-        if not self.deterministic_backup:
-            if next_value.shape[-next_log_prob.ndim :] != next_log_prob.shape:
-                next_log_prob = next_log_prob.unsqueeze(-1)
-            next_value = next_value - alpha * next_log_prob
-        target_td.set(("next", self.value_estimator.tensor_keys.value), next_value)
-        target = self.value_estimator.value_estimate(target_td).squeeze(-1)
-        q_pred = self._vmap_qvalue_networkN0(
-            tensordict.select(*self.qvalue_network.in_keys, strict=False),
-            self.qvalue_network_params,
-        ).get(keys.state_action_value)
-        tensordict.set(keys.pred_q1, q_pred[0])
-        tensordict.set(keys.pred_q2, q_pred[1])
-        q_pred = q_pred.squeeze(-1)
-        loss = distance_loss(q_pred, target.expand_as(q_pred), loss_function=self.loss_function)
-        loss = self._reduce_loss(loss.sum(0), tensordict=tensordict)
-        return loss, (q_pred - target).pow(2).detach()
-
-    def _get_policy_actions(
-        self,
-        data: TensorDictBase,
-        actor_params: TensorDictBase,
-        num_actions: int = 10,
-        dist_params: TensorDictBase | None = None,
-    ) -> tuple[TensorDictBase, Tensor]:
-        """``CQLLoss._get_policy_actions``: ``num_actions`` draws of ``π(·|s)`` per state of
-        ``data``, the actor inputs repeated (``[*B[:-1], B[-1]·num_actions]``) with the
-        actions and their log-probs (no gradient to the actor). The actor runs once on
-        ``data`` (or its ``dist_params`` are given) and its distribution parameters are
-        repeated, where ``CQLLoss`` runs it on the repeated inputs: the same numbers where
-        the matrix products give each row the same result whatever the number of rows."""
-        if actor_params is not self.actor_network_params:
-            return super()._get_policy_actions(data, actor_params, num_actions=num_actions)
-        if dist_params is None:
-            dist_params = self._dist_params(data, grad=False)
-        repeated = _repeat(data.select(*self.actor_network.in_keys, strict=False), num_actions)
-        with set_exploration_type(ExplorationType.RANDOM):
-            dist = self.actor_network.build_dist_from_params(_repeat(dist_params, num_actions))
-            action, log_prob = rsample_and_log_prob(dist)
-        return repeated.set(self.tensor_keys.action, action), log_prob
+        """``CQLLoss.forward``'s outputs (computed in one pass: :class:`OnePassCQLLoss`)
+        plus ``bound_rate``."""
+        out = super().forward(tensordict)
+        rate = tensordict.get(self.tensor_keys.bound_rate).detach()
+        out.set("bound_rate", rate if self.reduction == "none" else rate.mean())
+        return out
 
     def _policy_q(
         self,
@@ -448,7 +296,7 @@ class CalQLLoss(CQLLoss):
                 cql_q - self.min_q_weight * self.target_action_gap
             )
         loss = self._reduce_loss(cql_q.sum(0), tensordict=tensordict)
-        self._clear_weakrefs(tensordict, *_PARAMS)
+        self._clear_weakrefs(tensordict, *PARAMS)
         return loss, {"bound_rate": rate.mean().detach()}
 
     def _alpha_prime(self) -> Tensor:
@@ -470,19 +318,3 @@ class CalQLLoss(CQLLoss):
 
     def _cql_keys(self) -> tuple[NestedKey, NestedKey]:
         return self.tensor_keys.cql_q1_loss, self.tensor_keys.cql_q2_loss
-
-
-def _repeat(data: TensorDictBase, num: int) -> TensorDictBase:
-    """Each transition of ``data`` ``num`` times in a row along its last batch dimension:
-    ``CQLLoss._get_policy_actions``'s ``repeat_interleave``, as a view where one entry is
-    (a parameter broadcast over the batch, e.g. a state-independent scale, stays
-    broadcast, as the actor run on repeated inputs gives it: the kernels that read it then
-    take the same path)."""
-    dim = data.ndim - 1
-    shape = [*data.batch_size[:-1], data.batch_size[-1] * num]
-
-    def repeat(x: Tensor) -> Tensor:
-        expanded = x.unsqueeze(dim + 1).expand(*x.shape[: dim + 1], num, *x.shape[dim + 1 :])
-        return expanded.reshape(*shape, *x.shape[dim + 1 :])
-
-    return data.apply(repeat, batch_size=shape)
