@@ -149,7 +149,9 @@ class OnePassCQLLoss(CQLLoss):
             dist_params = self.actor_network.get_dist_params(data)
         return dist_params.select(*self.actor_network.dist_params_keys)
 
-    def _q_loss(self, tensordict: TensorDictBase, next_params: TensorDictBase):
+    def _q_loss(
+        self, tensordict: TensorDictBase, next_params: TensorDictBase
+    ) -> tuple[Tensor, Tensor]:
         """``CQLLoss.q_loss`` (deterministic or soft backup) with the target action drawn
         from ``next_params``, the actor's parameters at ``s'``: the loss and the TD errors."""
         keys = self.tensor_keys
@@ -204,11 +206,10 @@ class OnePassCQLLoss(CQLLoss):
 
 
 def _repeat(data: TensorDictBase, num: int) -> TensorDictBase:
-    """Each transition of ``data`` ``num`` times in a row along its last batch dimension:
-    ``CQLLoss._get_policy_actions``'s ``repeat_interleave``, as a view where one entry is
-    (a parameter broadcast over the batch, e.g. a state-independent scale, stays
-    broadcast, as the actor run on repeated inputs gives it: the kernels that read it then
-    take the same path)."""
+    """Each transition of ``data`` ``num`` times in a row along its last batch dimension,
+    ``CQLLoss._get_policy_actions``'s ``repeat_interleave``; an entry broadcast over the
+    batch (a state-independent scale) stays a broadcast view, as the actor run on
+    repeated inputs gives it, so the kernels reading it take the same path."""
     dim = data.ndim - 1
     shape = [*data.batch_size[:-1], data.batch_size[-1] * num]
 
