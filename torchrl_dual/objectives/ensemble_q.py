@@ -9,16 +9,14 @@ autograd computes the one-output last layer's gradients as ``∂W = bmm(hᵀ, g)
 ``∂h = bmm(g, W)`` with ``g`` of shape ``[E, M, 1]``: a matrix-vector product through the
 transposed ``h`` and an outer product, which MKL runs far slower on a CPU than the same
 sums as ``bmm(gᵀ, h)`` and the same products as ``g ⊙ W`` (at ``M = 2560``: 4.0 against
-0.2 ms and 0.5 against 0.1 ms here).
+0.2 ms and 0.5 against 0.1 ms on the EPYC of docs/benchmarks.md).
 
 :class:`EnsembleMLP` runs vmap's operations in vmap's order without its per-call
 overhead, except that last layer's backward, which it computes as ``bmm(gᵀ, h)`` (the same
 length-``M`` sums: equal wherever BLAS gives a dot product the same result in either
 orientation, as MKL does) and ``g ⊙ W`` (each entry one product, as the ``K = 1`` ``bmm``
 computes it). ``tests/objectives/test_ensemble_q.py`` compares values and gradients with
-TorchRL's vmapped call bit for bit. Cal-QL's update (256 x 2, batches of 256,
-``num_random = 10``) takes 0.91x the time it takes with vmap's last-layer backward
-(docs/benchmarks.md).
+TorchRL's vmapped call bit for bit.
 """
 
 from __future__ import annotations
