@@ -70,8 +70,8 @@ def _spied_penalty(loss: CalQLLoss, batch: TensorDict, seed: int = 1):
     draws = []
     original = loss._get_policy_actions
 
-    def spy(data, params, num_actions):
-        out = original(data, params, num_actions=num_actions)
+    def spy(data, params, num_actions, **kwargs):
+        out = original(data, params, num_actions=num_actions, **kwargs)
         draws.append(out)
         return out
 

@@ -20,12 +20,13 @@ from torch import Tensor
 from torchrl.objectives.cql import CQLLoss
 
 from torchrl_dual._utils import read_loss_input
+from torchrl_dual.objectives._one_pass_cql import PARAMS, OnePassCQLLoss
 
 PENALTY_LAYOUTS = ("calql", "torchrl")
 """How :class:`CalQLLoss` groups the sampled actions inside the logsumexp."""
 
 
-class CalQLLoss(CQLLoss):
+class CalQLLoss(OnePassCQLLoss):
     """The Cal-QL critic loss (Nakamoto et al. 2023, Sec. 5 and Alg. 1), a TorchRL ``CQLLoss``.
 
     Everything but the conservative penalty is :class:`~torchrl.objectives.CQLLoss`: the
@@ -61,6 +62,15 @@ class CalQLLoss(CQLLoss):
     with ``G = -inf`` it returns ``CQLLoss``'s outputs (to float precision; tested). Both
     layouts give one penalty per transition (``reduction="none"``), where ``CQLLoss``
     broadcasts its ``cql_q1_loss`` to ``[B, B·num_random]`` (same mean).
+
+    **One pass** (:class:`~torchrl_dual.objectives._one_pass_cql.OnePassCQLLoss`):
+    :meth:`forward` and :meth:`critic_terms` (the critic's ``loss_qvalue``, ``loss_cql``
+    and, in the Lagrange form, ``loss_alpha_prime``) run the actor once on ``s`` and once
+    on ``s'`` and draw the penalty's policy actions from its repeated parameters, with
+    ``CQLLoss``'s draws in its order: the values and gradients of ``q_loss``,
+    ``cql_loss``, ``alpha_prime_loss`` and ``actor_loss`` computed TorchRL's way (bit for
+    bit where the actor's matrix products give a row the same numbers in any batch, as at
+    the recipe's sizes).
 
     The bound comes from the data, computed once per episode with the critic's discount:
     terminated and truncated episodes both stop the sum at their last step (no bootstrap of
@@ -193,24 +203,34 @@ class CalQLLoss(CQLLoss):
 
     @dispatch
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """``CQLLoss.forward``'s outputs (computed in one pass: :class:`OnePassCQLLoss`)
+        plus ``bound_rate``."""
         out = super().forward(tensordict)
         rate = tensordict.get(self.tensor_keys.bound_rate).detach()
         out.set("bound_rate", rate if self.reduction == "none" else rate.mean())
         return out
 
-    def _policy_q(self, tensordict: TensorDictBase, num: int) -> tuple[Tensor, ...]:
+    def _policy_q(
+        self,
+        tensordict: TensorDictBase,
+        num: int,
+        curr_params: TensorDictBase | None,
+        next_params: TensorDictBase | None,
+    ) -> tuple[Tensor, ...]:
         """Q of the uniform, current-policy and next-policy actions: ``[2, B·num]`` each,
-        plus the two ``[B·num]`` log-probs. Draws in ``CQLLoss.cql_loss``'s order."""
+        plus the two ``[B·num]`` log-probs. Draws in ``CQLLoss.cql_loss``'s order;
+        ``curr_params`` / ``next_params``: the actor's distribution parameters at ``s`` /
+        ``s'`` if the caller has them."""
         action_key = self.tensor_keys.action
         random_actions = tensordict.get(action_key).new_empty(
             (*tensordict.shape[:-1], tensordict.shape[-1] * num, tensordict[action_key].shape[-1])
         )
         random_actions.uniform_(-1, 1)
         curr_td, curr_log_pi = self._get_policy_actions(
-            tensordict.copy(), self.actor_network_params, num_actions=num
+            tensordict, self.actor_network_params, num_actions=num, dist_params=curr_params
         )
         next_td, next_log_pi = self._get_policy_actions(
-            tensordict.get("next").copy(), self.actor_network_params, num_actions=num
+            tensordict.get("next"), self.actor_network_params, num, dist_params=next_params
         )
         if self.penalty_layout == "calql":  # Q(s, a'_π), as in the Cal-QL / CQL code
             next_td = curr_td.clone(False).set(action_key, next_td.get(action_key))
@@ -225,6 +245,15 @@ class CalQLLoss(CQLLoss):
 
     def cql_loss(self, tensordict: TensorDictBase) -> tuple[Tensor, dict]:
         """Cal-QL's penalty (steps 1-3 of the class docstring); needs :meth:`q_loss` first."""
+        return self._cql_loss(tensordict)
+
+    def _cql_loss(
+        self,
+        tensordict: TensorDictBase,
+        curr_params: TensorDictBase | None = None,
+        next_params: TensorDictBase | None = None,
+    ) -> tuple[Tensor, dict]:
+        """:meth:`cql_loss` on the actor's parameters at ``s`` and ``s'`` if given."""
         if tensordict.get(self.tensor_keys.pred_q1, None) is None:
             raise KeyError(
                 f"cql_loss reads {self.tensor_keys.pred_q1!r}, which q_loss writes: call "
@@ -241,7 +270,9 @@ class CalQLLoss(CQLLoss):
                 "transition (torchrl_dual.data.monte_carlo_returns)."
             )
         num = self.num_random
-        q_random, q_curr, q_next, curr_log_pi, next_log_pi = self._policy_q(tensordict, num)
+        q_random, q_curr, q_next, curr_log_pi, next_log_pi = self._policy_q(
+            tensordict, num, curr_params, next_params
+        )
         bound = bound.reshape(*tensordict.shape).repeat_interleave(num, dim=-1).to(q_curr)
         raised = torch.stack([q_curr < bound, q_next < bound]).float()  # [2 kinds, 2 nets, .]
         q_curr = torch.maximum(q_curr, bound)  # Cal-QL, Alg. 1: max(Q, G(s))
@@ -265,28 +296,13 @@ class CalQLLoss(CQLLoss):
                 cql_q - self.min_q_weight * self.target_action_gap
             )
         loss = self._reduce_loss(cql_q.sum(0), tensordict=tensordict)
-        self._clear_weakrefs(
-            tensordict,
-            "actor_network_params",
-            "qvalue_network_params",
-            "target_actor_network_params",
-            "target_qvalue_network_params",
-        )
+        self._clear_weakrefs(tensordict, *PARAMS)
         return loss, {"bound_rate": rate.mean().detach()}
 
     @property
     def critic_out_keys(self) -> tuple[str, ...]:
         """The terms :meth:`critic_terms` returns (the critic protocol of ``DUALLoss``)."""
         return ("loss_qvalue", "loss_cql", *(("loss_alpha_prime",) if self.with_lagrange else ()))
-
-    def critic_terms(self, tensordict: TensorDictBase) -> dict[str, Tensor]:
-        """The losses of one critic step: the twin-Q Bellman loss ``loss_qvalue``, the
-        bounded penalty ``loss_cql`` and, in the Lagrange form, ``loss_alpha_prime`` (its
-        gradient reaches ``log α'`` only). The actor terms are not computed."""
-        terms = {"loss_qvalue": self.q_loss(tensordict)[0], "loss_cql": self.cql_loss(tensordict)[0]}
-        if self.with_lagrange:
-            terms["loss_alpha_prime"] = self.alpha_prime_loss(tensordict)[0]
-        return terms
 
     def critic_parameters(self) -> list[Tensor]:
         """What the critic's optimizer steps: the Q networks and, in the Lagrange form,
