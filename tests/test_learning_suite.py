@@ -138,6 +138,15 @@ def test_shift_cells_report_the_offline_score_without_the_shift():
     assert "no shift" not in plain
 
 
+def test_the_report_modules_examples_run():
+    import doctest
+
+    from benchmarks.learning import claims, equal_time
+
+    for module in (lr, claims, equal_time):
+        assert doctest.testmod(module).failed == 0, module.__name__
+
+
 def test_a_claim_is_a_paired_difference_over_common_seeds():
     from benchmarks.learning import pairs as learning_pairs
     from benchmarks.learning.claims import Claim, claims_table
