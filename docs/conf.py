@@ -10,6 +10,10 @@ from pathlib import Path
 DOCS = Path(__file__).resolve().parent
 REPO = DOCS.parent
 sys.path[:0] = [str(REPO), str(DOCS / "_ext")]  # this checkout's package and benchmarks/
+# the tutorials' child processes (the recipe, Ray's workers) import benchmarks/ too
+os.environ["PYTHONPATH"] = os.pathsep.join(
+    p for p in (str(REPO), os.environ.get("PYTHONPATH", "")) if p
+)
 
 import torchrl_dual  # noqa: E402
 

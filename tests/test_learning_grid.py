@@ -99,10 +99,10 @@ def test_a_cell_reference_must_run_dual_with_the_same_overrides(monkeypatch):
         cells.dual_cells()
 
 
-def test_a_retired_cell_is_queued_only_when_named_and_stays_in_the_report(tmp_path, capsys):
+def test_a_retired_cell_is_queued_only_when_named_and_leaves_the_report_s_tables(tmp_path, capsys):
     """``Cell.retired``: the default queue leaves the cell out (its finished runs are not
     redone, its missing ones not started), ``--cells`` can still name it, and the report's
-    header says why it was retired."""
+    grid table leaves it out (its "Not in these tables" list says why: test_learning_suite)."""
     assert learning.CELLS["medium"].retired and "medium" not in learning.active_cells()
     results = ["--results", str(tmp_path / "results"), "--dry-run"]
     assert learning.main(results) == 0
@@ -111,7 +111,7 @@ def test_a_retired_cell_is_queued_only_when_named_and_stays_in_the_report(tmp_pa
     assert learning.main([*results, "--cells", "medium"]) == 0
     assert "/default/medium/dual/seed0" in capsys.readouterr().out
     header = learning.header_text("default")
-    assert "| medium | PointMaze Medium |" in header and "| retired: a new goal cell" in header
+    assert "| medium_goal | " in header and "| medium | " not in header
 
 
 def test_variants_with_more_seeds_queue_them_and_the_header_says_so(monkeypatch):

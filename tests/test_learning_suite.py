@@ -138,8 +138,18 @@ def test_shift_cells_report_the_offline_score_without_the_shift():
     assert "no shift" not in plain
 
 
-def test_dual_against_its_base_critic_is_a_paired_difference_over_common_seeds():
+def test_the_report_modules_examples_run():
+    import doctest
+
+    from benchmarks.learning import claims, equal_time
+
+    for module in (lr, claims, equal_time):
+        assert doctest.testmod(module).failed == 0, module.__name__
+
+
+def test_a_claim_is_a_paired_difference_over_common_seeds():
     from benchmarks.learning import pairs as learning_pairs
+    from benchmarks.learning.claims import Claim, claims_table
 
     def runs(variant, scores, seeds):
         return [_result(variant, s, [0.0, v, v]) for s, v in zip(seeds, scores, strict=True)]
@@ -151,25 +161,54 @@ def test_dual_against_its_base_critic_is_a_paired_difference_over_common_seeds()
             "so2": runs("so2", [5.0], [0]),
         }
     }
-    table = learning_pairs.critic_pairs_table(cells, ["umaze"]).splitlines()
+    claims = (
+        Claim("umaze", "DUAL on Cal-QL − Cal-QL", "dual_calql", "calql"),
+        Claim("umaze", "DUAL on SO2 − SO2", "dual_so2", "so2"),
+    )
+    table = claims_table(cells, claims).splitlines()
     assert len(table) == 3  # SO2 has no DUAL side: no row
     # seed 3 of calql has no partner: the base's mean is over seeds 0-2 (20.0)
     diffs = [4.0, 1.0, 8.0]
     mean, sd = sum(diffs) / 3, math.sqrt(sum((d - 13 / 3) ** 2 for d in diffs) / 2)
     half = 4.3027 * sd / math.sqrt(3)
     assert _student_t_cdf(4.3027, 2) == pytest.approx(0.975, abs=1e-4)
-    assert table[-1].startswith("| umaze | Cal-QL | 3 | 20.0 ± ")
+    assert table[-1].startswith("| umaze | DUAL on Cal-QL − Cal-QL | 0-2 (3) | 20.0 ± ")
     # the interval holds 0; the 90 % one (t(0.95, 2) = 2.92) reaches past +10: not equivalent
     half90 = 2.92 * sd / math.sqrt(3)
     assert mean + half90 > 10 > mean - half90 > -10
-    assert table[-1].endswith(
-        f"| +{mean:.1f} ± {half:.1f} ≈ | no [{mean - half90:+.1f}, {mean + half90:+.1f}] "
-        "| no: host not recorded |"  # the runs carry a commit but no host id
-    )
+    assert f"| +{mean:.1f} ± {half:.1f} ≈ | " in table[-1]  # final, then the AUC
+    assert f"| no [{mean - half90:+.1f}, {mean + half90:+.1f}] / " in table[-1]
+    assert table[-1].endswith("| no: host not recorded |")  # a commit but no host id
     n, (m, h), marker = learning_pairs.paired_difference(
         runs("d", [12.0, 13.0, 15.0], [0, 1, 2]), runs("b", [10.0, 10.5, 12.0], [0, 1, 2])
     )
     assert (n, marker) == (3, "▲") and m - h > 0
+
+
+def test_every_claim_names_variants_its_cells_run():
+    from benchmarks.learning.cells import CELLS
+    from benchmarks.learning.claims import CLAIMS
+
+    for claim in CLAIMS:
+        assert claim.a in CELLS[claim.a_cell or claim.cell].variants, claim
+        assert claim.b in CELLS[claim.b_cell or claim.cell].variants, claim
+
+
+def test_the_report_leaves_retired_cells_and_superseded_variants_out_of_its_tables():
+    dual = [_result("dual", s, [0.0, 5.0, 10.0 + s]) for s in range(2)]
+    old = [_result("iql_tanh_normal", s, [0.0, 1.0, 2.0]) for s in range(2)]
+    section = lr.render_section(
+        {"umaze": {"dual": dual, "iql_tanh_normal": old}, "medium": {"dual": dual}},
+        budget="smoke", header="H", cell_about={"umaze": "U", "medium": "M"},
+        variant_order=["dual", "iql_tanh_normal"], figures={}, command="c", results_dir="r",
+        retired={"medium": "a goal-conditioned task"},
+        superseded={"iql_tanh_normal": "the old actor"},
+    )  # fmt: skip
+    tables, left_out = section.split("### Not in these tables")
+    assert "### umaze: U" in tables and "`dual` | 2 | 0-1 |" in tables
+    assert "medium" not in tables and "iql_tanh_normal" not in tables
+    assert "* cell `medium` (2 runs): a goal-conditioned task" in left_out
+    assert "* variant `iql_tanh_normal` (2 runs): the old actor" in left_out
 
 
 def test_the_cell_table_reports_each_variant_s_epistemic_share():
@@ -231,7 +270,8 @@ def test_report_keeps_hand_written_text_and_is_idempotent(tmp_path, capsys):
     assert first.startswith("# Learning results\n\n" + begin)
     assert first.endswith(end + "\n\nIntro written by hand.\n\n## Older runs\n\nkept as is.\n")
     assert (
-        "| `iql` | 3 | 0.0 ± 0.0 | 5.0 ± 2.5 | 2.5 ± 1.2 | 5.0 | — | — | ▼ / ▼ |" in first
+        "| `iql` | 3 | 0-2 | 0.0 ± 0.0 | 5.0 ± 2.5 | 2.5 ± 1.2 | 5.0 | — | — | ▼ / ▼ | ? · abc |"
+        in first
     )  # t(2)=4.3027
     assert "### DUAL vs IQL at equal steps and at equal wall time" in first
     # the cost paragraph: the finished runs' total and the rest of the grid (6 done)
@@ -310,7 +350,6 @@ def test_a_failed_run_prints_its_stderr_tail_and_the_suite_exits_nonzero(
 ):
     crash = "import sys; sys.stderr.write('error: boom in the recipe'); sys.exit(2)"
     monkeypatch.setattr(learning.Suite, "command", lambda self, run: [sys.executable, "-c", crash])
-    monkeypatch.setattr(learning, "machine", lambda: "test box")
     argv = [
         *("--budget", "smoke", "--cells", "medium", "--variants", "iql", "--seeds", "0", "1"),
         *("--out", str(tmp_path / "out"), "--results", str(tmp_path / "results")),

@@ -1,7 +1,6 @@
 """Paired comparisons of the learning suite: DUAL against every baseline (the paper's
-Table 1 claim), DUAL against its base critic, per cell (the paper's Table 2: IQL, Cal-QL,
-SO2 + OFF2ON, each with and without DUAL on top), and DUAL's variants (ablations and
-settings) against DUAL, on its offline phase where they share it.
+Table 1 claim), DUAL's variants (ablations and settings) against DUAL, on its offline phase
+where they share it, and each baseline against its reference implementation.
 
 Each pair is compared on the seeds both variants ran, which share their data and
 environment seeds: the table gives both means ± 95 % t intervals and the *paired*
@@ -10,11 +9,11 @@ is only read as a result when the interval excludes 0, and the equivalence test 
 difference (:func:`benchmarks.learning.stats.equivalence`: its 90 % interval inside ±10 points, TOST
 at α = 0.05), which is what "level" or "at full strength" needs.
 
-    >>> cells = {"c": {
-    ...     "dual": [{"seed": s, "final_score": v} for s, v in enumerate([50.0, 60.0, 55.0])],
-    ...     "iql": [{"seed": s, "final_score": v} for s, v in enumerate([40.0, 52.0, 44.0])]}}
-    >>> print(critic_pairs_table(cells, ["c"]).splitlines()[-1])
-    | c | IQL | 3 | 45.3 ± 15.2 | 55.0 ± 12.4 | +9.7 ± 3.8 ▲ | no [+7.1, +12.2] | no: host not recorded, commit not recorded |
+    >>> dual = [{"seed": s, "final_score": v} for s, v in enumerate([50.0, 60.0, 55.0])]
+    >>> iql = [{"seed": s, "final_score": v} for s, v in enumerate([40.0, 52.0, 44.0])]
+    >>> n, (mean, half), marker = paired_difference(dual, iql)
+    >>> n, round(mean, 1), round(half, 1), marker, paired_equivalence(dual, iql).text()
+    (3, 9.7, 3.8, '▲', 'no [+7.1, +12.2]')
 """
 
 from __future__ import annotations
@@ -37,20 +36,14 @@ from benchmarks.learning.variants import (
 )
 from benchmarks.provenance import crossing
 
-CRITIC_PAIRS: tuple[tuple[str, str, str], ...] = (
-    ("IQL", "iql", "dual"),
-    ("Cal-QL", "calql", "dual_calql"),
-    ("SO2 + OFF2ON", "so2", "dual_so2"),
-)
-"""(critic, base variant, DUAL-on-that-critic variant) of the learning suite."""
-
 _WITHIN = f"equivalent within ±{EQUIVALENCE_MARGIN:g}? (90 % interval)"
 """The header of the equivalence columns (:func:`paired_equivalence`)."""
 _ONE_SITTING = "one host, one commit?"
 """The header of the provenance column (:func:`same_host_and_commit`)."""
 
 EQUIVALENCE_ABOUT = (
-    "Every paired table below gives, next to the paired difference and its 95 % interval "
+    "Every paired table of this section gives, next to the paired difference and its 95 % "
+    "interval "
     "(▲ / ▼: a difference is shown), an **equivalence test** (TOST: two one-sided t tests "
     "at α = 0.05) of the same per-seed differences: *yes* when their 90 % t interval, in "
     f"brackets, lies inside ±{EQUIVALENCE_MARGIN:g} normalized points, i.e. the two are shown "
@@ -61,8 +54,8 @@ EQUIVALENCE_ABOUT = (
     "runs from a random policy (0) to the expert (100), so it is a tenth of that range, and "
     "about one seed-to-seed standard deviation of one method's final score on U-maze at this "
     "budget (5-10 points over 5 seeds): a smaller gap would not tell two methods from two "
-    "seeds of one. It is fixed once for every claim (issue 41's proposal), not chosen per "
-    "claim. With 3-5 seeds the test is demanding: even at a mean difference of 0 the 90 % "
+    "seeds of one. It is fixed once for every claim, not chosen per claim. With 3-5 seeds the "
+    "test is demanding: even at a mean difference of 0 the 90 % "
     f"interval fits inside ±{EQUIVALENCE_MARGIN:g} only when the per-seed differences' "
     f"standard deviation is below {EQUIVALENCE_MARGIN:g} √n / t(0.95, n − 1): "
     + ", ".join(
@@ -155,25 +148,6 @@ def _against_dual(
             runs = cells[cell].get(name)
             if runs and dual:
                 yield cell, reference, name, runs, dual
-
-
-def critic_pairs_table(cells: dict[str, dict[str, list[dict]]], order: Sequence[str]) -> str:
-    """Markdown rows ``cell | critic | n | base final | DUAL final | paired DUAL − base |
-    its equivalence verdict`` for every pair of :data:`CRITIC_PAIRS` that a cell has both
-    sides of."""
-    lines = [
-        "| cell | critic | n (paired) | base: final | DUAL on it: final | DUAL − base (paired) "
-        f"| {_WITHIN} | {_ONE_SITTING} |",
-        "|---|---|---:|---|---|---|---|---|",
-    ]
-    for cell in sorted(cells, key=lambda c: order.index(c) if c in order else len(order)):
-        variants = cells[cell]
-        for critic, base, dual in CRITIC_PAIRS:
-            pair = _pair_cells(variants.get(dual, []), variants.get(base, []), ("final_score",))
-            if pair is not None:
-                n, values = pair
-                lines.append(f"| {cell} | {critic} | {n} | " + " | ".join(values) + " |")
-    return "\n".join(lines)
 
 
 def _same_offline(variant: list[dict], dual: list[dict]) -> str:
@@ -329,7 +303,8 @@ def pairs_sections(
     dual_runs: dict[str, tuple[str, str]] | None = None,
 ) -> list[str]:
     """The report's paired comparisons, each a heading, what it measures and its table
-    (those with no pair yet are left out)."""
+    (those with no pair yet are left out); the equivalence test they use is explained once,
+    above them (:data:`EQUIVALENCE_ABOUT`, in the report's claims)."""
     parts: list[str] = []
     sections = (
         (
@@ -360,15 +335,6 @@ def pairs_sections(
             dual_variant_pairs_table(cells, order, dual_from),
         ),
         (
-            "DUAL on each critic against the critic alone",
-            "The paper's Table 2 comparison on the suite's runs: each base critic's own "
-            "algorithm (`iql`, `calql`, `so2`) against DUAL on that critic (`dual`, "
-            "`dual_calql`, `dual_so2`), on the seeds both ran (same data and env seeds). "
-            "*DUAL − base*: the mean of the per-seed differences ± its 95 % t half-width; "
-            "▲ / ▼ when that interval excludes 0, ≈ when it holds 0 (inside the noise).",
-            critic_pairs_table(cells, order),
-        ),
-        (
             "Baselines against their reference implementations, seed by seed",
             "Each method that a reference implementation also ran (d3rlpy 2.8.1's, "
             "`benchmarks/learning/reference_d3rlpy.py`, as a learner of the same run: same data, "
@@ -384,6 +350,4 @@ def pairs_sections(
     for title, about, table in sections:
         if table.count("\n") > 1:
             parts += [f"### {title}", about, table]
-    if parts:
-        parts[1:1] = [EQUIVALENCE_ABOUT]  # under the first heading, before any table
     return parts

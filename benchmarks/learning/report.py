@@ -19,13 +19,22 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import statistics
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 
-from benchmarks.learning.pairs import pairs_sections, same_host_and_commit
+from benchmarks.learning.claims import claims_table, seeds_text
+from benchmarks.learning.equal_time import (  # noqa: F401 - re-exported
+    clock_of,
+    equal_compute_table,
+    eval_times,
+    run_seconds,
+    score_at_time,
+)
+from benchmarks.learning.pairs import EQUIVALENCE_ABOUT, pairs_sections
 from benchmarks.learning.stats import fmt, t_interval, t_quantile_975  # noqa: F401 - re-exported
-from benchmarks.learning.variants import IQL_VARIANTS
+from benchmarks.provenance import record_of
 
 
 def markers(budget: str) -> tuple[str, str]:
@@ -60,46 +69,6 @@ def online_auc(history: Sequence[dict]) -> float:
         for i in range(len(frames) - 1)
     )
     return area / (frames[-1] - frames[0])
-
-
-def clock_of(results: Iterable[dict]) -> str:
-    """``"cpu"`` when every result has CPU seconds (summaries written since they are
-    recorded), else ``"wall"``: one clock for a whole comparison."""
-    return "cpu" if all(r.get("cpu_seconds") is not None for r in results) else "wall"
-
-
-def run_seconds(result: dict, clock: str = "wall") -> tuple[float, float]:
-    """``(offline, total)`` seconds of one run on ``clock`` (``"wall"`` or ``"cpu"``).
-
-    CPU seconds are the run process's (``num_threads=1`` in the suite: the time the run
-    would take alone on an idle core); wall seconds grow when other jobs share the cores.
-    """
-    if clock == "cpu":
-        return result["offline_cpu_seconds"], result["cpu_seconds"]
-    return result["offline_seconds"], result["wall_seconds"]
-
-
-def eval_times(result: dict, clock: str = "wall") -> list[float]:
-    """Second of each history point on ``clock``: offline seconds + (frames / last
-    frame) x online seconds (the online phase taken as linear in frames)."""
-    last = max(float(result["history"][-1]["frames"]), 1.0)
-    offline, total = run_seconds(result, clock)
-    return [offline + h["frames"] / last * (total - offline) for h in result["history"]]
-
-
-def score_at_time(result: dict, seconds: float, clock: str = "wall") -> float | None:
-    """Normalized score at ``seconds`` on ``clock``, linear between evaluations;
-    ``None`` while the offline phase is still running, the final score after the end."""
-    times = eval_times(result, clock)
-    scores = [h["normalized_score"] for h in result["history"]]
-    if seconds < times[0]:
-        return None
-    for i in range(len(times) - 1):
-        if seconds <= times[i + 1]:
-            span = times[i + 1] - times[i]
-            w = (seconds - times[i]) / span if span > 0 else 1.0
-            return scores[i] + w * (scores[i + 1] - scores[i])
-    return scores[-1]
 
 
 def compact_result(summary: dict, *, variant: str, cell: str, overrides: list[str], meta: dict):
@@ -178,7 +147,7 @@ def epistemic_share(result: dict) -> float | None:
 
 def epistemic_share_bound(result: dict) -> float | None:
     """For a run that logged ``epistemic_std`` and ``exploration_std`` per batch but not the
-    share (2026-12-02 to 2026-12-04): the mean over batches of ``epistemic_std² /
+    share (the suite's earlier runs): the mean over batches of ``epistemic_std² /
     exploration_std²``, an upper bound of :func:`epistemic_share`'s value (the share divides
     by the batch's mean executed variance, ``exploration_std`` is its mean executed std,
     and a mean's square is at most the mean of the squares); ``None`` without both."""
@@ -211,9 +180,9 @@ def cell_table(variants: dict[str, list[dict]], order: Sequence[str]) -> str:
     shifted = any(r.get("shift", "none") != "none" for rs in variants.values() for r in rs)
     extra = " offline, no shift |" if shifted else ""
     lines = [
-        f"| variant | n | offline score |{extra} final online score | AUC (online) | wall min "
-        "| CPU min | epistemic share | vs dual: final / AUC |",
-        "|---|---:|---|" + ("---|" if shifted else "") + "---|---|---:|---:|---|---|",
+        f"| variant | n | seeds | offline score |{extra} final online score | AUC (online) "
+        "| wall min | CPU min | epistemic share | vs dual: final / AUC | CPU · commit |",
+        "|---|---:|---|---|" + ("---|" if shifted else "") + "---|---|---:|---:|---|---|---|",
     ]
     stats = {
         v: {k: t_interval([r[k] for r in rs]) for k in ("offline_score", "final_score", "auc")}
@@ -237,58 +206,52 @@ def cell_table(variants: dict[str, list[dict]], order: Sequence[str]) -> str:
             unshifted = " — |" if any(map(math.isnan, values)) else f" {fmt(t_interval(values))} |"
         share = share_text(rs)
         lines.append(
-            f"| `{v}` | {len(rs)} | {fmt(s['offline_score'])} |{unshifted} {fmt(s['final_score'])} "
-            f"| {fmt(s['auc'])} | {wall:.1f} | {cpu} | {share} | {marker} |"
+            f"| `{v}` | {len(rs)} | {seeds_text(r['seed'] for r in rs)} | "
+            f"{fmt(s['offline_score'])} |{unshifted} {fmt(s['final_score'])} "
+            f"| {fmt(s['auc'])} | {wall:.1f} | {cpu} | {share} | {marker} | {run_on(rs)} |"
         )
     return "\n".join(lines)
 
 
-def _at_time(results: list[dict], seconds: float, clock: str) -> str:
-    scores = [score_at_time(r, seconds, clock) for r in results]
-    done = [s for s in scores if s is not None]
-    if not done:
-        return "offline"
-    text = fmt(t_interval(done))
-    return text if len(done) == len(scores) else f"{text} ({len(scores) - len(done)} offline)"
+def run_on(results: Iterable[dict]) -> str:
+    """Where ``results`` ran, from their JSONs: the CPU models and the commit (or how many
+    commits), ``(dirty)`` when a tree was dirty.
+
+    >>> run = lambda cpu, commit: {"commit": commit, "machine": f"Linux, 2 CPUs ({cpu}), torch"}
+    >>> run_on([run("Intel(R) Xeon(R) Processor", "a")])
+    'Intel Xeon · a'
+    >>> run_on([run("AMD EPYC", "cb46f837b765")] * 2), run_on([run("Xeon", "a"), run("EPYC", "b")])
+    ('AMD EPYC · cb46f83', 'EPYC + Xeon · 2 commits')
+    """
+    cpus, commits, dirty = set(), set(), False
+    for result in results:
+        record = record_of(result)
+        named = re.search(r"CPUs \((.+?)\), ", result.get("machine", ""))
+        cpu = (result.get("provenance") or {}).get("cpu") or (named[1] if named else "")
+        cpus.add(cpu.replace("(R)", "").removesuffix(" Processor") or "?")
+        commits.add(record.get("commit") or "?")
+        dirty |= bool(record.get("dirty"))
+    commit = next(iter(commits))[:7] if len(commits) == 1 else f"{len(commits)} commits"
+    return f"{' + '.join(sorted(cpus))} · {commit}" + (" (dirty)" if dirty else "")
 
 
-def equal_compute_table(
+def hidden_text(
     cells: dict[str, dict[str, list[dict]]],
-    order: Sequence[str],
-    iql_variants: Sequence[str] = IQL_VARIANTS,
+    retired: Mapping[str, str],
+    superseded: Mapping[str, str],
 ) -> str:
-    """DUAL vs each IQL variant of a cell: final scores (equal steps for ``iql``) and the
-    scores at equal time, on CPU seconds when every run of the pair has them
-    (:func:`clock_of`), else wall."""
-    lines = [
-        "| cell | IQL variant | final dual | final iql | clock | T₁ (min) | dual at T₁ "
-        "| iql at T₁ | T₂ (min) | dual at T₂ | iql at T₂ | one host, one commit? |",
-        "|---|---|---|---|---|---:|---|---|---:|---|---|---|",
+    """The report's list of what its tables leave out: each retired cell and superseded
+    variant that has runs, with its run count and why."""
+    items = [
+        f"* cell `{cell}` ({sum(map(len, cells[cell].values()))} runs): {why}"
+        for cell, why in retired.items()
+        if cell in cells
     ]
-    for cell in sorted(cells, key=lambda c: order.index(c) if c in order else len(order)):
-        dual = cells[cell].get("dual")
-        for name in iql_variants:
-            iql = cells[cell].get(name)
-            if not dual or not iql:
-                continue
-            clock = clock_of([*dual, *iql])
-            total = {
-                k: statistics.fmean(run_seconds(r, clock)[1] for r in rs)
-                for k, rs in (("d", dual), ("i", iql))
-            }
-            t1, t2 = min(total.values()), total["i"]
-            lines.append(
-                f"| {cell} | `{name}` | {fmt(t_interval([r['final_score'] for r in dual]))} "
-                f"| {fmt(t_interval([r['final_score'] for r in iql]))} | {clock} "
-                f"| {t1 / 60:.1f} | {_at_time(dual, t1, clock)} | {_at_time(iql, t1, clock)} "
-                f"| {t2 / 60:.1f} | {_at_time(dual, t2, clock)} | {_at_time(iql, t2, clock)} "
-                f"| {same_host_and_commit(dual, iql)} |"
-            )
-    return "\n".join(lines)
-
-
-def _unique(results: Iterable[dict], key: str) -> list[str]:
-    return sorted({json.dumps(r.get(key), sort_keys=True) for r in results})
+    for variant, why in superseded.items():
+        count = sum(len(vs.get(variant, [])) for vs in cells.values())
+        if count:
+            items.append(f"* variant `{variant}` ({count} runs): {why}")
+    return "\n".join(items)
 
 
 def render_section(
@@ -301,48 +264,69 @@ def render_section(
     figures: dict[str, str],
     command: str,
     results_dir: str,
-    date: str,
-    machine: str,
     dual_from: dict[str, str] | None = None,
     dual_runs: dict[str, tuple[str, str]] | None = None,
+    retired: Mapping[str, str] | None = None,
+    superseded: Mapping[str, str] | None = None,
 ) -> str:
-    """The markdown between the markers: ``header`` (what the cells are, how to run),
-    one table per cell (in the order of ``cell_about``: name -> title), the
-    equal-compute comparison, the paired comparisons (``dual_from``: cell -> the cell
-    whose ``dual`` its DUAL variants pair with; ``dual_runs``: cell -> the ``(cell, variant)``
-    its baselines are set against) and the figures (``figures``: cell or
-    ``"latency"`` -> path relative to the docs file)."""
+    """The markdown between the markers: the claims (:mod:`benchmarks.learning.claims`),
+    ``header`` (what the cells are, how to run), one table per cell (in the order of
+    ``cell_about``: name -> title), the equal-compute comparison, the paired comparisons
+    (``dual_from``: cell -> the cell whose ``dual`` its DUAL variants pair with;
+    ``dual_runs``: cell -> the ``(cell, variant)`` its baselines are set against), the
+    figures (``figures``: cell or ``"latency"`` -> path relative to the docs file) and what
+    the tables leave out: the ``retired`` cells and ``superseded`` variants (name -> why)."""
+    retired, superseded = retired or {}, superseded or {}
+    left_out = hidden_text(cells, retired, superseded)
+    cells = {
+        cell: {v: rs for v, rs in variants.items() if v not in superseded}
+        for cell, variants in cells.items()
+        if cell not in retired
+    }
     cell_order = list(cell_about)
     everything = [r for variants in cells.values() for rs in variants.values() for r in rs]
-    commits = ", ".join(json.loads(c) or "?" for c in _unique(everything, "commit"))
-    machines = "; ".join(json.loads(m) or "?" for m in _unique(everything, "machine"))
     hosts = {r["provenance"]["host"] for r in everything if r.get("provenance")}
     unrecorded = sum(not r.get("provenance") for r in everything)
     begin, end = markers(budget)
     parts = [
         begin,
         f"## Learning suite, budget `{budget}`",
-        f"_Generated by `{command}` on {date} ({machine}) from the JSONs under "
-        f"`{results_dir}`; everything between the markers is rewritten._",
+        f"_Generated by `{command}` from the JSONs under `{results_dir}`; everything between "
+        "the markers is rewritten._",
+    ]
+    claims = claims_table(cells)
+    if claims.count("\n") > 1:
+        parts += [
+            "### What holds now",
+            "Each comparison the results rest on, as a paired difference *a − b* over the "
+            "seeds both ran (same data and env seeds): mean ± 95 % t half-width, ▲ / ▼ when "
+            "that interval excludes 0 (*ahead* / *behind*), ≈ when it holds 0; *level* when "
+            "the equivalence test below also puts it within ±10 points, *not shown* when "
+            "neither holds.",
+            EQUIVALENCE_ABOUT,
+            claims,
+        ]
+    parts += [
+        "### How the runs were made",
         header,
-        f"Runs on: {machines or '—'}. Commits: {commits or '—'}. Host ids "
-        f"(`benchmarks/provenance/`): {len(hosts)}"
-        + (f"; {unrecorded} runs from before host ids were recorded" if unrecorded else "")
-        + ". Every paired comparison below says whether its runs share one host and commit.",
+        f"Runs on: {run_on(everything) if everything else '—'}; host ids "
+        f"(`benchmarks/provenance/`) recorded for {len(everything) - unrecorded} of "
+        f"{len(everything)} runs ({len(hosts)} hosts). The *CPU · commit* column of each "
+        "table says where its runs ran; every paired comparison says whether its runs share "
+        "one host and commit.",
         "Each entry is the mean over seeds ± the half-width of the 95 % Student-t interval "
         "(n − 1 degrees of freedom). *Offline score*: after the offline phase (0 online "
         "frames); *final*: at the last online evaluation; *AUC*: the trapezoid mean of the "
         "normalized score over online frames, from the offline point to the end; *wall min*: "
         "mean minutes of offline + online phase (a shared offline phase counts in full); "
         "*epistemic share*: the epistemic variance of Eq. 9 as a share of the executed "
-        "variance, averaged over the online batches of each run (≤: an upper bound for runs of "
-        "2026-12-02 to 2026-12-04, which logged the epistemic and executed stds but not the "
-        "share; — without an ensemble, or for runs that logged neither). "
-        "*vs dual*: ▲ / ▼ when the variant's interval lies entirely above / below DUAL's, "
-        "≈ when they overlap, ? with fewer than 2 seeds. Non-overlap of two 95 % intervals "
-        "is a conservative test: for two intervals of equal width it needs a difference of "
-        "about 2.8 standard errors of the difference (p ≈ 0.006 in the normal "
-        "approximation), so overlapping intervals can still differ significantly.",
+        "variance, averaged over the online batches of each run (≤: an upper bound for runs "
+        "that logged the epistemic and executed stds but not the share; — without an "
+        "ensemble, or for runs that logged neither). *vs dual*: ▲ / ▼ when the variant's "
+        "interval lies entirely above / below DUAL's, ≈ when they overlap, ? with fewer than "
+        "2 seeds. Non-overlap of two 95 % intervals is a conservative test (about 2.8 "
+        "standard errors of the difference for two intervals of equal width), so "
+        "overlapping intervals can still differ significantly: the paired tables test that.",
     ]
     if not cells:
         parts.append("No results yet.")
@@ -356,21 +340,17 @@ def render_section(
         parts += [
             "### DUAL vs IQL at equal steps and at equal wall time",
             "*Equal steps* compares the final scores after the same number of online "
-            "frames and updates (the `iql` rows). `iql_equal_time` is IQL given DUAL's CPU "
-            "time per run, spent on more offline updates, `iql_equal_time_online` the same "
-            "spent on more online frames (their overrides above). *Equal wall time* "
-            "compares the scores each algorithm has "
-            "reached after the same wall-clock time: a run's evaluations are placed on a "
-            "time axis at offline_seconds + (frames / final frames) × online_seconds "
-            "(the online phase taken as linear in frames, evaluation time included), "
-            "the score is interpolated linearly between them and held after the run "
-            'ends; before its offline phase ends a run has no score ("offline"). Both '
-            "are read at T₁ = the smaller of the two mean total times and at T₂ = "
-            "IQL's mean total time (the same when IQL is the faster one). *clock* `cpu`: "
-            "the runs' own CPU seconds (one thread each), used when every run of the pair "
-            "recorded them; `wall`: wall-clock seconds. Jobs sharing the cores inflate "
-            "both, CPU seconds far less (measured on this 2-core machine: ×1.2-1.4 for a "
-            "stage under heavy load, against ×2.9 in wall time).",
+            "frames and updates (the `iql` rows); the `iql_equal_time*` variants give IQL "
+            "DUAL's CPU time per run (their overrides above). *Equal time* reads the scores "
+            "both have reached after the same time: a run's evaluations are placed at "
+            "offline_seconds + (frames / final frames) × online_seconds (the online phase "
+            "taken as linear in frames), interpolated linearly and held after the run ends; "
+            'before its offline phase ends a run has no score ("offline"). Read at T₁ = the '
+            "smaller of the two mean total times and T₂ = IQL's. *clock* `cpu`: the runs' "
+            "own CPU seconds (one thread each), used when every run of the pair recorded "
+            "them, else `wall`. Jobs sharing the cores inflate both, CPU seconds far less "
+            "(measured on a 2-core machine: ×1.2-1.4 for a stage under heavy load, against "
+            "×2.9 in wall time).",
             table,
         ]
     parts += pairs_sections(cells, cell_order, dual_from, dual_runs)
@@ -378,6 +358,13 @@ def render_section(
         parts += [
             "### Action latency vs final score",
             f"![latency vs final score]({figures['latency']})",
+        ]
+    if left_out:
+        parts += [
+            "### Not in these tables",
+            "Their runs stay under the results directory and in the lab notebook "
+            "(`benchmarks/notebook.md`), which records how each result was reached.",
+            left_out,
         ]
     parts.append(end)
     return "\n\n".join(parts)

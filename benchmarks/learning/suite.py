@@ -33,7 +33,7 @@ from pathlib import Path
 
 from tqdm.auto import tqdm
 
-from benchmarks.learning.backends import BACKENDS, Outcome, add_arguments, check_arguments, machine
+from benchmarks.learning.backends import BACKENDS, Outcome, add_arguments, check_arguments
 from benchmarks.learning.cells import (
     CELLS,
     Cell,
@@ -49,7 +49,7 @@ from benchmarks.learning.paper_tables import gpu_projection_text
 from benchmarks.learning.paper_tables import write_report as write_paper_report
 from benchmarks.learning.plots import latency_points, plot_cell_curves, plot_latency_vs_score
 from benchmarks.learning.report import compact_result, load_results, render_section, replace_section
-from benchmarks.learning.variants import RECIPE_SCRIPT, REFERENCE_SCRIPTS, VARIANTS
+from benchmarks.learning.variants import RECIPE_SCRIPT, REFERENCE_SCRIPTS, SUPERSEDED, VARIANTS
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -207,6 +207,8 @@ def report(args: argparse.Namespace, command: str) -> None:
     }
     figures: dict[str, str] = {}
     for cell, variants in cells.items():
+        if cell in CELLS and CELLS[cell].retired:
+            continue  # left out of the tables: no figure
         png = args.figures / f"learning_{args.budget}_{cell}.png"
         plot_cell_curves(variants, png, title=f"{cell}, budget {args.budget}")
         figures[cell] = os.path.relpath(png, args.docs.parent)
@@ -220,18 +222,15 @@ def report(args: argparse.Namespace, command: str) -> None:
         cells,
         budget=args.budget,
         header=header_text(args.budget) + "\n\n" + cost_text(args, cells),
-        cell_about={
-            name: cell.about + (" (retired)" if cell.retired else "")
-            for name, cell in {**CELLS, **paper_cells()}.items()
-        },
+        cell_about={name: cell.about for name, cell in {**CELLS, **paper_cells()}.items()},
         dual_from=dual_cells(),
         dual_runs=baseline_duals(),
         variant_order=list(VARIANTS),
         figures=figures,
         command=command,
         results_dir=os.path.relpath(args.results / args.budget, Path.cwd()),
-        date=datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
-        machine=machine(),
+        retired={name: cell.retired for name, cell in CELLS.items() if cell.retired},
+        superseded=SUPERSEDED,
     )
     text = args.docs.read_text() if args.docs.exists() else "# Learning results\n"
     args.docs.write_text(replace_section(text, section, args.budget))
@@ -255,13 +254,16 @@ def seeds_text(cell: Cell) -> str:
 
 
 def header_text(budget: str) -> str:
+    active = {name: cell for name, cell in CELLS.items() if not cell.retired}
     rows = "\n".join(
         f"| {name} | {cell.about} | `{' '.join(cell.overrides)}` | "
-        f"{', '.join(f'`{v}`' for v in cell.variants)} | "
-        f"{f'retired: {cell.retired}' if cell.retired else seeds_text(cell)} |"
-        for name, cell in CELLS.items()
+        f"{', '.join(f'`{v}`' for v in cell.variants if v not in SUPERSEDED)} | "
+        f"{seeds_text(cell)} |"
+        for name, cell in active.items()
     )
-    variants = "; ".join(f"`{v}` = `{' '.join(o)}`" for v, o in VARIANTS.items())
+    variants = "; ".join(
+        f"`{v}` = `{' '.join(o)}`" for v, o in VARIANTS.items() if v not in SUPERSEDED
+    )
     return (
         "`python -m benchmarks.learning` runs every cell × variant × seed below as one recipe "
         f"run (`python recipes/o2o.py budget={budget} <cell> <variant> seed=<k> "

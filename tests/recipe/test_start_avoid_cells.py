@@ -199,7 +199,7 @@ def test_the_key_keeps_the_offline_phase_and_its_cache_key(tmp_path):
 
 # ----------------------------------------------------------------------------- the reading
 def test_medium_explore_starts_one_to_two_moves_from_the_goal_in_12_percent_of_episodes():
-    """The reading of docs/results.md ("Where medium_explore's episodes start")."""
+    """The reading of benchmarks/notebook.md ("Where medium_explore's episodes start")."""
     env = OmegaConf.create(
         {"maze": "medium", "goal_cell": [6, 6], "data_avoid_cells": ROOM, "start_avoid_cells": None}
     )
