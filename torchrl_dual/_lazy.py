@@ -1,5 +1,7 @@
-"""Package attributes imported on first access (PEP 562), so that importing a light
-submodule (the recipe's config schema) does not import torch, TorchRL and the rest.
+"""Package attributes imported on first access (PEP 562).
+
+Importing a light submodule (the recipe's config schema) then does not import torch, TorchRL
+and the rest.
 
 ``from torchrl_dual import LaplaceEnsembleActor`` and ``torchrl_dual.LaplaceEnsembleActor``
 behave as with eager imports; only the moment of the import changes.
@@ -15,8 +17,9 @@ from typing import Any
 def lazy_exports(
     package: str, exports: dict[str, str]
 ) -> tuple[Callable[[str], Any], Callable[[], list[str]]]:
-    """``(__getattr__, __dir__)`` for ``package``: ``exports`` maps each public name to
-    the module that defines it.
+    """The ``(__getattr__, __dir__)`` pair of a package whose attributes import lazily.
+
+    ``exports`` maps each public name of ``package`` to the module that defines it.
 
     Examples:
         >>> getattr_, dir_ = lazy_exports("example", {"join": "os.path"})

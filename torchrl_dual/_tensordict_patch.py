@@ -1,11 +1,11 @@
-"""The one workaround for a tensordict 0.14 slowdown on every ``TensorDictModule`` call.
+r"""The one workaround for a tensordict 0.14 slowdown on every ``TensorDictModule`` call.
 
 ``TensorDictModule._write_to_tensordict`` stores each output as
 ``TensorDict.from_any(tensor)``. For a plain tensor ``from_any`` falls through every
 conversion it knows and returns the tensor itself, but on the way it calls
 ``importlib.util.find_spec("pandas")``: without pandas imported, a scan of ``sys.path``
 (a ``stat`` per entry) for every output of every module call. TorchRL's losses and
-actors are ``TensorDictModule``\\s, so an IQL update pays it about eight times:
+actors are ``TensorDictModule``\s, so an IQL update pays it about eight times:
 9.5 % of its CPU time on this project's 2-core machine (docs/benchmarks.md).
 
 :func:`install` puts a first check in front of ``TensorDictBase.from_any``: an object
@@ -43,9 +43,10 @@ def installed() -> bool:
 
 
 def install() -> bool:
-    """Puts the plain-tensor shortcut in front of ``TensorDictBase.from_any`` (once;
-    later calls do nothing) unless ``TORCHRL_DUAL_PATCH_TENSORDICT=0``. Returns whether it
-    is installed.
+    """Installs the plain-tensor shortcut in front of ``TensorDictBase.from_any``.
+
+    Installs it once (later calls do nothing), unless
+    ``TORCHRL_DUAL_PATCH_TENSORDICT=0``. Returns whether it is installed.
 
     Examples:
         >>> import torch

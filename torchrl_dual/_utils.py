@@ -1,6 +1,9 @@
-"""Helpers every module of the package shares: reading a required tensordict entry (for
-any reader, and for a loss with its ``set_keys`` fix), writing one on the action path, and
-asking whether the current exploration mode is deterministic."""
+"""Helpers every module of the package shares.
+
+Reading a required tensordict entry (for any reader, and for a loss with its ``set_keys``
+fix), writing one on the action path, and asking whether the current exploration mode is
+deterministic.
+"""
 
 from __future__ import annotations
 
@@ -21,9 +24,10 @@ here (Eq. 9-10) the mode, the median and the mean are one point."""
 
 
 def host_reads_allowed() -> bool:
-    """Whether a check may read a tensor's value back to the host now: not while
-    ``torch.compile`` traces (a graph break) nor while a CUDA graph is captured (a sync
-    there invalidates the capture). Eager calls keep every input check.
+    """Whether a check may read a tensor's value back to the host now.
+
+    Not while ``torch.compile`` traces (a graph break) nor while a CUDA graph is
+    captured (a sync there invalidates the capture). Eager calls keep every input check.
 
     Examples:
         >>> host_reads_allowed()
@@ -35,8 +39,10 @@ def host_reads_allowed() -> bool:
 
 
 def check_finite(value: Tensor, role: str, fix: str) -> None:
-    """``ValueError`` naming ``role``, the count of NaN/inf entries and ``fix`` if ``value``
-    has any; skipped where :func:`host_reads_allowed` is ``False``.
+    """Raises a ``ValueError`` if ``value`` holds a NaN or inf entry.
+
+    The message names ``role``, the count of NaN/inf entries and ``fix``. Skipped where
+    :func:`host_reads_allowed` is ``False``.
 
     Examples:
         >>> import torch
@@ -51,9 +57,11 @@ def check_finite(value: Tensor, role: str, fix: str) -> None:
 
 
 def require_finite(value: Tensor, what: str, tensordict: TensorDictBase) -> None:
-    """``ValueError`` naming ``what`` and where ``tensordict`` (the batch ``value`` was
-    computed from) first holds a NaN or inf, if ``value`` is not finite; skipped where
-    :func:`host_reads_allowed` is ``False``.
+    """Raises a ``ValueError`` if ``value`` is not finite, saying where its batch first is not.
+
+    The message names ``what`` and where ``tensordict`` (the batch ``value`` was
+    computed from) first holds a NaN or inf. Skipped where :func:`host_reads_allowed` is
+    ``False``.
 
     Examples:
         >>> import torch
@@ -69,9 +77,10 @@ def require_finite(value: Tensor, what: str, tensordict: TensorDictBase) -> None
 
 
 def first_non_finite(tensordict: TensorDictBase) -> str:
-    """Where a batch first holds a NaN or inf, as a sentence for an error message: the
-    key and the batch index of its first non-finite float entry, or, for a finite batch,
-    that the weights diverged.
+    """Where a batch first holds a NaN or inf, as a sentence for an error message.
+
+    The key and the batch index of its first non-finite float entry, or, for a finite
+    batch, that the weights diverged.
 
     Examples:
         >>> import torch
@@ -118,11 +127,12 @@ def read_key(tensordict: TensorDictBase, key: NestedKey, reader: str, fix: str =
 
 
 def write_key(tensordict: TensorDictBase, key: NestedKey, value: Tensor) -> None:
-    """``tensordict.set(key, value)``, a few times cheaper for the common case of the
-    action path: a plain ``TensorDict``, a string key and a tensor whose leading dims are
-    the batch size, on the tensordict's device (what TorchRL's env steps do with
-    ``_set_str(..., validated=True)``). Anything else, or a value that fails those checks,
-    goes through ``set`` and its validation and errors.
+    """Writes ``tensordict.set(key, value)``, faster on the action path.
+
+    A few times cheaper for the common case: a plain ``TensorDict``, a string key and a
+    tensor whose leading dims are the batch size, on the tensordict's device (what
+    TorchRL's env steps do with ``_set_str(..., validated=True)``). Anything else, or a
+    value that fails those checks, goes through ``set`` and its validation and errors.
 
     Examples:
         >>> import torch
@@ -166,8 +176,9 @@ def read_loss_input(tensordict: TensorDictBase, key: NestedKey, role: str) -> Te
 
 
 def is_deterministic() -> bool:
-    """Whether the current TorchRL exploration type asks for the mean action
-    (``DETERMINISTIC``, ``MODE``, ``MEDIAN`` or ``MEAN``); ``RANDOM`` and unset mean
+    """Whether the current TorchRL exploration type asks for the mean action.
+
+    ``DETERMINISTIC``, ``MODE``, ``MEDIAN`` or ``MEAN`` do; ``RANDOM`` and unset mean
     sampling.
 
     Examples:
@@ -182,10 +193,11 @@ def is_deterministic() -> bool:
 
 
 def one_hot_at(index: Tensor, like: Tensor, dim: int) -> Tensor:
-    """A one-hot tensor shaped and typed like ``like``: 1 where ``index`` (``like``'s shape
-    with size 1 at ``dim``) points along ``dim``. A scatter, not
-    :func:`torch.nn.functional.one_hot`, which reads the indices back to the host to check
-    their range (a device sync in every acting step or update).
+    """A one-hot tensor shaped and typed like ``like``, 1 where ``index`` points along ``dim``.
+
+    ``index`` has ``like``'s shape with size 1 at ``dim``. A scatter, not
+    :func:`torch.nn.functional.one_hot`, which reads the indices back to the host to
+    check their range (a device sync in every acting step or update).
 
     Examples:
         >>> scores = torch.tensor([[0.1, 0.7, 0.2], [0.5, 0.1, 0.4]])

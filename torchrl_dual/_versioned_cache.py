@@ -25,9 +25,10 @@ T = TypeVar("T")
 
 
 def mark_fused_steps(optimizer: Optimizer, args: Any = (), kwargs: Any = None) -> None:
-    """Moves the version counter of every parameter of ``optimizer``'s fused groups, as
-    any other in-place update does (the step hook this module registers for every
-    optimizer).
+    """Moves the version counter of every parameter of ``optimizer``'s fused groups.
+
+    As any other in-place update does; this is the step hook this module registers for
+    every optimizer.
 
     Examples:
         >>> import torch

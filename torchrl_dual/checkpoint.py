@@ -15,8 +15,11 @@ FORMAT_VERSION = 1
 
 
 class CheckpointError(RuntimeError):
-    """A checkpoint that cannot be resumed: missing, corrupt, of another format, or written
-    by a run with other settings. The message says which and what to do."""
+    """A checkpoint that cannot be resumed.
+
+    It is missing, corrupt, of another format, or written by a run with other settings.
+    The message says which and what to do.
+    """
 
 
 def rng_state() -> dict[str, Any]:
@@ -69,9 +72,16 @@ class RunCheckpoint:
         self.free_keys = frozenset(free_keys)
 
     def exists(self) -> bool:
+        """Whether the checkpoint file exists (a run can resume from it)."""
         return self.path.is_file()
 
     def save(self, state: dict[str, Any]) -> None:
+        """Writes ``state`` with this run's format version and fingerprint, atomically.
+
+        Args:
+            state (dict): what the run needs to resume (tensors, state dicts, counters); saved
+                with :func:`torch.save`, so it may hold anything that pickles.
+        """
         self.path.parent.mkdir(parents=True, exist_ok=True)
         payload = {
             "format_version": FORMAT_VERSION,
@@ -83,6 +93,16 @@ class RunCheckpoint:
         os.replace(tmp, self.path)
 
     def load(self) -> dict[str, Any]:
+        """Reads the checkpoint back after checking its format and fingerprint.
+
+        Returns:
+            The ``state`` given to :meth:`save`, its tensors on the CPU.
+
+        Raises:
+            CheckpointError: the file is missing, unreadable, of another format, or was written
+                with a fingerprint that differs from this run's (outside ``free_keys``); the
+                message lists the differing settings and what to do.
+        """
         if not self.exists():
             raise CheckpointError(
                 f"No checkpoint at {self.path}; run without resume=true to start afresh."

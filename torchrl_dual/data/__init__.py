@@ -1,5 +1,8 @@
-"""Offline data: transition layout, local generators, Minari loading, normalized scores,
-Monte-Carlo returns-to-go (Cal-QL's bound) and OFF2ON's balanced replay."""
+"""Offline data: transition layout, data sets, scores, returns-to-go and balanced replay.
+
+Local generators, Minari loading, normalized scores, Monte-Carlo returns-to-go (Cal-QL's
+bound) and OFF2ON's balanced replay.
+"""
 
 from torchrl_dual.data.balanced_replay import BalancedReplayBuffer
 from torchrl_dual.data.cache import (

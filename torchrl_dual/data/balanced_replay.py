@@ -1,5 +1,7 @@
-"""OFF2ON's balanced replay (Lee et al., "Offline-to-Online Reinforcement Learning via
-Balanced Replay and Pessimistic Q-Ensemble", arXiv:2107.00591).
+"""OFF2ON's balanced replay.
+
+Lee et al., "Offline-to-Online Reinforcement Learning via Balanced Replay and Pessimistic
+Q-Ensemble", arXiv:2107.00591.
 
 During fine-tuning, every transition of ``D_offline ∪ D_online`` is drawn with probability
 proportional to its priority ``p_i``, a clipped and normalised density ratio
@@ -114,8 +116,10 @@ class BalancedReplayBuffer:
 
     # ------------------------------------------------------------------ data
     def extend(self, data: TensorDictBase) -> torch.Tensor:
-        """Adds online transitions, each with the largest priority seen so far; returns
-        their indices in the online buffer."""
+        """Adds online transitions, each with the largest priority seen so far.
+
+        Returns their indices in the online buffer.
+        """
         index = torch.as_tensor(self._online_buffer.extend(data))
         self._priority[self.num_offline + index] = self.max_priority
         return index
@@ -150,8 +154,10 @@ class BalancedReplayBuffer:
         return p / p.sum()
 
     def sample(self, batch_size: int | None = None) -> TensorDictBase:
-        """``batch_size`` transitions drawn with replacement, ``P(i) ∝ p_i``, with their
-        indices under ``index_key``."""
+        """Draws ``batch_size`` transitions with replacement, ``P(i) ∝ p_i``.
+
+        Their indices are written under ``index_key``.
+        """
         batch_size = self._batch_size_or(batch_size)
         index = torch.multinomial(self._priority[: len(self)], batch_size, replacement=True)
         out = self.gather(index)
@@ -161,9 +167,11 @@ class BalancedReplayBuffer:
         return out
 
     def ratio_batch(self, batch_size: int | None = None) -> TensorDictBase:
-        """``batch_size`` uniform offline then ``batch_size`` uniform online transitions,
-        flagged by ``online_key``: the input of
-        :class:`~torchrl_dual.objectives.DensityRatioLoss`."""
+        """Draws the density-ratio estimator's batch: uniform offline then online transitions.
+
+        ``batch_size`` of each, flagged by ``online_key``: the input of
+        :class:`~torchrl_dual.objectives.DensityRatioLoss`.
+        """
         batch_size = self._batch_size_or(batch_size)
         online = len(self._online_buffer)
         if online == 0:
@@ -180,8 +188,11 @@ class BalancedReplayBuffer:
 
     # ------------------------------------------------------------------ priorities
     def update_priority(self, index: torch.Tensor, priority: torch.Tensor) -> None:
-        """Sets ``p_i`` (clipped to ``priority_range``) at ``index`` (offline then online
-        numbering, as in :meth:`sample`); raises the running maximum."""
+        """Sets the priorities ``p_i`` at ``index`` and raises the running maximum.
+
+        ``p_i`` is clipped to ``priority_range``; ``index`` numbers the offline then
+        the online transitions, as in :meth:`sample`.
+        """
         device = self._priority.device
         priority = torch.as_tensor(priority, dtype=self._priority.dtype).flatten().to(device)
         priority = priority.clamp(*self.priority_range)
@@ -200,9 +211,12 @@ class BalancedReplayBuffer:
     def refresh_priorities(
         self, batch: TensorDictBase, reference: TensorDictBase | None = None
     ) -> torch.Tensor:
-        """Recomputes ``p = clip(w^{1/T} / mean_ref(w^{1/T}))`` for the transitions of a
-        sampled ``batch`` and returns it; ``reference`` holds the offline transitions of
-        the mean (defaults to a fresh uniform offline batch of the same size)."""
+        """Recomputes the priorities of a sampled ``batch`` from the density ratio and returns them.
+
+        ``p = clip(w^{1/T} / mean_ref(w^{1/T}))``; ``reference`` holds the offline
+        transitions of the mean (defaults to a fresh uniform offline batch of the
+        same size).
+        """
         if reference is None:
             index = torch.randint(0, self.num_offline, (batch.shape[0],))
             reference = self.gather(index)
@@ -221,6 +235,16 @@ class BalancedReplayBuffer:
         return {"priority": self._priority.clone(), "max_priority": self.max_priority}
 
     def load_state_dict(self, state: dict) -> None:
+        """Restores the priorities and their running maximum from :meth:`state_dict`.
+
+        Args:
+            state (dict): ``{"priority": Tensor [num_offline + online capacity],
+                "max_priority": float}``.
+
+        Raises:
+            ValueError: the saved priorities have another shape (offline size or online
+                capacity differ).
+        """
         if state["priority"].shape != self._priority.shape:
             raise ValueError(
                 f"Saved priorities have shape {tuple(state['priority'].shape)}, this buffer "

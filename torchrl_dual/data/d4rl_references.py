@@ -1,5 +1,7 @@
-"""D4RL's published reference returns and time limits, the numbers ``env.protocol=d4rl``
-scores and runs the paper's benchmarks with (the paper follows CORL, which uses D4RL's).
+"""D4RL's published reference returns and time limits.
+
+The numbers ``env.protocol=d4rl`` scores and runs the paper's benchmarks with (the paper
+follows CORL, which uses D4RL's).
 
 Sources (Farama-Foundation/D4RL, the last commit of 2024-11):
 

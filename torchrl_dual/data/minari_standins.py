@@ -1,6 +1,7 @@
-"""Stand-in Minari data sets: tiny random-action data under the published ids, env
-versions and metadata fields, for machines that cannot download the published ones
-(tests, CI, benchmarks of the code paths).
+"""Stand-in Minari data sets: tiny random-action data under the published ids.
+
+They carry the published env versions and metadata fields, for machines that cannot download
+the published data sets (tests, CI, benchmarks of the code paths).
 
 :data:`STANDINS` maps a published id to how its env is made, after Farama-Foundation's
 minari-dataset-generation-scripts (``scripts/D4RL/antmaze/create_antmaze_dataset.py``,

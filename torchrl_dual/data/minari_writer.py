@@ -102,8 +102,9 @@ def write_minari_dataset(
     algorithm_name: str = "torchrl_dual.data.minari_writer",
     description: str | None = None,
 ):
-    """Stores episode buffers as the Minari data set ``dataset_id`` in
-    ``MINARI_DATASETS_PATH`` (``~/.minari/datasets`` by default).
+    """Stores episode buffers as the Minari data set ``dataset_id``.
+
+    It is written in ``MINARI_DATASETS_PATH`` (``~/.minari/datasets`` by default).
 
     Args:
         dataset_id (str): e.g. ``"D4RL/antmaze/umaze-v1"`` (``namespace/name-vN``).

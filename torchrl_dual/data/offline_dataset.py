@@ -40,24 +40,29 @@ class OfflineDataset:
 
     @property
     def obs_dim(self) -> int:
+        """The observation's size, the last dim of ``transitions["observation"]``."""
         return int(self.transitions["observation"].shape[-1])
 
     @property
     def action_dim(self) -> int:
+        """The action's size, the last dim of ``transitions["action"]``."""
         return int(self.transitions["action"].shape[-1])
 
     @property
     def num_episodes(self) -> int:
+        """The number of distinct ``episode`` ids in the transitions."""
         return int(self.transitions["episode"].unique().numel())
 
     def __len__(self) -> int:
         return int(self.transitions.batch_size[0])
 
     def without_transitions(self) -> OfflineDataset:
-        """The data set's description without its transitions (an empty slice keeps the
-        keys and dims): references and metadata, a few kilobytes to send to a worker
-        process that needs what the data set says of its env (e.g. the observation
-        normalization of a Minari kit), not the data."""
+        """The data set's description without its transitions.
+
+        An empty slice keeps the keys and dims: references and metadata, a few
+        kilobytes to send to a worker process that needs what the data set says of
+        its env (e.g. the observation normalization of a Minari kit), not the data.
+        """
         return OfflineDataset(
             self.transitions[:0].clone(),
             self.reference_min,

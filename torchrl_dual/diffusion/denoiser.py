@@ -108,13 +108,15 @@ class ResidualMLPDenoiser(nn.Module):
 
     def trunk(self, hidden: torch.Tensor) -> torch.Tensor:
         """The residual blocks and output norm applied to the first layer's output
-        (``input_layer(z, mask) + time_embedding(t)``), ``[*B, hidden]``."""
+        (``input_layer(z, mask) + time_embedding(t)``), ``[*B, hidden]``.
+        """
         return self.output_norm(self.blocks(hidden))
 
     def trunk_layers(self) -> tuple[list[tuple[nn.LayerNorm, nn.Linear, nn.Linear]], nn.LayerNorm]:
         """The parametrised layers of :meth:`trunk`, in order: ``(norm, linear_1, linear_2)``
         of each residual block ``x + linear_2(SiLU(linear_1(norm(x))))``, then the output
-        norm (followed by SiLU). A fused re-implementation of the trunk reads these."""
+        norm (followed by SiLU). A fused re-implementation of the trunk reads these.
+        """
         blocks = [(block.net[0], block.net[1], block.net[3]) for block in self.blocks]
         return blocks, self.output_norm[0]
 

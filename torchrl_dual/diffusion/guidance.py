@@ -91,7 +91,8 @@ def noisy_windows(
     model: TrajectoryDiffusion, x0: torch.Tensor, mask: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """``(z_t, t)``: ``x0`` noised by ``model``'s forward process at ``t ~ U(0, 1)``, the
-    ``mask`` entries kept clean (as the sampler's inpainting keeps them)."""
+    ``mask`` entries kept clean (as the sampler's inpainting keeps them).
+    """
     t = torch.rand(x0.shape[:-2], device=x0.device)
     z = model.noise(x0, t, torch.randn_like(x0))
     return torch.where(mask, x0, z), t

@@ -84,7 +84,8 @@ class TrajectoryDiffusion(nn.Module):
     @property
     def num_steps(self) -> int:
         """``N``, the number of sampling steps the model is trained for (saved in the
-        state dict; read from a host copy, so reading it never syncs a device)."""
+        state dict; read from a host copy, so reading it never syncs a device).
+        """
         return self._num_steps_value
 
     @num_steps.setter
@@ -101,7 +102,8 @@ class TrajectoryDiffusion(nn.Module):
     def normalized_window(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """Raw ``[*B, H + 1, obs_dim]`` states and ``[*B, H + 1, action_dim]`` actions ->
         the clean window ``x_0`` ``[*B, H + 1, D]`` in the units the model is trained in
-        (its :class:`~torchrl_dual.diffusion.Normalizer`, then the layout's packing)."""
+        (its :class:`~torchrl_dual.diffusion.Normalizer`, then the layout's packing).
+        """
         norm = self.normalizer
         return self.layout.pack(
             norm.normalize_observation(observation), norm.normalize_action(action)

@@ -72,7 +72,8 @@ class NoiseSchedule(nn.Module):
 
 def _alpha_sigma(kind: str, t, ops):
     """``(α_t, σ_t)`` of schedule ``kind`` with ``ops`` = ``torch`` (tensors) or ``math``
-    (floats): one formula for both."""
+    (floats): one formula for both.
+    """
     if kind == "cosine":
         angle = t * (math.pi / 2)
         return ops.cos(angle), ops.sin(angle)

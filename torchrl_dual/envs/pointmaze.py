@@ -110,7 +110,8 @@ def goal_maze_map(maze: str, goal_cell: Sequence[int]) -> list[list[Any]]:
 
 def _open_cell(maze: str, cell: Sequence[int], name: str) -> tuple[int, int]:
     """``cell`` as a ``(row, col)`` tuple; a ``ValueError`` listing the open cells unless
-    it is one."""
+    it is one.
+    """
     cells = open_cells(maze)
     if tuple(cell) not in cells:
         raise ValueError(
@@ -171,7 +172,8 @@ def _task_maze_map(
     """The ``maze_map`` given to Gymnasium-Robotics: ``goal_cell`` marked ``"g"``
     (:func:`goal_maze_map`) and, with ``start_avoid_cells``, the start cells marked reset
     cells (``"r"``; ``"c"``, goal or reset, with a random goal, the avoided cells then
-    ``"g"``: every open cell stays a possible goal)."""
+    ``"g"``: every open cell stays a possible goal).
+    """
     maze_map = _maze_map(maze) if goal_cell is None else goal_maze_map(maze, goal_cell)
     if start_avoid_cells:
         starts = set(start_cells(maze, goal_cell, start_avoid_cells))

@@ -168,7 +168,8 @@ class DiffQLActorLoss(LossModule):
     ) -> DiffQLActorLoss:
         """The loss on the twin Q networks of a TorchRL ``IQLLoss`` (its current, not its
         target, weights; :func:`min_q`), which read the state under this loss's
-        ``tensor_keys.observation`` and the action under ``iql_loss.tensor_keys.action``."""
+        ``tensor_keys.observation`` and the action under ``iql_loss.tensor_keys.action``.
+        """
 
         def q_value(observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
             return min_q(

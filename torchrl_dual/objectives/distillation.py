@@ -145,7 +145,8 @@ class _RoundCheckpoints:
     """One round's view of :func:`progressive_distillation`'s checkpoints: its loop state
     saved under the round's index, its updates counted over all rounds. Only the round a
     resumed distillation continues asks ``outer`` to resume (right before its loop runs,
-    where the caller may restore its random state)."""
+    where the caller may restore its random state).
+    """
 
     def __init__(
         self, outer: UpdateCheckpoints, index: int, updates: Sequence[int], resuming: bool

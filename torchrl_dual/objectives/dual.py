@@ -159,7 +159,8 @@ class DUALLoss(LossModule):
         """Registers the parts' submodules, parameters and buffers as this loss's own, under
         their names: TorchRL's target updaters look for ``target_*_params`` among a loss's
         direct children. The critic's copy of the actor (Cal-QL's and SO2's policy, which
-        holds the actor's own parameters) is left out: the actor is the actor's."""
+        holds the actor's own parameters) is left out: the actor is the actor's.
+        """
         actor_tensors = {id(p) for p in self.actor_objective.parameters()}
         for part in self._parts():
             for kind in ("_modules", "_parameters", "_buffers"):
@@ -178,7 +179,8 @@ class DUALLoss(LossModule):
 
     def _apply(self, fn: Any, *args: Any, **kwargs: Any) -> DUALLoss:
         """Casts and device moves go through the parts (each refreshes its own caches and
-        replaces its own buffers), then this loss takes their new state."""
+        replaces its own buffers), then this loss takes their new state.
+        """
         for part in self._parts():
             part._apply(fn, *args, **kwargs)
         self._erase_cache()
@@ -225,12 +227,14 @@ class DUALLoss(LossModule):
     @property
     def tensor_keys(self) -> Any:
         """The critic's keys (Eq. 7's actor reads the same observation, action and critic
-        outputs); ``set_keys`` renames them in both parts."""
+        outputs); ``set_keys`` renames them in both parts.
+        """
         return self.critic.tensor_keys
 
     def set_keys(self, **kwargs: NestedKey) -> None:
         """Renames keys in every part that reads them; a name no part knows raises
-        ``ValueError`` listing the valid ones."""
+        ``ValueError`` listing the valid ones.
+        """
         known = [set(vars(part.tensor_keys)) for part in self._parts()]
         unknown = set(kwargs) - set.union(*known)
         if unknown:
@@ -262,7 +266,8 @@ class DUALLoss(LossModule):
     # ------------------------------------------------------------------ the terms
     def critic_loss(self, tensordict: TensorDictBase) -> tuple[dict[str, torch.Tensor], dict]:
         """The critic's terms (Alg. 1 lines 7 and 15), checked finite when
-        ``check_finite``; no metadata."""
+        ``check_finite``; no metadata.
+        """
         terms = self.critic.critic_terms(tensordict)
         if self.check_finite:
             for name, term in terms.items():
@@ -272,7 +277,8 @@ class DUALLoss(LossModule):
     def actor_loss(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, dict]:
         """Eq. (7) on the critic's current weights: ``loss_actor`` (reduced) and the
         metrics ``weight_mean``, ``log_prob``, ``actor_std``; writes the per-sample
-        weights under ``actor_weight``."""
+        weights under ``actor_weight``.
+        """
         out = self.actor_objective(tensordict)
         return out["loss_actor"], {key: out[key] for key in out.keys() if key != "loss_actor"}
 

@@ -12,7 +12,8 @@ from torchrl.objectives import IQLLoss
 
 class _NoActor(nn.Module):
     """The actor slot of TorchRL's ``IQLLoss``, which cannot be left empty: a module without
-    parameters (so no actor weights are held or saved) that refuses to act."""
+    parameters (so no actor weights are held or saved) that refuses to act.
+    """
 
     def forward(self, *observations: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         raise RuntimeError(
@@ -107,7 +108,8 @@ class IQLCriticLoss(IQLLoss):
 
     def critic_terms(self, tensordict: TensorDictBase) -> dict[str, torch.Tensor]:
         """The two losses of one critic step: ``loss_qvalue`` and ``loss_value``, each
-        TorchRL's ``IQLLoss`` method's (the class docstring)."""
+        TorchRL's ``IQLLoss`` method's (the class docstring).
+        """
         return {
             "loss_qvalue": self.qvalue_loss(tensordict)[0],
             "loss_value": self.value_loss(tensordict)[0],
@@ -134,7 +136,8 @@ class IQLCriticLoss(IQLLoss):
     @dispatch
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         """``loss_qvalue`` and ``loss_value`` (a ``[*B]`` TensorDict under
-        ``reduction="none"``); writes the TD-error priority (max over the Q networks)."""
+        ``reduction="none"``); writes the TD-error priority (max over the Q networks).
+        """
         loss_qvalue, metadata = self.qvalue_loss(tensordict)
         loss_value = self.value_loss(tensordict)[0]
         tensordict.set(self.tensor_keys.priority, metadata["td_error"].max(0).values)

@@ -67,7 +67,8 @@ class OnePassIQLLoss(IQLLoss):
         ``loss_qvalue`` (TD to ``r + γ V(s')``), ``loss_value`` (the expectile of
         ``min Q̄(s, a) − V(s)``) and ``loss_actor`` (``−exp(β (min Q̄ − V)) log π(a|s)``,
         the weight clipped at 100). Writes ``log_prob`` (detached) into ``tensordict``
-        as ``actor_loss`` does."""
+        as ``actor_loss`` does.
+        """
         return self._terms(tensordict)[0]
 
     def _terms(self, tensordict: TensorDictBase) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
@@ -103,7 +104,8 @@ class OnePassIQLLoss(IQLLoss):
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         """TorchRL's ``IQLLoss.forward`` on :meth:`terms`: the three losses, the entropy
         estimate ``−mean log π(a|s)`` and the batch's priority (the max TD error over the
-        Q networks) written into ``tensordict``."""
+        Q networks) written into ``tensordict``.
+        """
         out, td_error = self._terms(tensordict)
         shapes = {name: term.shape for name, term in out.items()}
         if len(set(shapes.values())) > 1:

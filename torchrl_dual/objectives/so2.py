@@ -205,12 +205,14 @@ class SO2QLoss(LossModule):
 
     def _make_vmap(self) -> None:
         """The ensemble's ``vmap`` over the members, with TorchRL's ``vmap_randomness``
-        (``"different"`` when the Q network holds a random module such as dropout)."""
+        (``"different"`` when the Q network holds a random module such as dropout).
+        """
         self._ensemble = _vmap_func(self.qvalue_network, (None, 0), randomness=self.vmap_randomness)
 
     def reset_parameters_recursive(self) -> None:
         """Re-initialises the Q ensemble and its target; the actor belongs to the actor's
-        loss and is left as it is."""
+        loss and is left as it is.
+        """
         self._reset_module_parameters("qvalue_network", self.qvalue_network)
 
     def _forward_value_estimator_keys(self, **kwargs) -> None:
@@ -288,7 +290,8 @@ class SO2QLoss(LossModule):
     @torch.no_grad()
     def target_action(self, next_tensordict: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """``(ã', log π(a'|s'))``: the smoothed next action and the log-probability of the
-        un-noised ``a'`` (zeros when ``entropy_coef == 0``)."""
+        un-noised ``a'`` (zeros when ``entropy_coef == 0``).
+        """
         td = next_tensordict.select(*self.actor_network.in_keys, strict=False).clone(False)
         mode = (
             ExplorationType.RANDOM
@@ -318,7 +321,8 @@ class SO2QLoss(LossModule):
     @torch.no_grad()
     def target_value(self, tensordict: TensorDictBase) -> torch.Tensor:
         """``y = r + γ·(1 − terminated)·(Q̄(s', ã') − α·log π(a'|s'))``: ``[E, *B]`` for
-        ``target_reduction="independent"``, else ``[*B]``."""
+        ``target_reduction="independent"``, else ``[*B]``.
+        """
         next_td = read_key(tensordict, "next", "SO2QLoss", "Add the next step under 'next'.")
         action, log_prob = self.target_action(next_td)
         next_td = next_td.select(*self.qvalue_network.in_keys, strict=False).clone(False)

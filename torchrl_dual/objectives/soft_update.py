@@ -69,7 +69,8 @@ class ForeachSoftUpdate(SoftUpdate):
 
 def _leaf_data(value: torch.Tensor | TensorDictBase) -> list[torch.Tensor]:
     """The ``.data`` views of a tensor or of a TensorDict's leaves, in the order
-    ``TensorDictBase.lerp_`` pairs them."""
+    ``TensorDictBase.lerp_`` pairs them.
+    """
     if isinstance(value, TensorDictBase):
         return [leaf.data for leaf in value.values(True, True)]
     return [value.data]

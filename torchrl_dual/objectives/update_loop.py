@@ -67,12 +67,14 @@ class UpdateCheckpoints(Protocol):
 
     def resume(self) -> dict[str, Any] | None:
         """The loop state to continue from (what an ``after_update`` call's ``state()``
-        returned), or ``None`` to start at update 0; called right before the loop runs."""
+        returned), or ``None`` to start at update 0; called right before the loop runs.
+        """
 
     def after_update(self, done: int, total: int, state: Callable[[], dict[str, Any]]) -> None:
         """Called after each update: ``done`` of ``total`` updates are done and ``state()``
         is the loop's state now (built only when called). May raise ``KeyboardInterrupt``
-        to stop the loop there."""
+        to stop the loop there.
+        """
 
 
 def run_updates(

@@ -177,7 +177,8 @@ class WeightedMAPActorLoss(LossModule):
         """Builds the loss on the critics of a TorchRL ``IQLLoss`` (the target twin Q and
         V), or of any critic loss with ``qvalue_network`` and target Q parameters, e.g.
         :class:`~torchrl_dual.objectives.CalQLLoss` (no V: ``weighting="sac"`` or
-        ``"uniform"`` only)."""
+        ``"uniform"`` only).
+        """
         value_network = getattr(iql_loss, "value_network", None)
         with warnings.catch_warnings():  # TorchRL's warning is for a forward pass without
             # a target updater; here the critic's targets are only referenced
@@ -202,7 +203,8 @@ class WeightedMAPActorLoss(LossModule):
 
     def _make_vmap(self) -> None:
         """TorchRL's hook of ``set_vmap_randomness``: nothing to rebuild, the twin-Q
-        evaluation reads :attr:`vmap_randomness` at each call."""
+        evaluation reads :attr:`vmap_randomness` at each call.
+        """
 
     @property
     def in_keys(self) -> list[NestedKey]:
@@ -247,7 +249,8 @@ class WeightedMAPActorLoss(LossModule):
     # ------------------------------------------------------------------ loss
     def reset_parameters_recursive(self) -> None:
         """Re-initialises the actor, the one module this loss owns (the critic it reads
-        belongs to the critic's loss)."""
+        belongs to the critic's loss).
+        """
         with self.actor_params.to_module(self.actor):
             self.actor.reset_parameters_recursive()
 

@@ -70,7 +70,8 @@ def run(cfg: DictConfig) -> Any:
     """Validates ``cfg`` (raising :class:`~torchrl_dual.recipe.settings.errors.ConfigError`) and
     runs its algorithm: Algorithm 1's loop (``o2o/loop.py``) with the ``algo`` entry's
     learner (``settings/algos.py``; DUAL's is ``algos/dual.py``). Returns the finished
-    :class:`~torchrl_dual.recipe.O2ORun`."""
+    :class:`~torchrl_dual.recipe.O2ORun`.
+    """
     validate_config(cfg)
     from torchrl_dual.recipe.o2o.loop import run_o2o  # torch: only once the config is valid
 
@@ -98,7 +99,8 @@ def _group_options(config_dir: Path, group: str) -> list[str] | None:
 def _options_with_key(config_dir: Path, key: str) -> list[str]:
     """The ``group=option`` choices whose config file defines ``key`` (e.g.
     ``critic.bellman_loss`` is ``critic=calql``'s): files of the key's first segment's
-    group, and ``_global_`` files of any group (an ``algo`` file sets ``actor.*``)."""
+    group, and ``_global_`` files of any group (an ``algo`` file sets ``actor.*``).
+    """
     owners = []
     for path in sorted(config_dir.glob("*/*.yaml")):
         group, text = path.parent.name, path.read_text()
@@ -192,7 +194,8 @@ def _recipe_composition(config_dir: Path) -> Iterator[None]:
       to start inside one), so a Hydra app of the user's can call :func:`compose_checked`.
 
     Both are as they were afterwards (``tests/trainers/test_configs.py`` composes the recipe
-    next to TorchRL's store and inside a running app)."""
+    next to TorchRL's store and inside a running app).
+    """
     from hydra.core.config_store import ConfigStore
     from hydra.core.global_hydra import GlobalHydra
 
@@ -242,7 +245,8 @@ def hydra_task(cfg: DictConfig) -> Any:
 
     Ctrl-C or SIGTERM in the offline or online phase ends the run with a checkpoint and
     one line (:func:`~torchrl_dual.recipe.run_o2o`); anywhere else (while the data and
-    networks are built, at the very end) with one line too, its last checkpoint kept."""
+    networks are built, at the very end) with one line too, its last checkpoint kept.
+    """
     with user_errors(debug=bool(cfg.get("debug", False))):
         try:
             return run(cfg)

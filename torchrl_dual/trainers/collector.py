@@ -32,8 +32,10 @@ __all__ = ["dual_collector"]
 
 
 def dual_collector(env: Any, policy: Any, **kwargs: Any) -> Collector:
-    """A :class:`~torchrl.collectors.Collector` whose construction-time probe of ``policy``
-    runs deterministically (no posterior needed); ``kwargs`` go to the collector.
+    """A TorchRL collector whose construction-time probe of ``policy`` runs deterministically.
+
+    The probe needs no posterior. ``kwargs`` go to
+    :class:`~torchrl.collectors.Collector`.
     """
     kwargs.setdefault("auto_register_policy_transforms", False)
     with set_exploration_type(ExplorationType.DETERMINISTIC):

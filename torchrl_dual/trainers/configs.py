@@ -61,8 +61,11 @@ __all__ = [
 
 @dataclass
 class IQLCriticLossConfig:
-    """:class:`~torchrl_dual.objectives.IQLCriticLoss`: IQL's twin Q and expectile V, DUAL's
-    critic (IQL's paper values: ``loss_function="l2"``, ``expectile`` 0.7 or 0.9)."""
+    """Config of :class:`~torchrl_dual.objectives.IQLCriticLoss`, DUAL's critic.
+
+    IQL's twin Q and expectile V (IQL's paper values: ``loss_function="l2"``,
+    ``expectile`` 0.7 or 0.9).
+    """
 
     qvalue_network: Any = None
     value_network: Any = None
@@ -75,9 +78,12 @@ class IQLCriticLossConfig:
 
 @dataclass
 class DUALLossConfig:
-    """:class:`~torchrl_dual.objectives.DUALLoss`: the critic and Eq. 7's weighted MAP actor
-    on it (Alg. 1 lines 7-8). ``critic`` is the critic loss itself, e.g. built from
-    ``loss=dual_iql_critic``: Eq. 7 then reads the weights that loss trains."""
+    """Config of :class:`~torchrl_dual.objectives.DUALLoss`: the critic and Eq. 7's actor on it.
+
+    The weighted MAP actor of Eq. 7 on the critic (Alg. 1 lines 7-8). ``critic`` is the
+    critic loss itself, e.g. built from ``loss=dual_iql_critic``: Eq. 7 then reads the
+    weights that loss trains.
+    """
 
     actor: Any = None
     critic: Any = None
@@ -149,8 +155,11 @@ class DUALSignalsLogHookConfig:
 
 @dataclass
 class NormalizedScoreLogHookConfig:
-    """:class:`~torchrl_dual.trainers.NormalizedScoreLogHook`: the evaluation's score
-    every ``interval`` collected batches (``evaluate`` is a callable: pass it in)."""
+    """Config of :class:`~torchrl_dual.trainers.NormalizedScoreLogHook`.
+
+    Logs the evaluation's score every ``interval`` collected batches (``evaluate`` is a
+    callable: pass it in).
+    """
 
     evaluate: Any = None
     interval: int = 10
@@ -161,9 +170,12 @@ class NormalizedScoreLogHookConfig:
 
 @dataclass
 class OfflineToOnlineReplayBufferConfig:
-    """TorchRL's ``OfflineToOnlineReplayBuffer``, which TorchRL's store lacks: each batch
-    draws ``offline_fraction`` of it from ``D_offline`` (a Minari id, or a replay buffer
-    passed in) and the rest from the online storage, a fixed share as DUAL samples."""
+    """Config of TorchRL's ``OfflineToOnlineReplayBuffer``, which TorchRL's store lacks.
+
+    Each batch draws ``offline_fraction`` of it from ``D_offline`` (a Minari id, or a
+    replay buffer passed in) and the rest from the online storage, a fixed share as DUAL
+    samples.
+    """
 
     offline_dataset: Any = None
     online_capacity: int = 1_000_000

@@ -67,6 +67,7 @@ class OfflineStagesHook(TrainerHookBase):
         self.done: list[str] = []
 
     def __call__(self) -> None:
+        """Runs the stages not done yet, in order, marking each done once it returns."""
         for name, stage in self.stages:
             if name in self.done:
                 continue
@@ -74,9 +75,18 @@ class OfflineStagesHook(TrainerHookBase):
             self.done.append(name)
 
     def state_dict(self) -> dict[str, Any]:
+        """The names of the finished stages, ``{"done": [name, ...]}``."""
         return {"done": list(self.done)}
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        """Restores the finished stages from :meth:`state_dict`.
+
+        Args:
+            state_dict (dict): ``{"done": [name, ...]}``.
+
+        Raises:
+            ValueError: a name that is not one of this hook's stages.
+        """
         known = {name for name, _ in self.stages}
         unknown = [name for name in state_dict["done"] if name not in known]
         if unknown:
@@ -84,6 +94,12 @@ class OfflineStagesHook(TrainerHookBase):
         self.done = list(state_dict["done"])
 
     def register(self, trainer: Trainer, name: str = "offline_stages") -> None:
+        """Registers the hook as a trainer module (checkpointed) and at the trainer's ``setup``.
+
+        Args:
+            trainer (Trainer): the TorchRL trainer.
+            name (str): the module's name in the trainer's state dict.
+        """
         trainer.register_module(name, self)
         trainer.register_op("setup", self)
 
@@ -138,6 +154,11 @@ class LaplaceRefitHook(TrainerHookBase):
         self._trainer: Any = None
 
     def __call__(self) -> None:
+        """Refits the posterior if an ``interval`` boundary was crossed since the last refit.
+
+        The step count is the trainer's optimizer-step count; the fit runs under
+        :func:`torch.no_grad` on ``batches_fn()``, weighted by ``weight_fn``.
+        """
         step = self._trainer._optim_count
         if step // self.interval > self.last_refit_step // self.interval:
             with torch.no_grad():
@@ -146,13 +167,28 @@ class LaplaceRefitHook(TrainerHookBase):
             self.num_refits += 1
 
     def state_dict(self) -> dict[str, Any]:
+        """The step of the last refit and the number of refits."""
         return {"last_refit_step": self.last_refit_step, "num_refits": self.num_refits}
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        """Restores the step of the last refit and the number of refits from :meth:`state_dict`.
+
+        Args:
+            state_dict (dict): ``{"last_refit_step": int, "num_refits": int}``.
+        """
         self.last_refit_step = int(state_dict["last_refit_step"])
         self.num_refits = int(state_dict["num_refits"])
 
     def register(self, trainer: Trainer, name: str = "laplace_refit") -> None:
+        """Registers the hook as a trainer module and ahead of the policy's weight update.
+
+        It runs at ``post_steps`` before ``UpdateWeights`` (:func:`register_before_weight_update`),
+        so the collector receives the refitted posterior.
+
+        Args:
+            trainer (Trainer): the TorchRL trainer.
+            name (str): the module's name in the trainer's state dict.
+        """
         self._trainer = trainer
         trainer.register_module(name, self)
         register_before_weight_update(trainer, self)

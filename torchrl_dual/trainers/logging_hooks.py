@@ -49,6 +49,16 @@ class DUALSignalsLogHook(TrainerHookBase):
         self.log_pbar = log_pbar
 
     def __call__(self, batch: TensorDictBase) -> dict[str, Any] | None:
+        """The batch's exploration signals under ``prefix``, or ``None`` if it has none.
+
+        Args:
+            batch (TensorDictBase): a collected batch; its signals are read by
+                :func:`~torchrl_dual.modules.exploration_signals`.
+
+        Returns:
+            ``{prefix + name: value}`` (plus ``"log_pbar": True`` when ``log_pbar``), or ``None``
+            when the batch carries no signal.
+        """
         signals = exploration_signals(batch)
         if not signals:
             return None
@@ -58,12 +68,24 @@ class DUALSignalsLogHook(TrainerHookBase):
         return out
 
     def state_dict(self) -> dict[str, Any]:
+        """An empty dict: the hook holds no state."""
         return {}
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        """Does nothing: the hook holds no state.
+
+        Args:
+            state_dict (dict): ignored.
+        """
         pass
 
     def register(self, trainer: Trainer, name: str = "dual_signals") -> None:
+        """Registers the hook at the trainer's ``pre_steps_log``.
+
+        Args:
+            trainer (Trainer): the TorchRL trainer.
+            name (str): unused (the hook has no state to checkpoint).
+        """
         trainer.register_op("pre_steps_log", self)
 
 
@@ -113,10 +135,12 @@ class NormalizedScoreLogHook(TrainerHookBase):
         interval: int,
         **evaluate_kwargs: Any,
     ) -> NormalizedScoreLogHook:
-        """The hook of ``num_episodes`` deterministic episodes of ``policy`` run side by
-        side (:func:`~torchrl_dual.evaluation.evaluate_episodes`, which takes
-        ``observation_fn``, ``action_fn``, ``seed`` and ``device`` as keywords), scored
-        against D4RL's ``ref_min_score`` / ``ref_max_score``
+        """Builds the hook that scores deterministic evaluation episodes of ``policy``.
+
+        ``num_episodes`` episodes run side by side
+        (:func:`~torchrl_dual.evaluation.evaluate_episodes`, which takes
+        ``observation_fn``, ``action_fn``, ``seed`` and ``device`` as keywords),
+        scored against D4RL's ``ref_min_score`` / ``ref_max_score``
         (:func:`~torchrl_dual.data.normalized_score`).
 
         Example:
@@ -144,6 +168,18 @@ class NormalizedScoreLogHook(TrainerHookBase):
         return cls(evaluate, interval)
 
     def __call__(self, batch: TensorDictBase | None) -> dict[str, float] | None:
+        """Counts a collected batch and, every ``interval`` batches, evaluates.
+
+        Args:
+            batch (TensorDictBase or None): the collected batch (only counted).
+
+        Returns:
+            ``{prefix + name: float}`` of every number ``evaluate()`` returned on an evaluation
+            batch, else ``None``.
+
+        Raises:
+            KeyError: ``evaluate()`` returned no ``"normalized_score"``.
+        """
         self.batches += 1
         if self.batches % self.interval:
             return None
@@ -156,11 +192,23 @@ class NormalizedScoreLogHook(TrainerHookBase):
         return {f"{self.prefix}{k}": float(v) for k, v in result.items()}
 
     def state_dict(self) -> dict[str, Any]:
+        """The number of batches seen, ``{"batches": int}``."""
         return {"batches": self.batches}
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        """Restores the number of batches seen from :meth:`state_dict`.
+
+        Args:
+            state_dict (dict): ``{"batches": int}``.
+        """
         self.batches = int(state_dict["batches"])
 
     def register(self, trainer: Trainer, name: str = "normalized_score") -> None:
+        """Registers the hook as a trainer module (checkpointed) and at ``post_steps_log``.
+
+        Args:
+            trainer (Trainer): the TorchRL trainer.
+            name (str): the module's name in the trainer's state dict.
+        """
         trainer.register_module(name, self)
         trainer.register_op("post_steps_log", self)

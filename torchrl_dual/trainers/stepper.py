@@ -97,8 +97,11 @@ class CriticActorStepper(OptimizationStepper):
         optimizer.step()
 
     def update(self, batch: TensorDictBase) -> TensorDictBase:
-        """Alg. 1 lines 7-8 / 15-16 on ``batch``; returns every term and metric, detached
-        (the last critic step's terms for a stacked batch)."""
+        """Runs Alg. 1 lines 7-8 / 15-16 on ``batch``.
+
+        Returns every term and metric, detached (the last critic step's terms for a
+        stacked batch).
+        """
         for one in batch.unbind(0) if batch.ndim > 1 else (batch,):
             critic, _ = self.loss.critic_loss(one)
             self._apply(self.critic_optimizer, sum(critic.values()))
@@ -113,6 +116,7 @@ class CriticActorStepper(OptimizationStepper):
         return self.update(sub_batch)
 
     def state_dict(self) -> dict[str, Any]:
+        """The state dicts of both optimizers and of the target updater (if it has one)."""
         state = {
             "critic_optimizer": self.critic_optimizer.state_dict(),
             "actor_optimizer": self.actor_optimizer.state_dict(),
@@ -122,6 +126,12 @@ class CriticActorStepper(OptimizationStepper):
         return state
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        """Restores both optimizers and the target updater from :meth:`state_dict`.
+
+        Args:
+            state_dict (dict): ``{"critic_optimizer": ..., "actor_optimizer": ...,
+                "target_update": ...}`` (the last only if saved).
+        """
         self.critic_optimizer.load_state_dict(state_dict["critic_optimizer"])
         self.actor_optimizer.load_state_dict(state_dict["actor_optimizer"])
         if "target_update" in state_dict:

@@ -135,6 +135,19 @@ class PreviousTransition(Transform):
         return tensordict_reset
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        """Adds the previous observation, previous action and valid flag to the observation spec.
+
+        Args:
+            observation_spec (Composite): the env's observation spec.
+
+        Returns:
+            The spec with ``previous_observation_key`` (shaped like the observation),
+            ``previous_action_key`` (shaped like the action, unbounded) and
+            ``previous_valid_key`` (boolean, ``[*batch, 1]``).
+
+        Raises:
+            KeyError: the env has no ``observation_key``.
+        """
         if self.observation_key not in observation_spec.keys(True, True):
             raise KeyError(
                 f"PreviousTransition: the env has no observation {self.observation_key!r} "

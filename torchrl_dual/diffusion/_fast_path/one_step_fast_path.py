@@ -52,7 +52,8 @@ class OneStepFastPath:
         """Whether ``transition``'s query can join the policy query in one pass: the
         planner itself, or a one-step planner of the same layout, width, depth and
         ``σ_1``. The answer is remembered for the last planner asked (the action path
-        asks at every step)."""
+        asks at every step).
+        """
         if transition is self.model:
             return True
         memo = self._pairs_with_memo
@@ -82,7 +83,8 @@ class OneStepFastPath:
         previous_action: Tensor,
     ) -> tuple[Tensor, Tensor]:
         """``(φ(s_t), ŝ_t)``: the policy query and ``transition``'s prediction for
-        ``(s_{t-1}, a_{t-1})`` (raw units) in one pass; see :meth:`pairs_with`."""
+        ``(s_{t-1}, a_{t-1})`` (raw units) in one pass; see :meth:`pairs_with`.
+        """
         if transition is self.model:
             return self._shared(observation, previous_observation, previous_action)
         fold, paired = self._paired(transition)

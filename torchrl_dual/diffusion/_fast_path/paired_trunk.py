@@ -61,7 +61,8 @@ class PairedTrunk:
 
     def _stack(self) -> list[Tensor]:
         """Per layer: LayerNorm scale and shift ``[2, 1, H]``; linear ``Wᵀ [2, in, out]``
-        and bias ``[2, 1, out]``."""
+        and bias ``[2, 1, out]``.
+        """
         stacked = []
         for pair in zip(*self._layers, strict=True):
             weights = torch.stack([layer.weight for layer in pair])

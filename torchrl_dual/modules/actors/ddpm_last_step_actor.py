@@ -100,7 +100,8 @@ class DDPMLastStepActor(LastLayerActor):
 
     def encode(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``(φ(x_1, s, 0), x_1 / √α_0)``: the chain down to ``x_1`` with the MAP weights,
-        then the trunk of the last step."""
+        then the trunk of the last step.
+        """
         batch = observation.shape[:-1]
         sample = self.latent == "sample"
         x = observation.new_zeros(*batch, self.action_dim)

@@ -158,7 +158,8 @@ class LastLayerActor(nn.Module):
     def encode(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``(φ(s), context)``: the trunk output and what :meth:`readout` needs besides
         the head output (the observation by default; the chain's ``x_1`` for a
-        multi-step diffusion actor)."""
+        multi-step diffusion actor).
+        """
         if type(self).features is LastLayerActor.features:
             raise NotImplementedError(
                 f"{type(self).__name__} must override features() or encode()."
@@ -186,7 +187,8 @@ class LastLayerActor(nn.Module):
 
     def readout(self, head_rows: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
         """Maps the selected head outputs ``[..., A]`` to actions (affine), given the
-        ``context`` returned by :meth:`encode`."""
+        ``context`` returned by :meth:`encode`.
+        """
         raise NotImplementedError
 
     def readout_scale(self) -> torch.Tensor:
@@ -208,14 +210,16 @@ class LastLayerActor(nn.Module):
 
     def act(self, head_rows: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
         """:meth:`readout`, then the ``squash`` if the actor has one: the action of the
-        head outputs ``head_rows`` (``[..., A]``, or ``[M, ..., A]`` for ``M`` members)."""
+        head outputs ``head_rows`` (``[..., A]``, or ``[M, ..., A]`` for ``M`` members).
+        """
         action = self.readout(head_rows, context)
         squash = self.squash
         return action if squash is None else squash(action)
 
     def mean_jacobian(self, head_rows: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
         """``∂μ_j/∂u_j`` at the head outputs ``head_rows`` (``[..., A]``): the read-out scale
-        times the squash's derivative there (the read-out scale alone without a squash)."""
+        times the squash's derivative there (the read-out scale alone without a squash).
+        """
         scale = self.readout_scale()
         if self.squash is None:
             return scale.expand_as(head_rows)

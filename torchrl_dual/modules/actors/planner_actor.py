@@ -1,6 +1,7 @@
 """DUAL's actor: the distilled planner as a last-layer actor (Eq. 5, Eq. 7).
 
-One step (DUAL) or ``N`` DDIM steps (the "w/o distillation" ablation)."""
+One step (DUAL) or ``N`` DDIM steps (the "w/o distillation" ablation).
+"""
 
 from __future__ import annotations
 
@@ -123,7 +124,8 @@ class PlannerActor(LastLayerActor):
 
     def encode(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``(φ(z_t), context)``: the last step's trunk and, for ``N > 1``, the read-out's
-        offset ``α_t·z_t`` of the ``a_0`` entries (normalised units)."""
+        offset ``α_t·z_t`` of the ``a_0`` entries (normalised units).
+        """
         if self.num_steps == 1:
             return self.features(observation), observation
         self._check_observation(observation)
@@ -133,7 +135,8 @@ class PlannerActor(LastLayerActor):
         self, observation: torch.Tensor, sample: bool
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """The plain path: ``N − 1`` DDIM steps from ``z_1`` (zero or drawn), then the
-        last step's trunk; returns ``(φ(z_t), α_t·z_t[a_0])``."""
+        last step's trunk; returns ``(φ(z_t), α_t·z_t[a_0])``.
+        """
         model = self.model
         layout, norm = model.layout, model.normalizer
         cond, mask = layout.conditioned_window(norm.normalize_observation(observation))
@@ -150,7 +153,8 @@ class PlannerActor(LastLayerActor):
     def sample_actions(self, observation: torch.Tensor, num_samples: int) -> torch.Tensor:
         """``M`` actions from ``M`` latents ``τ^N ~ N(0, I)`` through the ``N``-step
         chain with the current (MAP) weights, ``[M, *B, A]`` (the paper's "τ^N
-        sampling" ablation of the Laplace ensemble, Eq. 9)."""
+        sampling" ablation of the Laplace ensemble, Eq. 9).
+        """
         self._check_observation(observation)
         observations = observation.expand(num_samples, *observation.shape)
         features, offset = self._encode_chain(observations, True)

@@ -118,7 +118,8 @@ class EntropyRegulatedNoise(TensorDictModuleBase):
     def alpha_loss(self, entropy: Tensor) -> Tensor:
         """``L(log α) = −log α · (H̄ − Ĥ)`` for the estimate ``entropy`` (``Ĥ``, detached;
         a batch of estimates is averaged): its gradient ``Ĥ − H̄`` lowers ``α`` when the
-        policy's entropy exceeds the target and raises it below."""
+        policy's entropy exceeds the target and raises it below.
+        """
         gap = self.target_entropy - entropy.detach().mean()
         return -self.log_alpha * gap
 

@@ -66,7 +66,8 @@ class GaussianMixtureFit:
 
     def log_prob(self, samples: Tensor) -> Tensor:
         """The mixture's log-density ``log Σ_k w_k N(x; μ_k, Σ_k)`` of ``samples``
-        ``[*B, K, A]``, ``[*B, K]``."""
+        ``[*B, K, A]``, ``[*B, K]``.
+        """
         return _component_log_probs(samples, self).logsumexp(-2)
 
 
@@ -84,7 +85,8 @@ def _component_log_probs(samples: Tensor, fit: GaussianMixtureFit) -> Tensor:
 
 def _farthest_point_centers(samples: Tensor, num_components: int) -> Tensor:
     """Deterministic seeds ``[*B, C, A]``: the sample nearest the batch mean, then each
-    time the sample farthest from the seeds chosen so far."""
+    time the sample farthest from the seeds chosen so far.
+    """
     distance = (samples - samples.mean(-2, keepdim=True)).square().sum(-1)  # [*B, K]
     index = distance.argmin(-1)
     centers = []
@@ -101,7 +103,8 @@ def _m_step(
     samples: Tensor, responsibility: Tensor, covariance_type: str, covariance_floor: float
 ) -> GaussianMixtureFit:
     """Maximum-likelihood weights, means and covariances for ``responsibility``
-    ``[*B, C, K]`` (each column sums to 1), plus ``covariance_floor · I``."""
+    ``[*B, C, K]`` (each column sums to 1), plus ``covariance_floor · I``.
+    """
     count = responsibility.sum(-1) + 10 * torch.finfo(samples.dtype).eps  # [*B, C]
     weights = count / samples.shape[-2]
     means = responsibility @ samples / count.unsqueeze(-1)  # [*B, C, A]

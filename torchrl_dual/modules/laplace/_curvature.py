@@ -105,7 +105,8 @@ class LaplaceCurvature:
 
     def gram(self) -> Tensor:
         """Weighted Gram matrix ``G`` with weights normalised to mean 1, float64 ``[d+1, d+1]``
-        (``[out, d+1, d+1]``, one ``G_j`` per output, with ``per_output_jacobian=True``)."""
+        (``[out, d+1, d+1]``, one ``G_j`` per output, with ``per_output_jacobian=True``).
+        """
         if self.count.item() == 0:
             raise RuntimeError("no features accumulated; call accumulate() before fit().")
         if self.sum_weights.item() <= 0:

@@ -1,5 +1,6 @@
 """Numerical helpers of the last-layer Laplace fit: a robust PSD eigendecomposition and
-the evidence maximiser over the prior precision."""
+the evidence maximiser over the prior precision.
+"""
 
 from __future__ import annotations
 

@@ -277,7 +277,8 @@ class LastLayerLaplace(LaplaceCurvature, LaplaceEvidence, nn.Module):
     # (log_evidence of Thm. 3.3 and the eigenvalues of P_j: _evidence.py)
     def posterior_precision(self) -> Tensor:
         """``Σ_j^{-1} = (κ G/σ_j² + λ I) / T`` as float64 ``[out, d+1, d+1]`` (``κ = T = 1``
-        at the default temperature)."""
+        at the default temperature).
+        """
         self._check_fitted("posterior_precision")
         U = self._bases()[1]
         eigenvalues = self._precision_eigenvalues(self.prior_precision) / self._covariance_scale()

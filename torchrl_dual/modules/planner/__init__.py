@@ -1,5 +1,6 @@
 """The planner as a policy (Eq. 5), as DUAL's transition model ``p(s'|s, a)``, and the
-reward model of its generated transitions (EDIS's augmentation)."""
+reward model of its generated transitions (EDIS's augmentation).
+"""
 
 from torchrl_dual.modules.planner.planner_policy import PlannerPolicy
 from torchrl_dual.modules.planner.planner_sampler import PlannerSampler

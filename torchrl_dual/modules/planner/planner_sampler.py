@@ -54,7 +54,8 @@ class PlannerSampler(nn.Module):
     ) -> torch.Tensor:
         """The sampled window in normalized units, ``[*B, H + 1, obs_dim + action_dim]``.
 
-        ``mean_shift`` guides a DDPM sampler (see :meth:`TrajectoryDiffusion.sample`)."""
+        ``mean_shift`` guides a DDPM sampler (see :meth:`TrajectoryDiffusion.sample`).
+        """
         layout, norm = self.model.layout, self.model.normalizer
         if observation.shape[-1] != layout.obs_dim:
             raise ValueError(

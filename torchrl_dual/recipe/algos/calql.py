@@ -64,7 +64,8 @@ class CalQLLearner(Learner):
     def update(self, batch: TensorDictBase) -> dict:
         """Cal-QL's losses on one batch: the critics on TD + bounded penalty, the actor
         and ``log α`` on SAC's losses (which read the Q networks detached); one step of
-        each optimizer, then the soft target update."""
+        each optimizer, then the soft target update.
+        """
         loss = self.critic.loss
         out = loss(batch)
         critic_loss = out["loss_qvalue"] + out["loss_cql"]

@@ -98,7 +98,8 @@ class DACERLearner(DiffQLLearner):
     def regulate(self, observation: torch.Tensor) -> torch.Tensor:
         """``Ĥ`` on ``observation`` ``[B, S]`` (:func:`sampled_entropy` of the noisy, clamped
         actor, averaged over the states), then one Adam step on ``−log α · (H̄ − Ĥ)``;
-        returns ``Ĥ``."""
+        returns ``Ĥ``.
+        """
         d = self.cfg.dacer
         entropy = sampled_entropy(self.noisy_actor, observation, d.num_samples, d.num_components)
         self.alpha_optimizer.zero_grad(set_to_none=True)
@@ -109,7 +110,8 @@ class DACERLearner(DiffQLLearner):
 
     def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor | float]:
         """Diff-QL's update; online (once frames were collected) the regulator's step
-        every ``dacer.entropy_every`` updates, starting with the first."""
+        every ``dacer.entropy_every`` updates, starting with the first.
+        """
         metrics = super().update(batch)
         if self.run.frames == 0:  # the offline phase: Diff-QL alone
             return metrics

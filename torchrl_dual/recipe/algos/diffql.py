@@ -89,7 +89,8 @@ def make_diffusion_actor(
 ) -> DiffusionActor:
     """TorchRL's ``DiffusionActor`` with an MLP score network ``ε̂(x_t, s, t)`` (``depth``
     hidden layers of ``activation``) ending in ``nn.Linear``, and the VP schedule of
-    :func:`vp_betas`, on ``device``."""
+    :func:`vp_betas`, on ``device``.
+    """
     a = settings
     layers: list[nn.Module] = []
     width = action_dim + obs_dim + 1
@@ -174,7 +175,8 @@ class DiffQLLearner(Learner):
 class DiffQLLALearner(LaplaceRefits, DiffQLLearner):
     """Diff-QL w LA: Diff-QL's training, acting with the Laplace ensemble of its last
     DDPM step (Eq. 8-9) and ``λ = 0`` noise, refitted every ``budget.laplace_refit_every``
-    updates (:class:`LaplaceRefits`) with ``σ̄`` = :meth:`noise_std`."""
+    updates (:class:`LaplaceRefits`) with ``σ̄`` = :meth:`noise_std`.
+    """
 
     title = "Diff-QL w LA"
     shared_stages = ("actor_critic",)  # offline_cache: Diff-QL's offline updates only
@@ -209,7 +211,8 @@ class DiffQLLALearner(LaplaceRefits, DiffQLLearner):
         maximiser of Eq. (7) in ``σ̄`` at the current mean ``μ`` (the zero-latent chain)
         with the same weights ``w_i`` as Eq. (8); Diff-QL's loss trains no ``σ̄``. ``[A]``.
         :meth:`~LaplaceRefits.fit_laplace` sets it, then fits Eq. (8) (Alg. 1 lines 9
-        and 17 on the last DDPM step)."""
+        and 17 on the last DDPM step).
+        """
         total, weight_sum = 0.0, 0.0
         for batch in self.run.all_transitions():
             weight = self.laplace_weight_fn(batch)

@@ -75,7 +75,8 @@ class DiffuserLearner(Learner):
 
     def pretrain_planner(self) -> None:
         """``budget.planner_updates`` ``L_VLB`` steps on ``D_offline`` windows (Eq. 3),
-        checkpointed within the stage."""
+        checkpointed within the stage.
+        """
         with self.run.stage_checkpoints() as checkpoints:
             run_updates(
                 self.loss,
@@ -102,7 +103,8 @@ class DiffuserLearner(Learner):
 
     def refresh_online_windows(self) -> None:
         """Rebuilds the online windows when ``D_online`` has grown (once per collected
-        batch)."""
+        batch).
+        """
         online = self.run.replay.online_buffer
         if len(online) == self.online_length:
             return

@@ -48,7 +48,8 @@ def make_actor(
 
     Built before any training, it holds the teacher's fresh initialisation and its
     normalizer fitted on ``D_offline``: with ``actor.init=scratch`` that is what Eq. 7
-    starts from (the distillation then only feeds the transition model)."""
+    starts from (the distillation then only feeds the transition model).
+    """
     student = student_like(teacher, final_steps)
     return PlannerActor(student, latent=actor.latent, init_std=actor.init_std)
 
@@ -79,7 +80,8 @@ def make_loss(
     """DUAL's update (Alg. 1 lines 7-8): the critic's loss and Eq. (7)'s weighted MAP actor
     on it; ``action_spec`` bounds the actions at which the ``sac`` weighting reads Q,
     whose ``α`` is ``entropy_coef`` when the critic has one (SO2: the same ``α`` as its
-    targets)."""
+    targets).
+    """
     entropy = {} if entropy_coef is None else {"entropy_coef": entropy_coef}
     return DUALLoss(
         actor,
@@ -95,7 +97,8 @@ def make_loss(
 # ---------------------------------------------------------------------- the learner
 class DualLearner(Learner):
     """DUAL's networks (teacher ``g_θ'``, actor ``π_θ``, transition model, IQL critics),
-    its offline stages, its update (IQL critic step, then Eq. 7) and its Laplace refits."""
+    its offline stages, its update (IQL critic step, then Eq. 7) and its Laplace refits.
+    """
 
     title = "DUAL"
     # offline_cache: DUAL's online ablations (no UQ, λ = 0) and every shift share these
@@ -163,7 +166,8 @@ class DualLearner(Learner):
     # ------------------------------------------------------------------ the protocol
     def modules(self) -> dict:
         """Each weight once: the frozen transition model is inside the ensemble, a shared
-        one is the actor's own planner; with ``augment.kind=planner``, the augmenter's."""
+        one is the actor's own planner; with ``augment.kind=planner``, the augmenter's.
+        """
         return {
             "teacher": self.teacher,
             "ensemble": self.ensemble,  # actor, σ̄, Laplace posterior, frozen ŝ_t model
@@ -174,7 +178,8 @@ class DualLearner(Learner):
 
     def shared_modules(self) -> dict:
         """The shared offline phase without the ensemble's M posterior draws (their number
-        is ``laplace.num_samples``); the Laplace stage runs after it in every run."""
+        is ``laplace.num_samples``); the Laplace stage runs after it in every run.
+        """
         shared = {
             "teacher": self.teacher,
             "actor": self.actor,
@@ -230,7 +235,8 @@ class DualLearner(Learner):
     def update(self, batch: TensorDictBase) -> dict:
         """One critic (IQL, Cal-QL's TD + bounded penalty, or SO2's ensemble TD: one step
         per batch of a stacked ``[k, B]``) and one actor (Eq. 7) gradient step, Alg. 1
-        lines 7-8 / 15-16."""
+        lines 7-8 / 15-16.
+        """
         self.critic.set_phase(online=self.run.frames > 0)
         return dict(self.stepper.update(batch).items())
 
@@ -241,7 +247,8 @@ class DualLearner(Learner):
     def after_updates(self) -> None:
         """Alg. 1 line 17: refit the posterior once ``budget.laplace_refit_every`` updates
         have accumulated since the last fit; then line 14 (``augment.kind=planner``): add
-        guided planner transitions to D_online for the next block when due."""
+        guided planner transitions to D_online for the next block when due.
+        """
         if self.refits.due:
             self.fit_laplace()
         if self.augmenter:
@@ -250,7 +257,8 @@ class DualLearner(Learner):
     def batch_metrics(self, batch: TensorDictBase) -> dict:
         """d_t, the ensemble's epistemic std and share of the executed variance and the
         executed action's std sqrt(σ² + λ d_t) (Eq. 9-10), each over the collected batch
-        (:func:`~torchrl_dual.modules.exploration_signals`)."""
+        (:func:`~torchrl_dual.modules.exploration_signals`).
+        """
         return exploration_signals(batch)
 
     # ------------------------------------------------------------------ offline stages
@@ -264,7 +272,8 @@ class DualLearner(Learner):
         Ablations: ``distillation.final_steps = N > 1`` stops the halving at N steps
         ("w/o distillation"); ``actor.init=scratch`` keeps the actor's fresh weights
         ("w/o planner"), the student then only serves as the transition model. The rounds
-        are checkpointed within the stage."""
+        are checkpointed within the stage.
+        """
         with self.run.stage_checkpoints() as checkpoints:
             student = progressive_distillation(
                 self.teacher,
@@ -285,7 +294,8 @@ class DualLearner(Learner):
     def fit_laplace(self) -> None:
         """Alg. 1 lines 9 and 17: last-layer Laplace of L_π on D (Eq. 8); skipped in the
         no-UQ ablation (``laplace.num_samples=0``), which never draws from the posterior,
-        and in the latent-UQ one (``laplace.uq=latent``), which has none."""
+        and in the latent-UQ one (``laplace.uq=latent``), which has none.
+        """
         self.refits.reset()
         if not self.uses_posterior:
             return
@@ -302,7 +312,8 @@ class DualLearner(Learner):
     def set_shift_floor(self) -> None:
         """``exploration.shift_floor``: ``d_0`` of the noise's ``λ max(d_t − d_0, 0)``; a
         number, or ``offline``: the mean of :meth:`offline_shift_distances` (up to 20000
-        transitions), the transition model's error where it was fitted."""
+        transitions), the transition model's error where it was fitted.
+        """
         floor = self.settings.exploration.shift_floor
         if floor == "offline":
             floor = self.offline_shift_distances(20000, int(self.cfg.seed)).mean()
@@ -312,7 +323,8 @@ class DualLearner(Learner):
     @torch.no_grad()
     def offline_shift_distances(self, samples: int, seed: int) -> torch.Tensor:
         """``‖ŝ' − s'‖`` of the transition model on ``samples`` of D_offline's transitions
-        (drawn without replacement with ``seed``): Eq. 10's ``d`` on the fitted data."""
+        (drawn without replacement with ``seed``): Eq. 10's ``d`` on the fitted data.
+        """
         data = self.run.data.transitions
         gen = torch.Generator().manual_seed(seed)
         batch = data[torch.randperm(len(data), generator=gen)[:samples]].to(self.cfg.device)

@@ -141,7 +141,8 @@ class IQLLearner(Learner):
         """IQL's three losses on one batch (the actor's and V's targets are the target Q
         networks, so no gradient crosses; :meth:`~torchrl_dual.objectives.OnePassIQLLoss.terms`
         evaluates them and ``V(s)`` once for both), one step of each optimizer, soft target
-        update."""
+        update.
+        """
         loss = self.critic.loss
         terms = loss.terms(batch)
         q_loss, v_loss, actor_loss = (terms[k] for k in ("loss_qvalue", "loss_value", "loss_actor"))

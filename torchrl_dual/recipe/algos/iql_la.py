@@ -59,7 +59,8 @@ IQL_MAX_WEIGHT = 100.0
 class IQLLALearner(LaplaceRefits, IQLLearner):
     """IQL + LA: IQL's learner, acting online with the Laplace ensemble of its actor,
     fitted with ``σ̄`` = :meth:`noise_std` and IQL's AWR weights every
-    ``budget.laplace_refit_every`` updates (:class:`LaplaceRefits`)."""
+    ``budget.laplace_refit_every`` updates (:class:`LaplaceRefits`).
+    """
 
     title = "IQL + LA"
     shared_stages = ("actor_critic",)  # offline_cache: IQL's offline updates only
@@ -90,7 +91,8 @@ class IQLLALearner(LaplaceRefits, IQLLearner):
     def noise_std(self) -> torch.Tensor:
         """``σ̄`` per action dimension, set before each fit: ``laplace.noise_std`` if it is
         a number, else (``iql``) ``σ̄_a = sqrt(mean_D scale_a(s)²)``, the IQL actor's
-        std (pre-tanh for ``tanh_normal``), root mean square over ``D_offline ∪ D_online``."""
+        std (pre-tanh for ``tanh_normal``), root mean square over ``D_offline ∪ D_online``.
+        """
         fixed = self.run.cfg.laplace.noise_std
         if fixed != "iql":
             return torch.full_like(self.head_actor.log_std, float(fixed))

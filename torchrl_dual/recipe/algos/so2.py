@@ -35,7 +35,8 @@ from torchrl_dual.recipe.settings.rules import as_settings
 
 class SO2Learner(Learner):
     """SO2: SAC-N offline, then SO2's smoothed per-member targets and ``k`` critic steps
-    per actor step online."""
+    per actor step online.
+    """
 
     title = "SO2"
     shared_stages = ("actor_critic",)  # offline_cache: shared by every online shift
@@ -67,7 +68,8 @@ class SO2Learner(Learner):
 
     def actor_loss(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """``(E[α·log π(ã|s) − min_k Q_k(s, ã)], E[−log π(ã|s)])`` with ``ã`` a
-        reparameterised sample; the ensemble's weights are read detached."""
+        reparameterised sample; the ensemble's weights are read detached.
+        """
         observation = batch["observation"]
         dist = self.actor.get_dist(batch.select("observation"))
         action = dist.rsample()
@@ -77,7 +79,8 @@ class SO2Learner(Learner):
 
     def update(self, batch: TensorDictBase) -> dict:
         """Critic steps (one per batch of a stacked ``[k, B]``), then one actor step on the
-        last batch."""
+        last batch.
+        """
         critic = self.critic.step(batch, online=self.run.frames > 0)
         actor_loss, entropy = self.actor_loss(batch[-1] if batch.ndim > 1 else batch)
         self.actor_optimizer.zero_grad(set_to_none=True)

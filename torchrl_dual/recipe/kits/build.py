@@ -59,7 +59,8 @@ Evaluator = Callable[[nn.Module], dict[str, float]]
 def check_pointmaze(cfg: DictConfig) -> None:
     """``env.goal_cell`` and every ``env.data_avoid_cells`` and ``env.start_avoid_cells``
     entry are open cells of ``env.maze`` (``[row, col]`` pairs), and the latter leave a
-    cell to start in (:func:`~torchrl_dual.envs.start_cells`)."""
+    cell to start in (:func:`~torchrl_dual.envs.start_cells`).
+    """
     goal_cell = cfg.env.goal_cell
     if goal_cell is not None:
         try:
@@ -262,7 +263,8 @@ def frozenlake_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
 
 def one_hot_argmax(action: torch.Tensor) -> torch.Tensor:
     """The executed discrete action as a one-hot vector (what the env receives), without
-    a host read."""
+    a host read.
+    """
     return one_hot_at(action.argmax(-1, keepdim=True), action, -1)
 
 
@@ -290,7 +292,8 @@ def make_offline_dataset(cfg: DictConfig) -> OfflineDataset:
 def warn_if_batches_exceed_data(cfg: DictConfig, transitions: int) -> None:
     """One ``warning:`` line when an update draws more transitions (``online.batch_size``)
     or windows (``planner.batch_size``) than ``D_offline`` holds: sampled with replacement,
-    such a batch repeats the data many times over at a cost that grows with its size."""
+    such a batch repeats the data many times over at a cost that grows with its size.
+    """
     for section in ("online", "planner"):
         node = cfg.get(section)
         if node is None or node.get("batch_size", 0) <= transitions:
@@ -308,7 +311,8 @@ def warn_if_batches_exceed_data(cfg: DictConfig, transitions: int) -> None:
 
 def projected_policy(cfg: DictConfig, policy: nn.Module) -> nn.Module:
     """``policy`` followed by the env kit's ``action_projection`` (the executed action the
-    replay buffer stores, e.g. Frozen-Lake's one-hot argmax), or ``policy`` itself."""
+    replay buffer stores, e.g. Frozen-Lake's one-hot argmax), or ``policy`` itself.
+    """
     projection = env_kit(cfg).action_projection
     if projection is None:
         return policy
@@ -320,7 +324,8 @@ def projected_policy(cfg: DictConfig, policy: nn.Module) -> nn.Module:
 def make_train_env(cfg: DictConfig, data: OfflineDataset | None = None) -> EnvBase:
     """The online env with :class:`PreviousTransition`, which carries ``(s_{t-1}, a_{t-1})``
     to the policy; the policy turns them into ``d_t`` of Eq. (10). ``data`` is
-    ``D_offline`` when the caller has it (kits whose env depends on it read it otherwise)."""
+    ``D_offline`` when the caller has it (kits whose env depends on it read it otherwise).
+    """
     return env_kit(cfg).make_env(cfg, data).append_transform(PreviousTransition())
 
 
@@ -328,7 +333,8 @@ def make_collection_env(cfg: DictConfig, data: OfflineDataset | None, env: EnvBa
     """The env ``collector=single`` steps: the online env ``env`` itself, or with
     ``collector.num_envs = N > 1`` N more copies of it (:func:`make_train_env`) stepped as
     one batch ``[N]`` (:func:`~torchrl_dual.envs.vectorized_env`: one Gymnasium vector env,
-    each copy with the kit's Gymnasium wrappers, the transforms once over the batch)."""
+    each copy with the kit's Gymnasium wrappers, the transforms once over the batch).
+    """
     num_envs = cfg.collector.get("num_envs", 1)
     if num_envs == 1:
         return env

@@ -122,7 +122,8 @@ def ant_step_seconds(dataset_id: str) -> float:
 def horizon_of_seconds(cfg: DictConfig) -> int | None:
     """The time limit in steps that ``env.horizon_seconds`` gives (AntMaze; ``None``
     when it is unset): the seconds (``d4rl``: D4RL's, 0.1 s x 700 / 1000) at the data's
-    env step."""
+    env step.
+    """
     seconds = cfg.env.get("horizon_seconds")
     if seconds is None:
         return None

@@ -108,7 +108,8 @@ def _episode_returns(data: OfflineDataset) -> torch.Tensor:
 
 def observation_normalizer(data: OfflineDataset, enabled: bool) -> tuple[np.ndarray, np.ndarray]:
     """``(loc, scale)`` of the state normalization: the data set's mean and std + 1e-3
-    over its observations, or ``(0, 1)`` when disabled."""
+    over its observations, or ``(0, 1)`` when disabled.
+    """
     obs = data.transitions["observation"].double()
     if not enabled:
         return np.zeros(obs.shape[-1], np.float32), np.ones(obs.shape[-1], np.float32)
@@ -119,7 +120,8 @@ def observation_normalizer(data: OfflineDataset, enabled: bool) -> tuple[np.ndar
 
 def _time_limit(cfg: DictConfig, dataset_id: str) -> int | None:
     """``env.max_episode_steps``, else AntMaze's ``env.horizon_seconds``, else the
-    protocol's, else the data set's env spec."""
+    protocol's, else the data set's env spec.
+    """
     if cfg.env.max_episode_steps is not None:
         return int(cfg.env.max_episode_steps)
     steps = horizon_of_seconds(cfg)

@@ -76,7 +76,8 @@ def make_single(run: O2ORun, total_frames: int) -> BaseCollector:
     """TorchRL's ``Collector`` on ``run.collection_env`` (``run.env``, or its
     ``collector.num_envs`` copies as one batch; seeded ``seed + 1 + frames``, copy ``i``
     ``seed + 1 + frames + i``), acting on ``collector.device`` (a copy of the policy there
-    if the learner's is elsewhere)."""
+    if the learner's is elsewhere).
+    """
     cfg = run.cfg
     env = run.collection_env
     env.set_seed(cfg.seed + 1 + run.frames)
@@ -124,7 +125,8 @@ make_multi_async = make_multi(MultiAsyncCollector)
 
 def stop_collecting(collector: BaseCollector) -> None:
     """Ends ``collector`` at a cut point of the online loop: its workers stop; the run's own
-    env (``collector=single``) stays open for the next collector, which re-seeds it."""
+    env (``collector=single``) stays open for the next collector, which re-seeds it.
+    """
     if isinstance(collector, Collector):
         collector.shutdown(close_env=False)
     else:
@@ -134,7 +136,8 @@ def stop_collecting(collector: BaseCollector) -> None:
 def push_to_single(collector: BaseCollector, policy: nn.Module) -> None:
     """``collector=single``: nothing to push where it acts with ``policy`` itself (one
     device); else TorchRL's ``update_policy_weights_`` copies ``policy``'s parameters and
-    buffers into the collector's copy on ``collector.device``."""
+    buffers into the collector's copy on ``collector.device``.
+    """
     if collector.policy is not policy:
         collector.update_policy_weights_(TensorDict.from_module(policy).data)
 

@@ -42,7 +42,8 @@ def _interrupt(signum: int, frame: object) -> None:
 def signals_as_interrupts() -> Iterator[None]:
     """Within the block, SIGINT and SIGTERM raise ``KeyboardInterrupt`` (held back inside
     :func:`held`); the previous handlers come back at its end. Signal handlers belong to
-    the main thread: in another thread the block changes nothing."""
+    the main thread: in another thread the block changes nothing.
+    """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -62,7 +63,8 @@ def signals_as_interrupts() -> Iterator[None]:
 @contextmanager
 def held() -> Iterator[None]:
     """Within the block a signal only sets :func:`requested`; if no one took it, the block
-    raises ``KeyboardInterrupt`` when it ends (not when it ends in an exception)."""
+    raises ``KeyboardInterrupt`` when it ends (not when it ends in an exception).
+    """
     _state.holding += 1
     try:
         yield

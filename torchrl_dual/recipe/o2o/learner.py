@@ -58,7 +58,8 @@ class RunContext(Protocol):
 
     def stage_checkpoints(self) -> AbstractContextManager[Any]:
         """``with run.stage_checkpoints() as checkpoints:`` around an offline stage's update
-        loop: its ``checkpoints=`` (``UpdateCheckpoints``, or ``None`` outside a stage)."""
+        loop: its ``checkpoints=`` (``UpdateCheckpoints``, or ``None`` outside a stage).
+        """
 
 
 class Learner(ABC):
@@ -101,26 +102,30 @@ class Learner(ABC):
     @abstractmethod
     def modules(self) -> dict[str, Any]:
         """Name -> object with ``state_dict``/``load_state_dict`` (networks, losses,
-        optimizers): what the checkpoint holds, each weight once."""
+        optimizers): what the checkpoint holds, each weight once.
+        """
 
     @abstractmethod
     def offline_stages(self) -> list[tuple[str, Callable[[], None]]]:
         """The offline phase as ordered ``(name, fn)`` stages, each checkpointed when done
         and skipped on resume; a stage's update loop is checkpointed within it through
         ``run.stage_checkpoints()``. :meth:`O2ORun.pretrain_updates` is the shared
-        ``budget.offline_updates`` stage. The run appends ``offline_eval``."""
+        ``budget.offline_updates`` stage. The run appends ``offline_eval``.
+        """
 
     @abstractmethod
     def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor | float]:
         """One gradient update (critic and actor) on ``batch``; returns its metrics as
         detached 0-dim tensors (left on the device: :meth:`O2ORun.log` reads them back
-        only when it logs, every 100 updates, so an update never syncs the host)."""
+        only when it logs, every 100 updates, so an update never syncs the host).
+        """
 
     def after_update(self) -> None:  # noqa: B027 - optional hook
         """Called after each :meth:`update`, outside its compiled or CUDA-graph step: the
         update's Python bookkeeping (DUAL counts the updates since its last refit). An
         update whose algorithm allows ``compile.cudagraphs`` leaves every Python attribute
-        as it was, since a CUDA graph replays its kernels only."""
+        as it was, since a CUDA graph replays its kernels only.
+        """
 
     def after_updates(self) -> None:  # noqa: B027 - optional hook
         """Called after each block of online updates (DUAL refits its Laplace posterior)."""
@@ -128,16 +133,19 @@ class Learner(ABC):
     def start_episodes(self) -> None:  # noqa: B027 - optional hook
         """Called when a collector starts (the online phase's start, each checkpoint's cut
         point, a resume): the episode in progress ends at its last transition (Cal-QL's
-        labels release it, truncated)."""
+        labels release it, truncated).
+        """
 
     def shared_modules(self) -> dict[str, Any]:
         """What a shared offline phase hands over (defaults to :meth:`modules`); leave out
-        what depends on :attr:`online_keys` (e.g. DUAL's M posterior draws)."""
+        what depends on :attr:`online_keys` (e.g. DUAL's M posterior draws).
+        """
         return self.modules()
 
     def online_transitions(self, transitions: TensorDictBase) -> TensorDictBase:
         """What of the collected ``transitions`` enters ``D_online`` now (Alg. 1 l. 13);
-        all of them by default. Cal-QL holds an episode until it ends to label it."""
+        all of them by default. Cal-QL holds an episode until it ends to label it.
+        """
         return transitions
 
     def batch_metrics(self, batch: TensorDictBase) -> dict[str, float]:

@@ -40,7 +40,8 @@ from torchrl_dual.recipe.settings.o2o import COLLECTORS
 def online_batch(replay: Replay, k: int, device: torch.device) -> TensorDictBase:
     """One update's sample of D_offline ∪ D_online (``replay``) on ``device``: a ``[B]``
     batch, or ``[k, B]`` (``k`` batches stacked) for a learner with
-    :attr:`~torchrl_dual.recipe.Learner.online_batches_per_update` ``k > 1`` (SO2)."""
+    :attr:`~torchrl_dual.recipe.Learner.online_batches_per_update` ``k > 1`` (SO2).
+    """
     if k == 1:
         return replay.sample().to(device)
     return torch.stack([replay.sample() for _ in range(k)]).to(device)
@@ -53,7 +54,8 @@ def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORu
 
     Ctrl-C or SIGTERM (``interrupt_at_frames``, ``interrupt_at_offline_updates``) ends it
     early with a checkpoint and one line; before the run is built (data, networks), the
-    ``KeyboardInterrupt`` propagates: there is nothing of it to save."""
+    ``KeyboardInterrupt`` propagates: there is nothing of it to save.
+    """
     # SIGTERM stops a run as Ctrl-C does; the run directory is this run's until it returns
     with signals_as_interrupts(), run_directory_lock(cfg.output_dir):
         run = O2ORun(cfg, make_learner)

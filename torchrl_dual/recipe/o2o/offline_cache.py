@@ -76,7 +76,8 @@ evaluation, which runs after the snapshot on the possibly shifted env, and bookk
 def offline_key_config(cfg: DictConfig, extra_online_keys: tuple[str, ...] = ()) -> dict:
     """The resolved config without the online-only keys: what a shared offline phase is
     computed from. Every config key is in :data:`ONLINE_KEYS` or in the record of keyed
-    names that ``tests/recipe/test_offline_cache.py`` checks the config against."""
+    names that ``tests/recipe/test_offline_cache.py`` checks the config against.
+    """
     container = OmegaConf.to_container(cfg, resolve=True)
     for dotted in (*ONLINE_KEYS, *extra_online_keys):
         node, leaf = _parent(container, dotted)
@@ -87,7 +88,8 @@ def offline_key_config(cfg: DictConfig, extra_online_keys: tuple[str, ...] = ())
 
 def _parent(container: dict, dotted: str) -> tuple[dict | None, str]:
     """The dict holding ``dotted``'s last part (``None`` if a parent is missing), and
-    that part."""
+    that part.
+    """
     *parents, leaf = dotted.split(".")
     node = container
     for part in parents:
@@ -140,7 +142,8 @@ class OfflinePhaseCache:
 
     def save(self, state: dict[str, Any], logs_dir: Path | None) -> None:
         """Writes the snapshot (atomically), a copy of the run's logs and a readable
-        ``config.json``; call it under :meth:`lock`."""
+        ``config.json``; call it under :meth:`lock`.
+        """
         self.directory.mkdir(parents=True, exist_ok=True)
         if logs_dir is not None and logs_dir.exists():
             target = self.directory / "logs"
@@ -166,7 +169,8 @@ class OfflinePhaseCache:
 def run_offline_stages(run: O2ORun) -> None:
     """Runs the learner's offline stages, sharing its :attr:`Learner.shared_stages` through
     ``cfg.offline_cache`` when set: loads the snapshot if another run wrote it, else
-    computes them and writes it (under the entry's lock); then the remaining stages."""
+    computes them and writes it (under the entry's lock); then the remaining stages.
+    """
     learner = run.learner
     stages = learner.offline_stages()
     shared = [(name, fn) for name, fn in stages if name in learner.shared_stages]

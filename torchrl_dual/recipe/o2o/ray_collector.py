@@ -94,7 +94,8 @@ class InterleavedTrajectories:
 def make_ray(run: O2ORun, total_frames: int) -> BaseCollector:
     """TorchRL's ``RayCollector`` for ``run`` (``collector.num_workers`` actors), seeded,
     with the policy's current weights already pushed (the weight channel is connected
-    before the first batch)."""
+    before the first batch).
+    """
     from torchrl.collectors.distributed import RayCollector  # imports ray
 
     cfg, settings = run.cfg, run.cfg.collector
@@ -140,5 +141,6 @@ def make_ray(run: O2ORun, total_frames: int) -> BaseCollector:
 
 def push_to_actors(collector: BaseCollector, policy: nn.Module) -> None:
     """Sends ``policy``'s current parameters and buffers to every remote collector; returns
-    once each has loaded them (an actor busy collecting loads them after its batch)."""
+    once each has loaded them (an actor busy collecting loads them after its batch).
+    """
     collector.update_policy_weights_(TensorDict.from_module(policy).data)

@@ -139,7 +139,8 @@ class BalancedReplay(Replay):
 
     def after_update(self, batch: TensorDictBase) -> dict[str, float]:
         """One density-ratio step, then ``p = clip(w^{1/T} / mean_off w^{1/T})`` for the
-        transitions of ``batch`` (flattened if stacked)."""
+        transitions of ``batch`` (flattened if stacked).
+        """
         buffer: BalancedReplayBuffer = self.buffer
         ratio_batch = buffer.ratio_batch(self.ratio_batch_size).to(self.device)
         out = self.loss(ratio_batch)

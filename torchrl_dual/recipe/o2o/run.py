@@ -141,7 +141,8 @@ class O2ORun:
 
     def make_logger(self, state: dict | None = None) -> None:
         """The ``cfg.logger`` backend's TorchRL logger under ``output_dir/logs`` (continuing
-        ``state``, if given; it replaces and closes the current one)."""
+        ``state``, if given; it replaces and closes the current one).
+        """
         previous = getattr(self, "logger", None)
         self.logger = make_logger(self.cfg, self.output_dir / "logs", self.name, state, previous)
 
@@ -157,7 +158,8 @@ class O2ORun:
 
     def _offline_buffer(self) -> ReplayBuffer:
         """Uniform transitions from D_offline; a plain ``ReplayBuffer`` so its samples carry
-        the same keys as the online part of ``OfflineToOnlineReplayBuffer``."""
+        the same keys as the online part of ``OfflineToOnlineReplayBuffer``.
+        """
         buffer = ReplayBuffer(
             storage=LazyTensorStorage(len(self.data), device=self.cfg.device),
             sampler=RandomSampler(),
@@ -168,13 +170,15 @@ class O2ORun:
 
     def refresh_offline_buffer(self) -> None:
         """Rebuilds :attr:`offline_buffer` from ``data`` (a learner that relabels the
-        offline transitions, e.g. Cal-QL's Monte-Carlo bound, calls it)."""
+        offline transitions, e.g. Cal-QL's Monte-Carlo bound, calls it).
+        """
         self.offline_buffer = self._offline_buffer()
 
     def state(self, modules: dict[str, Any] | None = None) -> dict[str, Any]:
         """Everything needed to continue: ``modules`` (default: the learner's, and then the
         replay's state too), counters, online data, RNG and logger state. A shared offline
-        phase passes its ``modules`` and leaves the replay out: the replay is online-only."""
+        phase passes its ``modules`` and leaves the replay out: the replay is online-only.
+        """
         online = self.replay.online_buffer
         state = {} if modules is not None else {"replay": self.replay.state_dict()}
         modules = self.learner.modules() if modules is None else modules
@@ -201,7 +205,8 @@ class O2ORun:
 
     def load(self, state: dict | None = None, modules: dict[str, Any] | None = None):
         """Restores the checkpoint's ``state`` (read if not given) into ``modules`` (default:
-        the learner's); returns the logger's state."""
+        the learner's); returns the logger's state.
+        """
         state = self._load_checkpoint() if state is None else state
         modules = self.learner.modules() if modules is None else modules
         try:
@@ -230,7 +235,8 @@ class O2ORun:
 
     def stage(self, name: str, fn: Callable[[], Any]) -> None:
         """Runs one offline stage unless a resumed run already did it (continuing its
-        update loop from a checkpoint within it, if there is one); then checkpoints."""
+        update loop from a checkpoint within it, if there is one); then checkpoints.
+        """
         if name in self.stages_done:
             self.say(f"{name}: done in the checkpoint, skipped")
             return
@@ -256,7 +262,8 @@ class O2ORun:
         """The running offline stage's :class:`StageCheckpoints`, for its update loop
         (``checkpoints=`` of ``run_updates``); Ctrl-C and SIGTERM stop the loop after an
         update (:func:`~torchrl_dual.recipe.o2o.interrupts.held`). ``None`` outside a
-        stage (a learner's stage method called on its own)."""
+        stage (a learner's stage method called on its own).
+        """
         with held():
             yield None if self.current_stage is None else StageCheckpoints(self)
 
@@ -281,7 +288,8 @@ class O2ORun:
     def pretrain_updates(self) -> None:
         """``budget.offline_updates`` updates on D_offline (DUAL: Alg. 1 lines 6-8),
         checkpointed within (:meth:`stage_checkpoints`; the weights, optimizers, counters
-        and random state are the run's own state)."""
+        and random state are the run's own state).
+        """
         total = self.cfg.budget.offline_updates
         tenth = max(total // 10, 1)
         with self.stage_checkpoints() as checkpoints:
@@ -322,7 +330,8 @@ class O2ORun:
     # ------------------------------------------------------------------ online phase
     def collector(self) -> BaseCollector:
         """Acts with the learner's exploration policy in the online env (Alg. 1 l. 11-12):
-        the ``collector.name`` entry of :data:`~torchrl_dual.recipe.settings.o2o.COLLECTORS`."""
+        the ``collector.name`` entry of :data:`~torchrl_dual.recipe.settings.o2o.COLLECTORS`.
+        """
         remaining = max(self.cfg.budget.online_frames - self.frames, 0)
         self.open_episodes = {}  # a new collector starts new trajectories
         self.learner.start_episodes()  # and the learner's episode in progress ends here
@@ -351,7 +360,8 @@ class O2ORun:
 
     def finish(self) -> None:
         """Writes the learning curve and ``summary.json``, closes the logger; prints where
-        everything is."""
+        everything is.
+        """
         self.save()
         self.logger.shutdown()
         write_summary(self, self.output_dir / "summary.json")

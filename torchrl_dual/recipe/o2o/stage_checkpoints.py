@@ -42,7 +42,8 @@ class StageRun(Protocol):
 class StageCheckpoints:
     """The running offline stage's checkpoints within it, for its update loop
     (:class:`~torchrl_dual.objectives.UpdateCheckpoints`); ``O2ORun.stage_checkpoints``
-    makes one."""
+    makes one.
+    """
 
     def __init__(self, run: StageRun) -> None:
         self.run = run
@@ -50,7 +51,8 @@ class StageCheckpoints:
 
     def resume(self) -> dict[str, Any] | None:
         """The loop state saved within this stage (and the random state of that moment
-        restored), or ``None`` to start the loop at update 0."""
+        restored), or ``None`` to start the loop at update 0.
+        """
         progress = self.run.stage_progress
         if progress is None or progress["stage"] != self.stage:
             return None
@@ -60,7 +62,8 @@ class StageCheckpoints:
     def after_update(self, done: int, total: int, state: Callable[[], dict[str, Any]]) -> None:
         """Counts one offline update; saves the run with ``state()`` when
         ``budget.offline_checkpoint_every`` divides the count, and when the run is to stop
-        (a signal, ``interrupt_at_offline_updates``), then raises ``KeyboardInterrupt``."""
+        (a signal, ``interrupt_at_offline_updates``), then raises ``KeyboardInterrupt``.
+        """
         run = self.run
         run.offline_steps += 1
         stop = requested() or run.offline_steps == run.cfg.get("interrupt_at_offline_updates")
@@ -83,7 +86,8 @@ def offline_interruption(run: StageRun) -> str:
     """The one line of an offline phase stopped by Ctrl-C or SIGTERM: where it stopped and
     what the checkpoint holds. Stopped inside an update loop, the loop saved that update;
     elsewhere (between updates' loops, the Laplace fit, the offline evaluation) the last
-    checkpoint is kept, and the step in progress runs again on resume."""
+    checkpoint is kept, and the step in progress runs again on resume.
+    """
     if run.stopped_at is not None:
         said = f"interrupted at {run.stopped_at}; checkpoint saved."
     else:

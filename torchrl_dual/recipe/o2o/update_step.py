@@ -41,7 +41,8 @@ def make_update_step(
     learner: Learner, settings: DictConfig | None, phase: Callable[[], Any]
 ) -> Callable[[TensorDictBase], dict]:
     """``batch -> metrics``: ``learner.update`` as ``settings`` (the ``compile`` section)
-    asks; ``phase()`` names the current phase (one CUDA graph each)."""
+    asks; ``phase()`` names the current phase (one CUDA graph each).
+    """
     update = learner.update
     if settings is not None and settings.compile:
         mode = settings.compile_mode

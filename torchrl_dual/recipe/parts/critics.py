@@ -48,7 +48,8 @@ CriticLoss = IQLCriticLoss | OnePassIQLLoss | CalQLLoss | SO2QLoss
 class Critic:
     """A critic loss (TorchRL ``IQLLoss``, :class:`~torchrl_dual.objectives.CalQLLoss` or
     :class:`~torchrl_dual.objectives.SO2QLoss`), the optimizer of its Q (and V) networks,
-    and its target-network updater."""
+    and its target-network updater.
+    """
 
     loss: CriticLoss
     optimizer: torch.optim.Optimizer
@@ -74,14 +75,16 @@ class Critic:
     ) -> Critic:
         """Every builder's tail: Adam over ``params`` at ``critic.lr`` and the soft target
         update at ``critic.target_update_tau`` around ``loss`` (``options``: the fields
-        after :attr:`target_updater`)."""
+        after :attr:`target_updater`).
+        """
         optimizer = adam(params, lr=settings.lr)
         updater = ForeachSoftUpdate(loss, tau=settings.target_update_tau)
         return cls(loss, optimizer, updater, **options)
 
     def modules(self) -> dict[str, Any]:
         """What a learner's checkpoint holds of the critics (:meth:`Learner.modules`): the
-        loss (V, the Q and the target Q networks) and its optimizer."""
+        loss (V, the Q and the target Q networks) and its optimizer.
+        """
         return {
             "critic": _CriticState(self.loss, keep_actor=self.saves_actor),
             "critic_optimizer": self.optimizer,
@@ -133,7 +136,8 @@ class _CriticState:
         (its ``TensorDictParams``) reports a parameter key it does not have as matched and
         skips it, even with ``strict=True``, which would leave those networks as they were
         initialised without a word (``test_critic_checkpoint.py`` shows the upstream
-        behaviour)."""
+        behaviour).
+        """
         given = {k for k in state if self.keep_actor or not _is_actor(k)}
         expected = set(self.state_dict())
         if given != expected:
@@ -157,7 +161,8 @@ def make_critic(
 ) -> Critic:
     """The ``critic.name`` entry of :data:`~torchrl_dual.recipe.settings.parts.CRITICS`
     built from its typed ``critic`` section on ``cfg.device`` (``actor`` and
-    ``temperature`` as its builder takes them)."""
+    ``temperature`` as its builder takes them).
+    """
     kind = CRITICS[cfg.critic.name]
     settings = as_settings(kind.settings, cfg.critic)
     return kind.make(settings, obs_dim, action_dim, cfg.device, actor, temperature)
@@ -225,7 +230,8 @@ def make_calql_critic(
     it); ``temperature`` is unused (Cal-QL's actor loss is SAC's, not AWR). The critic's
     optimizer holds the Q networks (and, with ``critic.lagrange_gap``, the penalty's
     ``log α'`` at the critic's learning rate, as Cal-QL's code); the learner steps the actor
-    and ``log_alpha``."""
+    and ``log_alpha``.
+    """
     if actor is None:
         raise ValueError("critic=calql needs the actor it samples (a TanhNormal actor).")
     c = settings
@@ -261,7 +267,8 @@ def make_so2_critic(
     """SO2's ensemble of ``critic.num_qvalue_nets`` Q networks in a
     :class:`~torchrl_dual.objectives.SO2QLoss` whose targets sample ``actor`` (with its
     log-probability: ``return_log_prob=True``); ``temperature`` is unused. Built in the
-    offline (SAC-N) setting: :func:`so2_phase` switches to SO2's online one."""
+    offline (SAC-N) setting: :func:`so2_phase` switches to SO2's online one.
+    """
     if actor is None:
         raise ValueError("critic=so2 needs the actor its targets sample.")
     c = settings
@@ -286,7 +293,8 @@ def make_so2_critic(
 
 def so2_phase(loss: SO2QLoss, *, settings: SO2CriticSettings, online: bool) -> None:
     """Offline: SAC-N's targets (``critic.offline_target_reduction``, no noise); online:
-    SO2's (``critic.target_reduction`` at the action smoothed by ``critic.policy_noise``)."""
+    SO2's (``critic.target_reduction`` at the action smoothed by ``critic.policy_noise``).
+    """
     c = settings
     loss.target_reduction = c.target_reduction if online else c.offline_target_reduction
     loss.policy_noise = c.policy_noise if online else 0.0
@@ -294,7 +302,8 @@ def so2_phase(loss: SO2QLoss, *, settings: SO2CriticSettings, online: bool) -> N
 
 def q_network(settings: CriticSettings, obs_dim: int, action_dim: int) -> ValueOperator:
     """``Q(s, a)``: an MLP on the concatenated ``(s, a)``, ``critic.depth`` hidden layers of
-    ``critic.hidden`` units (every critic's: IQL's twin, Cal-QL's twin, SO2's ensemble)."""
+    ``critic.hidden`` units (every critic's: IQL's twin, Cal-QL's twin, SO2's ensemble).
+    """
     c = settings
     mlp = MLP(
         in_features=obs_dim + action_dim,
@@ -324,7 +333,8 @@ def policy_view(actor: nn.Module, action_spec: TensorSpec) -> ProbabilisticActor
     clamped to the action box (:class:`~torchrl_dual.modules.actors.action_box.ClippedNormal`):
     the critics read Q at the actions the env would execute, never at an extrapolation.
     It holds the actor's own parameters: the critic's optimizer never steps them and
-    :meth:`Critic.modules` does not save them."""
+    :meth:`Critic.modules` does not save them.
+    """
     low, high = box_bounds(action_spec)
     return ProbabilisticActor(
         TensorDictModule(_MeanAndStd(actor), in_keys=["observation"], out_keys=["loc", "scale"]),

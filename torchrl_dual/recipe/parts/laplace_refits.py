@@ -94,7 +94,8 @@ class LaplaceRefits:
         laplace.num_samples``, ``laplace.prior_precision``), then Eq. (10)'s noise with
         ``λ = exploration.shift_weight`` (0 without a transition model:
         :func:`~torchrl_dual.recipe.settings.algo_common.check_no_shift_weight`) and the env kit's
-        ``action_projection``. Sets ``policy``, ``ensemble`` and ``exploration_policy``."""
+        ``action_projection``. Sets ``policy``, ``ensemble`` and ``exploration_policy``.
+        """
         cfg = self.run.cfg
         self.policy = make_policy(
             as_settings(EnsembleSettings, cfg.laplace),
@@ -117,13 +118,15 @@ class LaplaceRefits:
 
     def noise_std(self) -> torch.Tensor | None:
         """``σ̄`` per action dimension to fit with; ``None`` keeps the actor's own (DUAL
-        learns it by Eq. 7)."""
+        learns it by Eq. 7).
+        """
         return None
 
     def fit_laplace(self) -> None:
         """``σ̄`` from :meth:`noise_std`, then Eq. (8) on ``run.all_transitions()``; no
         posterior with ``num_samples=0`` (the ensemble then acts with the MAP action and
-        ``σ̄`` only). Logs ``laplace/noise_std`` and ``laplace/prior_precision``."""
+        ``σ̄`` only). Logs ``laplace/noise_std`` and ``laplace/prior_precision``.
+        """
         actor, metrics = self.ensemble.actor, {}
         std = self.noise_std()
         with torch.no_grad():

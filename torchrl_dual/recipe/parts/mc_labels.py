@@ -59,7 +59,8 @@ class MonteCarloLabels:
 
     def online_transitions(self, transitions: TensorDictBase) -> TensorDictBase:
         """The finished episodes among the held and the new ``transitions``, labelled with
-        their returns-to-go; the unfinished tail is held until its episode ends."""
+        their returns-to-go; the unfinished tail is held until its episode ends.
+        """
         if self.pending is not None:
             transitions = torch.cat([self.pending, transitions])
         done = transitions["next", "done"].reshape(-1)
@@ -80,7 +81,8 @@ class MonteCarloLabels:
         """Ends the held episode at its last transition (marked truncated and done; released
         with the next finished episode, under its own id), as a new collector starts a new
         episode (:meth:`~torchrl_dual.recipe.Learner.start_episodes`: each checkpoint's cut
-        point and a resume)."""
+        point and a resume).
+        """
         if self.pending is not None:
             for flag in ("truncated", "done"):
                 self.pending["next", flag][-1] = True

@@ -26,7 +26,8 @@ def make_planner(
     planner: PlannerSettings, data: OfflineDataset, device: DEVICE_TYPING = "cpu"
 ) -> TrajectoryDiffusion:
     """The N-step diffusion planner ``g_θ'`` (Eq. 3) of ``planner``, its normalizer fitted
-    on ``D_offline``."""
+    on ``D_offline``.
+    """
     layout = TrajectoryLayout(data.obs_dim, data.action_dim, planner.horizon)
     model = TrajectoryDiffusion(
         layout,
@@ -41,7 +42,8 @@ def make_planner(
 
 def student_like(teacher: TrajectoryDiffusion, num_steps: int = 1) -> TrajectoryDiffusion:
     """An untrained copy of the teacher (architecture, initial weights and fitted
-    normalizer) sampled with ``num_steps`` steps, for loading the distilled student into."""
+    normalizer) sampled with ``num_steps`` steps, for loading the distilled student into.
+    """
     student = copy.deepcopy(teacher)
     student.num_steps = num_steps
     return student
@@ -61,7 +63,8 @@ def make_policy(
     posterior (or, with DUAL's ``laplace.uq=latent``, over planner latents), which also
     answers the transition model's ``ŝ_t`` when there is one, then the shift-aware noise
     (Eq. 10, ``λ = shift_weight``) and the env kit's ``action_projection``. DUAL's, and the
-    ``*_la`` baselines' (no transition model, ``λ = 0``)."""
+    ``*_la`` baselines' (no transition model, ``λ = 0``).
+    """
     return make_dual_policy(
         actor,
         action_spec,

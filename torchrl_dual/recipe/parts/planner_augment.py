@@ -62,7 +62,8 @@ _REWARD_KEYS = (
 
 def augment_capacity(cfg: DictConfig) -> int:
     """Room the online buffer needs beyond the collected frames: at most one round per
-    ``augment.every`` online updates, ``num_windows × H`` transitions each."""
+    ``augment.every`` online updates, ``num_windows × H`` transitions each.
+    """
     a = cfg.get("augment")
     if a is None or a.kind == "none":
         return 0
@@ -214,7 +215,8 @@ class PlannerAugmenter:
     @torch.no_grad()
     def generate(self, states: torch.Tensor) -> torch.Tensor:
         """``augment.num_windows`` raw guided windows ``[W, H + 1, D]``, ``s_0`` drawn
-        among ``states`` (kept exact)."""
+        among ``states`` (kept exact).
+        """
         a = self.settings
         s0 = states[torch.randint(states.shape[0], (a.num_windows,))].to(self.run.cfg.device)
         guidance = classifier_guidance(self.guider, a.guidance_scale) if a.guidance_scale else None
@@ -229,7 +231,8 @@ class PlannerAugmenter:
     def windows_to_transitions(self, windows: torch.Tensor, first: int) -> TensorDictBase:
         """Raw ``[W, H + 1, D]`` windows -> the flat transitions ``(s_i, a_i, s_{i+1})``,
         ``i < H``, with the reward model's labels; window ``w`` gets ``episode = −(first
-        + w + 1)``, and its transitions after the first predicted terminal are dropped."""
+        + w + 1)``, and its transitions after the first predicted terminal are dropped.
+        """
         layout = self.layout
         states, actions = layout.observations(windows), layout.actions(windows)
         actions = actions.clamp(self.action_low, self.action_high)

@@ -1,6 +1,7 @@
 """The planner's offline stage, shared by every learner that trains the trajectory planner
 (``dual``, ``diffuser``, ``edis``): its window buffer, the ``L_VLB`` pre-training on
-``D_offline`` (Eq. 3, Algorithm 1 lines 3-4) and the check that a window fits an episode."""
+``D_offline`` (Eq. 3, Algorithm 1 lines 3-4) and the check that a window fits an episode.
+"""
 
 from __future__ import annotations
 
@@ -19,7 +20,8 @@ if TYPE_CHECKING:
 
 def offline_windows(cfg: DictConfig, data: OfflineDataset, batch_size: int) -> WindowReplayBuffer:
     """``batch_size`` windows of ``planner.horizon + 1`` steps per draw from ``D_offline``;
-    a :class:`UserError` on ``planner.horizon`` if no episode is long enough."""
+    a :class:`UserError` on ``planner.horizon`` if no episode is long enough.
+    """
     try:
         return WindowReplayBuffer(
             data.transitions, cfg.planner.horizon, batch_size, device=cfg.device
@@ -33,7 +35,8 @@ def pretrain_planner(
 ) -> None:
     """``budget.planner_updates`` ``L_VLB`` steps on ``D_offline`` windows (Eq. 3), with the
     ``planner.*`` learning rate and ``a_0``-conditioning probability; logs ``planner/``;
-    checkpointed within the stage (``run.stage_checkpoints``)."""
+    checkpointed within the stage (``run.stage_checkpoints``).
+    """
     cfg = run.cfg
     with run.stage_checkpoints() as checkpoints:
         train_planner(

@@ -2,7 +2,8 @@
 runs. Nothing here imports torch or TorchRL, so a bad config value is reported at once.
 
 Importing the package registers the ``${reference:<key>,<default>}`` interpolation the
-config files use (:mod:`torchrl_dual.recipe.settings.references`)."""
+config files use (:mod:`torchrl_dual.recipe.settings.references`).
+"""
 
 from torchrl_dual.recipe.settings.references import register_reference_resolver
 

@@ -81,7 +81,8 @@ def check_nothing(cfg: DictConfig) -> None:
 @dataclass
 class NoShiftExplorationSettings:
     """``exploration`` of a baseline without a transition model (``iql_la``, ``diffql_la``):
-    Eq. (10) with ``λ = 0``."""
+    Eq. (10) with ``λ = 0``.
+    """
 
     shift_weight: float = key(Real(0), "λ of Eq. 10; must be 0 (no transition model)")
 

@@ -44,7 +44,8 @@ the default) or ``tanh_normal`` (TorchRL's ``TanhNormal`` with a state-dependent
 class MLPActorSettings:
     """``actor`` of the MLP-actor baselines: its width, depth and learning rate
     (``algo/calql.yaml`` and ``algo/so2.yaml``: the tanh-Gaussian actor of a SAC actor loss;
-    Cal-QL's ``lr`` is also that of ``log α``)."""
+    Cal-QL's ``lr`` is also that of ``log α``).
+    """
 
     hidden: int = key(Integer(1), "MLP width of the actor")
     depth: int = key(Integer(1), "hidden layers of the actor")
@@ -73,7 +74,8 @@ IQL = AlgorithmSettings(
 @dataclass
 class IQLLALaplaceSettings(EnsembleSettings):
     """``algo/iql_la.yaml``'s ``laplace``: DUAL's keys of Eq. (8-9) that apply to a plain
-    actor (``M``, the prior and ``T``, with DUAL's rules) and where ``σ̄`` comes from."""
+    actor (``M``, the prior and ``T``, with DUAL's rules) and where ``σ̄`` comes from.
+    """
 
     noise_std: Any = key(
         Either(
@@ -118,7 +120,8 @@ class DiffQLActorSettings:
 @dataclass
 class DiffQLLaplaceSettings(EnsembleSettings):
     """``algo/diffql_la.yaml``'s ``laplace``: Eq. (8-9) on the last DDPM step (DUAL's keys
-    of Eq. 8-9, with DUAL's rules, and the weights of the fit)."""
+    of Eq. 8-9, with DUAL's rules, and the weights of the fit).
+    """
 
     temperature: float = key(Real(0), "β of the Laplace fit's weights exp(β (Q - V))")
     max_weight: float = key(Real(0, low_open=True), "clip of those weights")
@@ -160,7 +163,8 @@ class DACERSettings:
 
 def check_dacer(cfg: DictConfig) -> None:
     """``dacer.num_samples >= dacer.num_components`` (EM needs a sample per component) and
-    ``dacer.num_states <= online.batch_size`` (the states come from the update's batch)."""
+    ``dacer.num_states <= online.batch_size`` (the states come from the update's batch).
+    """
     d = cfg.dacer
     if d.num_samples < d.num_components:
         raise ConfigError(

@@ -1,6 +1,7 @@
 """DUAL's config sections (``algo/dual.yaml``), their checks across keys, and its
 :data:`~torchrl_dual.recipe.ALGORITHMS` entry; the learner is
-:class:`~torchrl_dual.recipe.algos.dual.DualLearner`."""
+:class:`~torchrl_dual.recipe.algos.dual.DualLearner`.
+"""
 
 from __future__ import annotations
 
@@ -74,7 +75,8 @@ class ActorSettings:
 class EnsembleSettings:
     """The Laplace ensemble's keys of Eq. (8-9) that every algorithm acting with it has
     (``dual``, ``iql_la``, ``diffql_la``): what :func:`~torchrl_dual.recipe.parts.networks.make_policy`
-    reads."""
+    reads.
+    """
 
     num_samples: int = key(Integer(0), "M sub-policies; 0 = no epistemic UQ (MAP mean, σ̄)")
     prior_precision: Any = key(
@@ -143,7 +145,8 @@ def check_dual(cfg: DictConfig) -> None:
 
 def check_critic(cfg: DictConfig) -> None:
     """Eq. 7 on a critic without V (``critic=calql`` or ``so2``, the paper's Cal-QL and
-    SO2 rows) weighs by Q alone; Cal-QL labels whole episodes online."""
+    SO2 rows) weighs by Q alone; Cal-QL labels whole episodes online.
+    """
     name = cfg.critic.name
     if name != "iql" and cfg.actor.weighting == "advantage":
         raise ConfigError(

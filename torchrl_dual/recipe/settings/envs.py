@@ -231,7 +231,8 @@ class AntMazeSettings(MinariSettings):
 @dataclass
 class LocomotionSettings(MinariSettings):
     """``env/hopper.yaml``, ``halfcheetah.yaml``, ``walker2d.yaml``: Minari
-    ``mujoco/<task>/<dataset>-<version>`` and the ODRL shifts."""
+    ``mujoco/<task>/<dataset>-<version>`` and the ODRL shifts.
+    """
 
     task: str = key(Choice(FAMILIES["locomotion"].tasks), "the robot")
     shift: str = key(Choice(SHIFTS_BY_KIND["locomotion"]), "online-only dynamics shift (ODRL)")
@@ -255,7 +256,8 @@ MINARI_SETTINGS: dict[str, type] = {
 # ----------------------------------------------------------------------------- checks
 def check_minari_dataset(cfg: DictConfig) -> None:
     """Stops before any work when minari is missing, ``MINARI_DATASETS_PATH`` is not a
-    directory, the data set is not on disk or its ``metadata.json`` does not parse."""
+    directory, the data set is not on disk or its ``metadata.json`` does not parse.
+    """
     dataset_id = FAMILIES[cfg.env.kind].dataset_id(cfg.env)
     try:
         from minari.storage import get_dataset_path

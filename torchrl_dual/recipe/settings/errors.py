@@ -103,7 +103,8 @@ def report(err: UserError, *, debug: bool = False) -> NoReturn:
 
 def warn(text: str) -> None:
     """Prints ``warning: <text>`` on one line of stderr: something the run can do, but
-    probably not what the user meant (the run goes on)."""
+    probably not what the user meant (the run goes on).
+    """
     sys.stdout.flush()
     print("warning: " + " ".join(text.split()), file=sys.stderr, flush=True)
 

@@ -92,7 +92,8 @@ class RayCollectorSettings(CollectorSettings):
 
 def check_worker_count(cfg: DictConfig) -> None:
     """``collector.num_workers`` with ``collector=single`` and ``collector.num_envs`` with
-    the others (run before the key checks, which would only call them unknown keys)."""
+    the others (run before the key checks, which would only call them unknown keys).
+    """
     name = cfg.collector.name
     if name == "single" and "num_workers" in cfg.collector:
         raise ConfigError(
@@ -133,7 +134,8 @@ def check_streams(
 ) -> None:
     """Online batches from several streams (workers or envs, ``key=value``): an even
     ``split`` into ``parts`` (``None``: not split) needs ``budget.frames_per_batch`` to be a
-    multiple of them, and Cal-QL's Monte-Carlo labels need ``one_stream``."""
+    multiple of them, and Cal-QL's Monte-Carlo labels need ``one_stream``.
+    """
     if split is not None and cfg.budget.frames_per_batch % parts:
         raise ConfigError(
             "budget.frames_per_batch", cfg.budget.frames_per_batch, f"{split}: use a multiple of it"
@@ -195,7 +197,8 @@ def ray_installed() -> bool:
 
 def check_ray_collector(cfg: DictConfig) -> None:
     """What ``collector=ray`` needs beyond the process collectors' checks
-    (:func:`check_collector`): Ray, and ``device=cpu``."""
+    (:func:`check_collector`): Ray, and ``device=cpu``.
+    """
     if not ray_installed():
         raise ConfigError("collector", "ray", f"needs Ray, which is not installed: {INSTALL_RAY}")
     if cfg.device != "cpu":
@@ -235,7 +238,8 @@ class WandbSettings(LoggerSettings):
 @dataclass(frozen=True)
 class LoggerBackend:
     """One ``logger.backend``: its config schema, the package it needs and how to install
-    it, and whether TorchRL can resume it from a checkpoint."""
+    it, and whether TorchRL can resume it from a checkpoint.
+    """
 
     settings: type
     package: str | None = None
@@ -287,7 +291,8 @@ def check_output_dir(cfg: DictConfig) -> None:
     """``output_dir`` must be a directory (or not exist yet) that this process can create
     and write, and hold no checkpoint unless ``resume=true``: a fresh run never overwrites
     another run's checkpoint. Writability is probed with a temporary folder in the nearest
-    existing ancestor (removed at once), so a failed check leaves nothing behind."""
+    existing ancestor (removed at once), so a failed check leaves nothing behind.
+    """
     output_dir = Path(cfg.output_dir)
     for path in (output_dir, *output_dir.parents):
         if path.exists() and not path.is_dir():

@@ -49,7 +49,8 @@ per transition."""
 @dataclass
 class CalQLCriticSettings(CriticSettings):
     """``critic/calql.yaml``: Cal-QL's twin Q networks (TorchRL ``CQLLoss`` + MC bound;
-    ``discount`` is also the bound's)."""
+    ``discount`` is also the bound's).
+    """
 
     min_q_weight: float = key(Real(0), "weight of the conservative penalty")
     num_random: int = key(Integer(1), "uniform and policy actions per state in the penalty")
@@ -74,7 +75,8 @@ class SO2CriticSettings(CriticSettings):
 
     Offline it is SAC-N (the target is the ensemble's minimum, no smoothing noise, one
     critic step per update); online, SO2's changes: each member's own target at the
-    noise-smoothed next action, ``online_steps_per_update`` critic steps per update."""
+    noise-smoothed next action, ``online_steps_per_update`` critic steps per update.
+    """
 
     num_qvalue_nets: int = key(Integer(1), "ensemble size E (SO2: 10)")
     policy_noise: float = key(Real(0), "σ of the target action's smoothing noise (online)")
@@ -161,7 +163,8 @@ def check_augment(cfg: DictConfig) -> None:
 
 def check_planner_window(cfg: DictConfig) -> None:
     """The planner's window must fit in an episode (a null time limit is the data set's,
-    checked against its episodes when the windows are cut)."""
+    checked against its episodes when the windows are cut).
+    """
     limit = cfg.env.max_episode_steps
     if limit is not None and cfg.planner.horizon >= limit:
         raise ConfigError(

@@ -135,7 +135,8 @@ def reference_setting(key: str, default: Any, *, _root_: DictConfig) -> Any:
 
 def register_reference_resolver() -> None:
     """Registers :func:`reference_setting` as ``${reference:...}`` (idempotent; done when
-    :mod:`torchrl_dual.recipe.settings` is imported)."""
+    :mod:`torchrl_dual.recipe.settings` is imported).
+    """
     if not OmegaConf.has_resolver(RESOLVER):
         OmegaConf.register_new_resolver(RESOLVER, reference_setting)
 

@@ -204,7 +204,8 @@ class IntegerList(Rule):
 @dataclasses.dataclass(frozen=True)
 class CellList(Rule):
     """A list of grid cells ``[row, col]`` (integers ``>= 0``); whether each is open is a
-    cross-key check against the layout."""
+    cross-key check against the layout.
+    """
 
     def allows(self, value: Any) -> bool:
         return isinstance(value, list) and all(
