@@ -9,7 +9,21 @@ from torch import nn
 
 
 class SinusoidalTimeEmbedding(nn.Module):
-    """Transformer-style sinusoidal features of a diffusion time ``t ∈ [0, 1]``."""
+    """Transformer-style sinusoidal features of a diffusion time ``t ∈ [0, 1]``.
+
+    Args:
+        dim (int): size of the embedding (even): ``dim / 2`` frequencies
+            ``f_k = max_period^(-k / (dim / 2))``, each giving a sine and a cosine.
+        max_period (float): the longest period. Defaults to ``10_000``.
+
+    Examples:
+        >>> import torch
+        >>> features = SinusoidalTimeEmbedding(8)(torch.tensor([0.0, 0.5]))
+        >>> features.shape
+        torch.Size([2, 8])
+        >>> features[0].tolist()  # t = 0: every sine 0, every cosine 1
+        [0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0]
+    """
 
     def __init__(self, dim: int, max_period: float = 10_000.0) -> None:
         super().__init__()
@@ -20,6 +34,14 @@ class SinusoidalTimeEmbedding(nn.Module):
         self.register_buffer("freqs", freqs)
 
     def forward(self, t: torch.Tensor) -> torch.Tensor:
+        """The features ``[sin(1000 t f_k), cos(1000 t f_k)]`` of ``t``.
+
+        Args:
+            t (Tensor): diffusion times in ``[0, 1]``, ``[*B]``.
+
+        Returns:
+            The embedding, ``[*B, dim]``: the sines of every frequency, then the cosines.
+        """
         angles = (1000.0 * t)[..., None] * self.freqs
         return torch.cat([angles.sin(), angles.cos()], dim=-1)
 
@@ -107,19 +129,33 @@ class ResidualMLPDenoiser(nn.Module):
         return self.trunk(hidden)
 
     def trunk(self, hidden: torch.Tensor) -> torch.Tensor:
-        """The residual blocks and output norm applied to the first layer's output
-        (``input_layer(z, mask) + time_embedding(t)``), ``[*B, hidden]``.
+        """The residual blocks and output norm on the first layer's output, ``[*B, hidden]``.
+
+        The first layer's output is ``input_layer(z, mask) + time_embedding(t)``.
         """
         return self.output_norm(self.blocks(hidden))
 
     def trunk_layers(self) -> tuple[list[tuple[nn.LayerNorm, nn.Linear, nn.Linear]], nn.LayerNorm]:
-        """The parametrised layers of :meth:`trunk`, in order: ``(norm, linear_1, linear_2)``
-        of each residual block ``x + linear_2(SiLU(linear_1(norm(x))))``, then the output
-        norm (followed by SiLU). A fused re-implementation of the trunk reads these.
+        """The parametrised layers of :meth:`trunk`, in order.
+
+        ``(norm, linear_1, linear_2)`` of each residual block ``x +
+        linear_2(SiLU(linear_1(norm(x))))``, then the output norm (followed by
+        SiLU). A fused re-implementation of the trunk reads these.
         """
         blocks = [(block.net[0], block.net[1], block.net[3]) for block in self.blocks]
         return blocks, self.output_norm[0]
 
     def forward(self, z: torch.Tensor, t: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """Predicts the diffusion target ``v̂`` of the whole window, ``head(φ(z, t, mask))``.
+
+        Args:
+            z (Tensor): the noisy window, known entries clean, ``[*B, L, D]``.
+            t (Tensor): the diffusion time in ``[0, 1]``, ``[*B]``.
+            mask (Tensor): the known (conditioned) entries, bool, ``[*B, L, D]`` (or
+                broadcastable to it).
+
+        Returns:
+            ``v̂``, ``[*B, L, D]``.
+        """
         out = self.head(self.features(z, t, mask))
         return out.unflatten(-1, self.window_shape)

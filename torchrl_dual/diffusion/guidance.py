@@ -90,8 +90,9 @@ class NoisyWindowClassifier(nn.Module):
 def noisy_windows(
     model: TrajectoryDiffusion, x0: torch.Tensor, mask: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(z_t, t)``: ``x0`` noised by ``model``'s forward process at ``t ~ U(0, 1)``, the
-    ``mask`` entries kept clean (as the sampler's inpainting keeps them).
+    """Noises ``x0`` by ``model``'s forward process at ``t ~ U(0, 1)``; returns ``(z_t, t)``.
+
+    The ``mask`` entries are kept clean (as the sampler's inpainting keeps them).
     """
     t = torch.rand(x0.shape[:-2], device=x0.device)
     z = model.noise(x0, t, torch.randn_like(x0))

@@ -83,8 +83,10 @@ class TrajectoryDiffusion(nn.Module):
 
     @property
     def num_steps(self) -> int:
-        """``N``, the number of sampling steps the model is trained for (saved in the
-        state dict; read from a host copy, so reading it never syncs a device).
+        """``N``, the number of sampling steps the model is trained for.
+
+        Saved in the state dict; read from a host copy, so reading it never syncs a
+        device.
         """
         return self._num_steps_value
 
@@ -100,9 +102,11 @@ class TrajectoryDiffusion(nn.Module):
                 module.reset_parameters()
 
     def normalized_window(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        """Raw ``[*B, H + 1, obs_dim]`` states and ``[*B, H + 1, action_dim]`` actions ->
-        the clean window ``x_0`` ``[*B, H + 1, D]`` in the units the model is trained in
-        (its :class:`~torchrl_dual.diffusion.Normalizer`, then the layout's packing).
+        """The clean window ``x_0`` ``[*B, H + 1, D]`` of raw states and actions, in model units.
+
+        Raw ``[*B, H + 1, obs_dim]`` states and ``[*B, H + 1, action_dim]`` actions
+        go through the model's :class:`~torchrl_dual.diffusion.Normalizer`, then the
+        layout's packing.
         """
         norm = self.normalizer
         return self.layout.pack(

@@ -81,18 +81,38 @@ class Normalizer(nn.Module):
         return self
 
     def normalize_observation(self, observation: torch.Tensor) -> torch.Tensor:
+        """Standardises observations: ``(s - μ_s) / σ_s``, any ``[..., obs_dim]``.
+
+        Raises:
+            RuntimeError: the normalizer is not fitted.
+        """
         self.check_fitted()
         return (observation - self.obs_mean) / self.obs_std
 
     def denormalize_observation(self, observation: torch.Tensor) -> torch.Tensor:
+        """Maps standardised observations back to raw units, ``s σ_s + μ_s``, ``[..., obs_dim]``.
+
+        Raises:
+            RuntimeError: the normalizer is not fitted.
+        """
         self.check_fitted()
         return observation * self.obs_std + self.obs_mean
 
     def normalize_action(self, action: torch.Tensor) -> torch.Tensor:
+        """Standardises actions: ``(a - μ_a) / σ_a``, any ``[..., action_dim]``.
+
+        Raises:
+            RuntimeError: the normalizer is not fitted.
+        """
         self.check_fitted()
         return (action - self.action_mean) / self.action_std
 
     def denormalize_action(self, action: torch.Tensor) -> torch.Tensor:
+        """Maps standardised actions back to raw units: ``a σ_a + μ_a``, any ``[..., action_dim]``.
+
+        Raises:
+            RuntimeError: the normalizer is not fitted.
+        """
         self.check_fitted()
         return action * self.action_std + self.action_mean
 

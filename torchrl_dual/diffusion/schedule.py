@@ -59,6 +59,7 @@ class NoiseSchedule(nn.Module):
         return _alpha_sigma(self.kind, float(t), math)
 
     def forward(self, t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(α_t, σ_t)`` with the shape of ``t``, as :meth:`alpha_sigma`."""
         return self.alpha_sigma(t)
 
     def snr(self, t: torch.Tensor) -> torch.Tensor:
@@ -67,12 +68,14 @@ class NoiseSchedule(nn.Module):
         return alpha**2 / sigma**2
 
     def extra_repr(self) -> str:
+        """The schedule's kind, shown in the module's ``repr``."""
         return f"kind={self.kind!r}"
 
 
 def _alpha_sigma(kind: str, t, ops):
-    """``(α_t, σ_t)`` of schedule ``kind`` with ``ops`` = ``torch`` (tensors) or ``math``
-    (floats): one formula for both.
+    """``(α_t, σ_t)`` of schedule ``kind``: one formula for tensors and floats.
+
+    ``ops`` is ``torch`` (tensors) or ``math`` (floats).
     """
     if kind == "cosine":
         angle = t * (math.pi / 2)

@@ -51,10 +51,12 @@ class TrajectoryLayout:
 
     @property
     def transition_dim(self) -> int:
+        """Size of one row ``(s_i, a_i)``, ``D = obs_dim + action_dim``."""
         return self.obs_dim + self.action_dim
 
     @property
     def window_shape(self) -> tuple[int, int]:
+        """Trailing shape of a window, ``(L, D) = (H + 1, obs_dim + action_dim)``."""
         return (self.length, self.transition_dim)
 
     def pack(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
@@ -62,9 +64,11 @@ class TrajectoryLayout:
         return torch.cat([observation, action], dim=-1)
 
     def observations(self, window: torch.Tensor) -> torch.Tensor:
+        """The states of a window: ``[..., L, D]`` -> ``[..., L, obs_dim]`` (a view)."""
         return window[..., : self.obs_dim]
 
     def actions(self, window: torch.Tensor) -> torch.Tensor:
+        """The actions of a window: ``[..., L, D]`` -> ``[..., L, action_dim]`` (a view)."""
         return window[..., self.obs_dim :]
 
     def condition_mask(self, condition: str = "s0", device=None) -> torch.Tensor:

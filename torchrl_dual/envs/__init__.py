@@ -1,6 +1,8 @@
-"""Environment factories: PointMaze (Gymnasium-Robotics), slippery Frozen-Lake, flat
-(normalized) observations for any Gymnasium env, and the online dynamics shifts
-(:data:`SHIFTS`) of these and of the MuJoCo locomotion robots (ODRL).
+"""Environment factories and the online dynamics shifts.
+
+PointMaze (Gymnasium-Robotics), slippery Frozen-Lake, flat (normalized) observations for any
+Gymnasium env, and the online dynamics shifts (:data:`SHIFTS`) of these and of the MuJoCo
+locomotion robots (ODRL).
 """
 
 from torchrl_dual.envs.d4rl_antmaze import (

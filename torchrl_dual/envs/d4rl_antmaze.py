@@ -1,5 +1,6 @@
-"""D4RL's single-goal AntMaze task, posed on Minari's AntMaze data and Gymnasium-Robotics'
-AntMaze env (``env.protocol=d4rl``).
+"""D4RL's single-goal AntMaze task on Minari's data and Gymnasium-Robotics' env.
+
+Posed on Minari's AntMaze data and Gymnasium-Robotics' AntMaze env (``env.protocol=d4rl``).
 
 D4RL's and CORL's AntMaze is one task per maze: the ant always starts in the map's reset
 cell ``R``, must reach one fixed goal near the map's goal cell ``G``, sees no goal in its
@@ -273,6 +274,17 @@ class SingleGoalAntMaze(gym.Wrapper):
         self._goal = task.goal.copy()
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Resets the Ant to the task's reset cell with D4RL's joint noise and sets the goal.
+
+        Args:
+            seed (int, optional): the env's seed.
+            options (dict, optional): ignored; the task fixes the reset and goal cells.
+
+        Returns:
+            ``(observation, info)``; the observation's ``desired_goal`` is the task's goal (drawn
+            around it with ``goal_noise``) and ``info["success"]`` says whether the Ant is already
+            there.
+        """
         maze_env = self.env.unwrapped
         noise = maze_env.position_noise_range
         maze_env.position_noise_range = 0.0  # the cells' centres; the Ant adds its joint noise
@@ -301,6 +313,15 @@ class SingleGoalAntMaze(gym.Wrapper):
         return bool(np.linalg.norm(obs["achieved_goal"] - self._goal) <= D4RL_SUCCESS_RADIUS)
 
     def step(self, action: Any):
+        """Steps the env with D4RL's sparse reward: 1 and termination on reaching the goal.
+
+        Args:
+            action: the Ant's action.
+
+        Returns:
+            ``(observation, reward, terminated, truncated, info)``, ``reward`` ``float(success)``,
+            ``terminated`` ``success`` and ``info["success"]`` set.
+        """
         obs, _, _, truncated, info = self.env.step(action)
         obs = {**obs, "desired_goal": self._goal.copy()}
         success = self._success(obs)

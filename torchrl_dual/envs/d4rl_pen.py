@@ -52,6 +52,15 @@ class PenDropTermination(gym.Wrapper):
         return float(pen.data.xpos[pen.obj_body_id][2])
 
     def step(self, action: Any):
+        """Steps the env and terminates the episode if the pen dropped.
+
+        Args:
+            action: the hand's action.
+
+        Returns:
+            ``(observation, reward, terminated, truncated, info)``: ``terminated`` also when the
+            pen is below D4RL's drop height, ``info["pen_dropped"]`` says whether it is.
+        """
         obs, reward, terminated, truncated, info = self.env.step(action)
         dropped = self.height() < D4RL_PEN_DROP_HEIGHT
         return obs, reward, bool(terminated or dropped), truncated, {**info, "pen_dropped": dropped}

@@ -97,12 +97,19 @@ class FlatObservation(gym.ObservationWrapper):
         )
 
     def observation(self, observation: Any) -> np.ndarray:
+        """The normalized flat vector ``(flatten(o) - loc) / scale``, float32 ``[dim]``.
+
+        Args:
+            observation: the env's (dict or array) observation.
+        """
         return ((self.flatten(observation) - self.loc) / self.scale).astype(np.float32)
 
 
 def reward_transforms(reward_scale: float = 1.0, reward_shift: float = 0.0) -> list:
-    """``[RewardScaling(loc=reward_shift, scale=reward_scale)]`` (``r' = scale * r + shift``,
-    a reference's reward modification), or ``[]`` for the identity.
+    """The transforms of a reference's reward modification ``r' = scale * r + shift``.
+
+    ``[RewardScaling(loc=reward_shift, scale=reward_scale)]``, or ``[]`` for the
+    identity.
 
     Examples:
         >>> reward_transforms(), type(reward_transforms(10.0, -5.0)[0]).__name__

@@ -18,8 +18,9 @@ EnvT = TypeVar("EnvT")
 
 
 def release_maze_xml(env: EnvT) -> EnvT:
-    """Deletes the temp model file of a Gymnasium-Robotics maze ``env`` (any wrapper of it)
-    and returns ``env``; other envs are returned untouched.
+    """Deletes the temp model file of a Gymnasium-Robotics maze ``env`` and returns ``env``.
+
+    ``env`` may be any wrapper of it; other envs are returned untouched.
 
     Examples:
         >>> import os

@@ -83,6 +83,15 @@ class ContinuousOneHotAction(Transform):
         )
 
     def transform_action_spec(self, action_spec: TensorSpec) -> TensorSpec:
+        """The policy's action spec: a ``Bounded`` float box of ``num_actions`` in ``[low, high]``.
+
+        Args:
+            action_spec (TensorSpec): the env's one-hot (or categorical) action spec, or a
+                ``Composite`` holding it under ``action_key``.
+
+        Returns:
+            The same structure with the action leaf replaced by the continuous box.
+        """
         if not isinstance(action_spec, Composite):
             return self._continuous_spec(action_spec)
         action_spec = action_spec.clone()

@@ -90,9 +90,10 @@ def _maze_map(maze: str) -> list[list[Any]]:
 
 
 def goal_maze_map(maze: str, goal_cell: Sequence[int]) -> list[list[Any]]:
-    """The layout's Gymnasium-Robotics ``maze_map`` with ``goal_cell`` as its only goal
-    cell (``"g"``): every episode's goal lies there, resets stay random among the other
-    open cells.
+    """The layout's Gymnasium-Robotics ``maze_map`` with ``goal_cell`` as its only goal cell.
+
+    The goal cell is marked ``"g"``: every episode's goal lies there, resets stay random
+    among the other open cells.
 
     Raises:
         ValueError: ``goal_cell`` is not a ``(row, col)`` pair of an open cell; the message
@@ -109,8 +110,9 @@ def goal_maze_map(maze: str, goal_cell: Sequence[int]) -> list[list[Any]]:
 
 
 def _open_cell(maze: str, cell: Sequence[int], name: str) -> tuple[int, int]:
-    """``cell`` as a ``(row, col)`` tuple; a ``ValueError`` listing the open cells unless
-    it is one.
+    """``cell`` as a ``(row, col)`` tuple, checked to be an open cell.
+
+    Raises a ``ValueError`` listing the open cells unless it is one.
     """
     cells = open_cells(maze)
     if tuple(cell) not in cells:
@@ -126,11 +128,13 @@ def start_cells(
     goal_cell: Sequence[int] | None = None,
     start_avoid_cells: Sequence[Sequence[int]] | None = None,
 ) -> list[tuple[int, int]]:
-    """The cells, in reading order, where an episode of a PointMaze env made with
-    ``goal_cell`` and ``start_avoid_cells`` starts, each as likely as the others
-    (Gymnasium-Robotics' uniform reset cell, plus its noise of up to a quarter cell): the
-    open cells but ``goal_cell`` and ``start_avoid_cells``. With a random goal per episode
-    (``goal_cell=None``) an episode never starts in its own goal's cell either.
+    """The cells, in reading order, where an episode of a PointMaze env starts.
+
+    For an env made with ``goal_cell`` and ``start_avoid_cells``, each cell is as likely
+    as the others (Gymnasium-Robotics' uniform reset cell, plus its noise of up to a
+    quarter cell): the open cells but ``goal_cell`` and ``start_avoid_cells``. With a
+    random goal per episode (``goal_cell=None``) an episode never starts in its own
+    goal's cell either.
 
     Raises:
         ValueError: a ``start_avoid_cells`` entry is not an open cell, or they leave no
@@ -169,10 +173,12 @@ def _task_maze_map(
     goal_cell: Sequence[int] | None,
     start_avoid_cells: Sequence[Sequence[int]] | None,
 ) -> list[list[Any]]:
-    """The ``maze_map`` given to Gymnasium-Robotics: ``goal_cell`` marked ``"g"``
-    (:func:`goal_maze_map`) and, with ``start_avoid_cells``, the start cells marked reset
-    cells (``"r"``; ``"c"``, goal or reset, with a random goal, the avoided cells then
-    ``"g"``: every open cell stays a possible goal).
+    """The ``maze_map`` given to Gymnasium-Robotics, with goal and reset cells marked.
+
+    ``goal_cell`` is marked ``"g"`` (:func:`goal_maze_map`) and, with
+    ``start_avoid_cells``, the start cells are marked reset cells (``"r"``; ``"c"``,
+    goal or reset, with a random goal, the avoided cells then ``"g"``: every open cell
+    stays a possible goal).
     """
     maze_map = _maze_map(maze) if goal_cell is None else goal_maze_map(maze, goal_cell)
     if start_avoid_cells:

@@ -23,8 +23,9 @@ _ADROIT_NOTICE = "environment's reward functions were updated in v1.2.1"
 
 
 def register_robotics_envs() -> ModuleType:
-    """Imports ``gymnasium_robotics`` (its notice line filtered out of stderr the first
-    time), registers its envs with Gymnasium and returns the module.
+    """Imports ``gymnasium_robotics``, registers its envs with Gymnasium and returns the module.
+
+    Its notice line is filtered out of stderr the first time.
 
     Examples:
         >>> import gymnasium as gym

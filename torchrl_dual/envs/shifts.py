@@ -52,6 +52,12 @@ class DynamicsShift:
         default_scale (float, optional): the scale used when none is given (PointMaze: sized
             so that the offline expert keeps at most half of its score, see
             ``docs/recipe.md``; locomotion: DUAL's ODRL "shift level 2.0").
+
+    Examples:
+        >>> from torchrl_dual.envs import SHIFTS
+        >>> shift = SHIFTS["mass"]
+        >>> shift.kinds, shift.default_scale, shift.doc
+        (('pointmaze',), 20.0, 'point mass multiplied by env.shift_scale')
     """
 
     kinds: tuple[str, ...]
@@ -77,6 +83,14 @@ class RotatedAction(gym.ActionWrapper):
         self.rotation = np.array([[math.cos(rad), -math.sin(rad)], [math.sin(rad), math.cos(rad)]])
 
     def action(self, action):
+        """The rotated action ``R(angle) a``.
+
+        Args:
+            action: the policy's 2-D action.
+
+        Returns:
+            ``R @ action``, float64 ``[2]``.
+        """
         return self.rotation @ np.asarray(action, dtype=np.float64)
 
 
@@ -94,6 +108,17 @@ class ScaledPhysics(gym.Wrapper):
         env (gym.Env): a PointMaze env (``env.unwrapped.point_env`` is its MuJoCo env).
         field (str): ``"dof_damping"`` (both slide joints) or ``"body_mass"`` (the point).
         scale (float): the factor, > 0.
+
+    Examples:
+        >>> from torchrl_dual.envs import make_pointmaze_gym_env
+        >>> def point_mass(env):
+        ...     model = env.unwrapped.point_env.model
+        ...     return model.body_mass[model.body("particle").id]
+        >>> env = make_pointmaze_gym_env("umaze", shift="mass", shift_scale=2.0)
+        >>> isinstance(env, ScaledPhysics)
+        True
+        >>> round(float(point_mass(env) / point_mass(make_pointmaze_gym_env("umaze"))), 6)
+        2.0
     """
 
     def __init__(self, env: gym.Env, field: str, scale: float) -> None:
@@ -163,6 +188,11 @@ class BiasedSlip(gym.Wrapper):
     Args:
         env (gym.Env): a slippery ``FrozenLake-v1``.
         clockwise (bool): slips turn clockwise instead of counter-clockwise.
+
+    Examples:
+        >>> env = BiasedSlip(gym.make("FrozenLake-v1", is_slippery=True))
+        >>> env.unwrapped.P[0][2]  # RIGHT from the start: a third right, the rest up (stay)
+        [(0.3333333333333333, 1, 0, False), (0.6666666666666667, 0, 0, False)]
     """
 
     def __init__(self, env: gym.Env, clockwise: bool = False) -> None:

@@ -49,10 +49,11 @@ class OneStepFastPath:
         self._pairs_with_memo: tuple[TrajectoryDiffusion, int, bool] | None = None
 
     def pairs_with(self, transition: TrajectoryDiffusion) -> bool:
-        """Whether ``transition``'s query can join the policy query in one pass: the
-        planner itself, or a one-step planner of the same layout, width, depth and
-        ``σ_1``. The answer is remembered for the last planner asked (the action path
-        asks at every step).
+        """Whether ``transition``'s query can join the policy query in one pass.
+
+        It can if it is the planner itself, or a one-step planner of the same
+        layout, width, depth and ``σ_1``. The answer is remembered for the last
+        planner asked (the action path asks at every step).
         """
         if transition is self.model:
             return True
@@ -82,8 +83,10 @@ class OneStepFastPath:
         previous_observation: Tensor,
         previous_action: Tensor,
     ) -> tuple[Tensor, Tensor]:
-        """``(φ(s_t), ŝ_t)``: the policy query and ``transition``'s prediction for
-        ``(s_{t-1}, a_{t-1})`` (raw units) in one pass; see :meth:`pairs_with`.
+        """The policy query ``φ(s_t)`` and ``transition``'s prediction ``ŝ_t``, in one pass.
+
+        ``ŝ_t`` is predicted for ``(s_{t-1}, a_{t-1})``, in raw units; see
+        :meth:`pairs_with`.
         """
         if transition is self.model:
             return self._shared(observation, previous_observation, previous_action)

@@ -56,8 +56,10 @@ class OneStepFold:
         self._cache = VersionedCache(sources, self._fold)
 
     def tensors(self) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
-        """``(W_s [H, S], W_a [H, A], c [2, H], W_next [S, H], b_next [S])``, ``c[0]`` for
-        the policy query (``s_0`` known), ``c[1]`` for the transition query (``s_0, a_0``).
+        """The folded weights ``(W_s [H, S], W_a [H, A], c [2, H], W_next [S, H], b_next [S])``.
+
+        ``c[0]`` is for the policy query (``s_0`` known), ``c[1]`` for the
+        transition query (``s_0, a_0``).
         """
         self.model.normalizer.check_fitted()
         return self._cache.get()

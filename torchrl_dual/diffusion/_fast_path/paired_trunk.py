@@ -11,8 +11,10 @@ from torchrl_dual.diffusion.denoiser import ResidualMLPDenoiser
 
 
 class PairedTrunk:
-    r"""Runs the trunks of two :class:`~torchrl_dual.diffusion.denoiser.ResidualMLPDenoiser`
-    of the same architecture, each on its own inputs, as one batched pass.
+    r"""Runs the trunks of two same-architecture denoisers as one batched pass.
+
+    Two :class:`~torchrl_dual.diffusion.denoiser.ResidualMLPDenoiser` of the same
+    architecture, each on its own inputs.
 
     DUAL's shift signal (Eq. 10) needs, at every step, the actor's policy query for
     ``s_t`` and the transition model's query for ``(s_{t-1}, a_{t-1})``. When the
@@ -60,8 +62,10 @@ class PairedTrunk:
         return [layer for block in blocks for layer in block] + [output_norm]
 
     def _stack(self) -> list[Tensor]:
-        """Per layer: LayerNorm scale and shift ``[2, 1, H]``; linear ``Wᵀ [2, in, out]``
-        and bias ``[2, 1, out]``.
+        """The stacked parameters of both trunks, per layer.
+
+        LayerNorm scale and shift ``[2, 1, H]``; linear ``Wᵀ [2, in, out]`` and bias
+        ``[2, 1, out]``.
         """
         stacked = []
         for pair in zip(*self._layers, strict=True):
