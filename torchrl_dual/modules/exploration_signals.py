@@ -20,9 +20,10 @@ def exploration_signals(
     epistemic_key: NestedKey = "epistemic_variance",
     scale_key: NestedKey = "exploration_scale",
 ) -> dict[str, float]:
-    """The means over ``batch`` of the signals DUAL's policy writes; a key the policy did
-    not write (no :class:`~torchrl_dual.modules.ShiftAwareNoise`, no ensemble) gives no
-    entry.
+    """The means over ``batch`` of the signals DUAL's policy writes.
+
+    A key the policy did not write (no :class:`~torchrl_dual.modules.ShiftAwareNoise`,
+    no ensemble) gives no entry.
 
     * ``shift_distance``: Eq. 10's ``d_t``;
     * ``epistemic_std``: the root of the mean epistemic variance ``Var_m[μ_m(s)]`` of

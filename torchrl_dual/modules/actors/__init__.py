@@ -1,6 +1,7 @@
-"""Last-layer actors: Gaussian actors whose mean is affine in a final ``nn.Linear``
-(the split Eq. 7-9 work on), and the action box their draws are executed in
-(:class:`ActionBox`, :class:`ClippedNormal`).
+"""Last-layer actors and the action box their draws are executed in.
+
+Gaussian actors whose mean is affine in a final ``nn.Linear`` (the split Eq. 7-9 work on),
+and the action box (:class:`ActionBox`, :class:`ClippedNormal`).
 """
 
 from torchrl_dual.modules.actors.action_box import ActionBox, ClippedNormal

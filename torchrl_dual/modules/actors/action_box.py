@@ -38,8 +38,10 @@ def box_bounds(action_spec: TensorSpec) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 class ActionBox(nn.Module):
-    """The env's action box: :meth:`forward` clamps a draw, :meth:`distribution` gives the
-    executed-action distribution of ``N(loc, scale²)`` (a :class:`ClippedNormal`).
+    """The env's action box: clamps draws and gives the executed-action distribution.
+
+    :meth:`forward` clamps a draw, :meth:`distribution` gives the executed-action
+    distribution of ``N(loc, scale²)`` (a :class:`ClippedNormal`).
 
     The clamp's gradient is the identity inside the box and zero outside, so a loss that
     reads ``Q(s, clamp(a))`` never rewards leaving the box. An ``Unbounded`` spec gives the
@@ -66,6 +68,10 @@ class ActionBox(nn.Module):
         self.register_buffer("high", high.detach().clone())
 
     def forward(self, action: torch.Tensor) -> torch.Tensor:
+        """Clamps ``action`` to ``[low, high]`` (any shape broadcastable with the box).
+
+        The gradient is the identity inside the box and zero outside.
+        """
         return torch.clamp(action, self.low, self.high)
 
     def distribution(self, loc: torch.Tensor, scale: torch.Tensor) -> ClippedNormal:
@@ -74,8 +80,9 @@ class ActionBox(nn.Module):
 
 
 class ClippedNormal(IndependentNormal):
-    """``clamp(X, low, high)`` for ``X ∼ N(loc, scale²)`` per dimension: the executed action
-    of an unbounded Gaussian policy.
+    """The executed action of an unbounded Gaussian policy, ``clamp(X, low, high)``.
+
+    Per dimension, for ``X ∼ N(loc, scale²)``.
 
     A censored Gaussian: a density inside the box and point masses on its faces.
     :meth:`log_prob` is the log-likelihood of that mixed distribution, summed over the
@@ -117,12 +124,28 @@ class ClippedNormal(IndependentNormal):
         return torch.clamp(value, self.low, self.high)
 
     def sample(self, sample_shape: torch.Size | tuple[int, ...] = ()) -> torch.Tensor:
+        """A clamped Gaussian draw ``clamp(X, low, high)``, ``[*sample_shape, *batch, A]``."""
         return self._clamp(super().sample(sample_shape))
 
     def rsample(self, sample_shape: torch.Size | tuple[int, ...] = ()) -> torch.Tensor:
+        """A reparameterised clamped draw (pathwise gradient zero on a clamped entry).
+
+        Shape ``[*sample_shape, *batch, A]``.
+        """
         return self._clamp(super().rsample(sample_shape))
 
     def log_prob(self, value: torch.Tensor) -> torch.Tensor:
+        """The censored Gaussian's log-likelihood of ``value``, summed over the action dims.
+
+        Per dimension: ``log N(a; μ, σ²)`` inside the box, ``log P(X ≤ low)`` at ``a = low`` and
+        ``log P(X ≥ high)`` at ``a = high``.
+
+        Args:
+            value (Tensor): actions in the box, ``[..., A]``.
+
+        Returns:
+            The log-likelihood, ``[...]``.
+        """
         normal = self.base_dist
         z = (value - normal.loc) / normal.scale
         inside = normal.log_prob(value)
@@ -135,8 +158,10 @@ class ClippedNormal(IndependentNormal):
 
     @property
     def mode(self) -> torch.Tensor:
+        """The clamped Gaussian mode, ``clamp(loc, low, high)``."""
         return self._clamp(super().mode)
 
     @property
     def deterministic_sample(self) -> torch.Tensor:
+        """The clamped mean, ``clamp(loc, low, high)`` (TorchRL's deterministic action)."""
         return self._clamp(self.mean)

@@ -99,8 +99,10 @@ class DDPMLastStepActor(LastLayerActor):
         return beta, alpha, alpha_bar
 
     def encode(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(φ(x_1, s, 0), x_1 / √α_0)``: the chain down to ``x_1`` with the MAP weights,
-        then the trunk of the last step.
+        """The last step's trunk and its input, ``(φ(x_1, s, 0), x_1 / √α_0)``.
+
+        The chain runs down to ``x_1`` with the MAP weights, then the trunk of the
+        last step.
         """
         batch = observation.shape[:-1]
         sample = self.latent == "sample"
@@ -119,9 +121,19 @@ class DDPMLastStepActor(LastLayerActor):
         return self.trunk(last), x / alpha_0.sqrt()
 
     def readout(self, head_rows: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
+        """The last DDPM step's action ``x_1 / √α_0 − β_0 / (√α_0 √(1 − ᾱ_0)) ε̂``.
+
+        Args:
+            head_rows (Tensor): ``ε̂``, the head's action rows, ``[..., A]`` (or ``[M, ..., A]``).
+            context (Tensor): the offset ``x_1 / √α_0`` from :meth:`encode`, ``[..., A]``.
+
+        Returns:
+            The action, shaped like ``head_rows``.
+        """
         return context - self.readout_scale().to(head_rows.dtype) * head_rows
 
     def readout_scale(self) -> torch.Tensor:
+        """``|∂ action / ∂ ε̂| = β_0 / (√α_0 √(1 − ᾱ_0))`` per action dimension, ``[A]``."""
         beta, alpha, alpha_bar = self._coefficients(0, self.head.weight)
         scale = beta / (alpha.sqrt() * (1.0 - alpha_bar).sqrt())
         return scale.expand(self.action_dim)

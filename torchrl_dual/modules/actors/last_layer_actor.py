@@ -58,6 +58,7 @@ class TanhSquash(nn.Module):
         self.register_buffer("half_range", (high - low) / 2)
 
     def forward(self, pre_squash: torch.Tensor) -> torch.Tensor:
+        """Squashes pre-tanh values into the box, ``c + r ⊙ tanh(u)`` (any shape ``[..., A]``)."""
         return torch.addcmul(self.center, self.half_range, torch.tanh(pre_squash))
 
     def derivative(self, pre_squash: torch.Tensor) -> torch.Tensor:
@@ -93,6 +94,34 @@ class LastLayerActor(nn.Module):
     Gaussian is centred on :meth:`forward`); a squashed actor is trained by its own loss
     (IQL's advantage-weighted regression on the ``TanhNormal`` actor whose weights
     :meth:`LinearHeadActor.from_actor` shares).
+
+    Args:
+        action_dim (int): ``A``, the action's size.
+
+    Keyword Args:
+        init_std (float): initial ``σ̄``. Defaults to ``0.3``.
+        min_std, max_std (float): bounds ``σ̄`` is clamped to. Default to ``1e-3`` and ``2.0``.
+        squash (nn.Module, optional): maps the read-out to the action (see above).
+        noise_after_squash (bool): centre the Gaussian on the squashed mean (see above).
+            Defaults to ``False``.
+
+    Examples:
+        >>> import torch
+        >>> from torch import nn
+        >>> class LinearPolicy(LastLayerActor):  # μ(s) = W s + b: the trunk is the identity
+        ...     def __init__(self):
+        ...         super().__init__(action_dim=2)
+        ...         self.head = nn.Linear(3, 2)
+        ...         self._set_head_rows(0, 2)
+        ...     def features(self, observation):
+        ...         return observation
+        ...     def readout(self, head_rows, context):
+        ...         return head_rows
+        ...     def readout_scale(self):
+        ...         return torch.ones(self.action_dim)
+        >>> actor, s = LinearPolicy(), torch.randn(4, 3)
+        >>> torch.allclose(actor(s), actor.head(s)), actor.std.detach()
+        (True, tensor([0.3000, 0.3000]))
     """
 
     head: nn.Linear
@@ -126,8 +155,10 @@ class LastLayerActor(nn.Module):
         self.noise_after_squash = bool(noise_after_squash)
 
     def reset_parameters_recursive(self) -> None:
-        """Re-initialises every submodule that has ``reset_parameters`` (the trunk and the
-        head) and ``σ̄`` to ``init_std``, as TorchRL's modules do.
+        """Re-initialises the trunk, the head and ``σ̄``, as TorchRL's modules do.
+
+        Every submodule that has ``reset_parameters`` is reset, and ``σ̄`` is set
+        back to ``init_std``.
 
         Examples:
             >>> import torch
@@ -156,9 +187,10 @@ class LastLayerActor(nn.Module):
         return self.encode(observation)[0]
 
     def encode(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(φ(s), context)``: the trunk output and what :meth:`readout` needs besides
-        the head output (the observation by default; the chain's ``x_1`` for a
-        multi-step diffusion actor).
+        """The trunk output ``φ(s)`` and the ``context`` :meth:`readout` needs besides it.
+
+        ``context`` is the observation by default; the chain's ``x_1`` for a
+        multi-step diffusion actor.
         """
         if type(self).features is LastLayerActor.features:
             raise NotImplementedError(
@@ -173,8 +205,10 @@ class LastLayerActor(nn.Module):
         previous_observation: torch.Tensor,
         previous_action: torch.Tensor,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """:meth:`encode` of ``s_t`` and ``transition_model``'s ``ŝ_t`` for
-        ``(s_{t-1}, a_{t-1})``, the two queries of DUAL's acting step (Eq. 9-10).
+        """:meth:`encode` of ``s_t`` and the transition model's ``ŝ_t``, DUAL's two acting queries.
+
+        ``ŝ_t`` is ``transition_model``'s prediction for ``(s_{t-1}, a_{t-1})``: the
+        two queries of DUAL's acting step (Eq. 9-10).
 
         Two separate calls here; :class:`~torchrl_dual.modules.PlannerActor` answers both
         in one batched pass when the transition model is a planner of its own shape.
@@ -186,8 +220,9 @@ class LastLayerActor(nn.Module):
         return features, context, transition_model.predict(previous_observation, previous_action)
 
     def readout(self, head_rows: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
-        """Maps the selected head outputs ``[..., A]`` to actions (affine), given the
-        ``context`` returned by :meth:`encode`.
+        """Maps the selected head outputs ``[..., A]`` to actions (affine).
+
+        Given the ``context`` returned by :meth:`encode`.
         """
         raise NotImplementedError
 
@@ -209,16 +244,20 @@ class LastLayerActor(nn.Module):
         return torch.nn.functional.linear(features, *self.head_parameters())
 
     def act(self, head_rows: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
-        """:meth:`readout`, then the ``squash`` if the actor has one: the action of the
-        head outputs ``head_rows`` (``[..., A]``, or ``[M, ..., A]`` for ``M`` members).
+        """The action of the head outputs ``head_rows``: :meth:`readout`, then the ``squash``.
+
+        ``head_rows`` is ``[..., A]``, or ``[M, ..., A]`` for ``M`` members; without
+        a ``squash`` the action is the read-out alone.
         """
         action = self.readout(head_rows, context)
         squash = self.squash
         return action if squash is None else squash(action)
 
     def mean_jacobian(self, head_rows: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
-        """``∂μ_j/∂u_j`` at the head outputs ``head_rows`` (``[..., A]``): the read-out scale
-        times the squash's derivative there (the read-out scale alone without a squash).
+        """``∂μ_j/∂u_j`` at the head outputs ``head_rows`` (``[..., A]``).
+
+        The read-out scale times the squash's derivative there (the read-out scale
+        alone without a squash).
         """
         scale = self.readout_scale()
         if self.squash is None:

@@ -117,12 +117,20 @@ class LinearHeadActor(LastLayerActor):
         return cls(nn.Sequential(*layers), out // 2 if halves else out, **kwargs)
 
     def features(self, observation: torch.Tensor) -> torch.Tensor:
+        """The trunk's output ``φ(s)``, ``[*B, d]`` (the head's input)."""
         return self.trunk(observation)
 
     def readout(self, head_rows: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
+        """The actions are the head's action rows: returns ``head_rows`` unchanged.
+
+        Args:
+            head_rows (Tensor): the head's action rows, ``[..., A]``.
+            context (Tensor): unused.
+        """
         return head_rows
 
     def readout_scale(self) -> torch.Tensor:
+        """Ones, ``[A]``: the read-out is the identity."""
         return torch.ones(self.action_dim, device=self.head.weight.device)
 
 

@@ -117,14 +117,23 @@ class PlannerActor(LastLayerActor):
             )
 
     def features(self, observation: torch.Tensor) -> torch.Tensor:
+        """The last denoising step's trunk output ``φ(z_t)``, ``[*B, d]``.
+
+        Takes the exact fast path on the one-step, no-autograd, zero-latent action path.
+
+        Args:
+            observation (Tensor): ``s``, ``[*B, obs_dim]``, raw units.
+        """
         self._check_observation(observation)
         if self._use_fast_path():
             return self._fast.features(observation)
         return self._encode_chain(observation, self.latent == "sample")[0]
 
     def encode(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(φ(z_t), context)``: the last step's trunk and, for ``N > 1``, the read-out's
-        offset ``α_t·z_t`` of the ``a_0`` entries (normalised units).
+        """The last step's trunk ``φ(z_t)`` and the read-out's ``context``.
+
+        For ``N > 1`` the context is the read-out's offset ``α_t·z_t`` of the
+        ``a_0`` entries (normalised units).
         """
         if self.num_steps == 1:
             return self.features(observation), observation
@@ -134,8 +143,9 @@ class PlannerActor(LastLayerActor):
     def _encode_chain(
         self, observation: torch.Tensor, sample: bool
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """The plain path: ``N − 1`` DDIM steps from ``z_1`` (zero or drawn), then the
-        last step's trunk; returns ``(φ(z_t), α_t·z_t[a_0])``.
+        """The plain path: ``N − 1`` DDIM steps, then the last step's trunk.
+
+        Starts from ``z_1`` (zero or drawn); returns ``(φ(z_t), α_t·z_t[a_0])``.
         """
         model = self.model
         layout, norm = model.layout, model.normalizer
@@ -151,9 +161,10 @@ class PlannerActor(LastLayerActor):
         return features, self.alpha_last * z[..., 0, layout.obs_dim :]
 
     def sample_actions(self, observation: torch.Tensor, num_samples: int) -> torch.Tensor:
-        """``M`` actions from ``M`` latents ``τ^N ~ N(0, I)`` through the ``N``-step
-        chain with the current (MAP) weights, ``[M, *B, A]`` (the paper's "τ^N
-        sampling" ablation of the Laplace ensemble, Eq. 9).
+        """``M`` actions through the ``N``-step chain, ``[M, *B, A]``.
+
+        From ``M`` latents ``τ^N ~ N(0, I)``, with the current (MAP) weights: the
+        paper's "τ^N sampling" ablation of the Laplace ensemble (Eq. 9).
         """
         self._check_observation(observation)
         observations = observation.expand(num_samples, *observation.shape)
@@ -171,8 +182,9 @@ class PlannerActor(LastLayerActor):
         previous_observation: torch.Tensor,
         previous_action: torch.Tensor,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """The policy query at ``s_t`` and ``transition_model``'s query at
-        ``(s_{t-1}, a_{t-1})`` (Eq. 10's ``ŝ_t``, raw units).
+        """The policy query at ``s_t`` and ``transition_model``'s query at ``(s_{t-1}, a_{t-1})``.
+
+        The latter gives Eq. 10's ``ŝ_t``, in raw units.
 
         On the action path both run as one batched pass when the transition model is
         this actor's own planner (``TransitionModel(actor.model, frozen=False)``,
@@ -204,6 +216,16 @@ class PlannerActor(LastLayerActor):
         )
 
     def readout(self, head_rows: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
+        """The ``a_0`` entries of the last step's ``x̂ = α_t·z_t − σ_t·v̂``, in raw action units.
+
+        Args:
+            head_rows (Tensor): ``v̂`` of the ``a_0`` entries, ``[..., A]`` (or ``[M, ..., A]``).
+            context (Tensor): the offset ``α_t·z_t[a_0]`` (normalised units) for ``N > 1``;
+                unused for one step (``z_1 = 0``).
+
+        Returns:
+            ``denormalize_action(offset − σ_t·v̂)``, shaped like ``head_rows``.
+        """
         norm = self.model.normalizer  # denormalize_action(offset - σ_t · v̂) as fused ops
         if self.num_steps == 1:
             return torch.addcmul(norm.action_mean, head_rows, norm.action_std, value=-self.sigma_1)
@@ -211,4 +233,5 @@ class PlannerActor(LastLayerActor):
         return torch.addcmul(offset, head_rows, norm.action_std, value=-self.sigma_last)
 
     def readout_scale(self) -> torch.Tensor:
+        """``σ_t`` times the action's standard deviation, ``[A]``: ``|∂ action / ∂ v̂|``."""
         return self.sigma_last * self.model.normalizer.action_std

@@ -1,6 +1,7 @@
-"""Exploration on the policy side: the shift-aware variance of Eq. 10 (DUAL) and the
-entropy-regulated noise of the ``dacer`` baseline with its Gaussian-mixture entropy
-estimate.
+"""Exploration on the policy side: DUAL's shift-aware variance and DACER's entropy-regulated noise.
+
+The shift-aware variance of Eq. 10 (DUAL) and the entropy-regulated noise of the ``dacer``
+baseline with its Gaussian-mixture entropy estimate.
 """
 
 from torchrl_dual.modules.exploration.entropy_regulator import (

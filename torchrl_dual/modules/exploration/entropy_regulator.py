@@ -116,9 +116,11 @@ class EntropyRegulatedNoise(TensorDictModuleBase):
         return self.noise_scale * self.alpha
 
     def alpha_loss(self, entropy: Tensor) -> Tensor:
-        """``L(log α) = −log α · (H̄ − Ĥ)`` for the estimate ``entropy`` (``Ĥ``, detached;
-        a batch of estimates is averaged): its gradient ``Ĥ − H̄`` lowers ``α`` when the
-        policy's entropy exceeds the target and raises it below.
+        """The temperature's loss ``L(log α) = −log α · (H̄ − Ĥ)`` for the estimate ``entropy``.
+
+        ``Ĥ`` is detached; a batch of estimates is averaged. Its gradient ``Ĥ − H̄``
+        lowers ``α`` when the policy's entropy exceeds the target and raises it
+        below.
         """
         gap = self.target_entropy - entropy.detach().mean()
         return -self.log_alpha * gap
@@ -155,10 +157,12 @@ def sampled_entropy(
     observation_key: NestedKey = "observation",
     action_key: NestedKey = "action",
 ) -> Tensor:
-    """DACER's entropy estimate of a stochastic ``policy``: ``num_samples`` actions of each
-    of the ``B`` states in ``observation`` (one batched call under
-    ``ExplorationType.RANDOM``), then :func:`~torchrl_dual.modules.exploration.gmm_entropy.mixture_entropy`
-    of each state's samples; ``[B]`` (DACER regulates with the mean).
+    """DACER's entropy estimate of a stochastic ``policy`` at each state, ``[B]``.
+
+    ``num_samples`` actions of each of the ``B`` states in ``observation`` (one batched
+    call under ``ExplorationType.RANDOM``), then
+    :func:`~torchrl_dual.modules.exploration.gmm_entropy.mixture_entropy` of each
+    state's samples (DACER regulates with the mean).
 
     Args:
         policy (nn.Module): a TensorDict module reading ``observation_key`` and writing

@@ -48,6 +48,16 @@ class GaussianMixtureFit:
         means (Tensor): ``[*B, C, A]`` component means ``μ_k``.
         covariances (Tensor): ``[*B, C, A, A]`` component covariances ``Σ_k`` (diagonal
             matrices for ``covariance_type="diag"``), the floor included.
+
+    Examples:
+        >>> import torch
+        >>> fit = GaussianMixtureFit(  # one component: the standard 2-D Gaussian
+        ...     weights=torch.ones(1, 1), means=torch.zeros(1, 1, 2),
+        ...     covariances=torch.eye(2)[None, None])
+        >>> fit.entropy()  # 1 + log 2π
+        tensor([2.8379])
+        >>> fit.log_prob(torch.zeros(1, 1, 2))  # -log 2π at the mean
+        tensor([[-1.8379]])
     """
 
     weights: Tensor
@@ -65,8 +75,9 @@ class GaussianMixtureFit:
         return (self.weights * self.component_entropies()).sum(-1) + label_entropy
 
     def log_prob(self, samples: Tensor) -> Tensor:
-        """The mixture's log-density ``log Σ_k w_k N(x; μ_k, Σ_k)`` of ``samples``
-        ``[*B, K, A]``, ``[*B, K]``.
+        """The mixture's log-density ``log Σ_k w_k N(x; μ_k, Σ_k)`` of ``samples``.
+
+        ``samples`` is ``[*B, K, A]``; the result ``[*B, K]``.
         """
         return _component_log_probs(samples, self).logsumexp(-2)
 
@@ -84,8 +95,10 @@ def _component_log_probs(samples: Tensor, fit: GaussianMixtureFit) -> Tensor:
 
 
 def _farthest_point_centers(samples: Tensor, num_components: int) -> Tensor:
-    """Deterministic seeds ``[*B, C, A]``: the sample nearest the batch mean, then each
-    time the sample farthest from the seeds chosen so far.
+    """Deterministic seeds ``[*B, C, A]`` of the mixture's components, by farthest points.
+
+    The sample nearest the batch mean, then each time the sample farthest from the seeds
+    chosen so far.
     """
     distance = (samples - samples.mean(-2, keepdim=True)).square().sum(-1)  # [*B, K]
     index = distance.argmin(-1)
@@ -102,8 +115,10 @@ def _farthest_point_centers(samples: Tensor, num_components: int) -> Tensor:
 def _m_step(
     samples: Tensor, responsibility: Tensor, covariance_type: str, covariance_floor: float
 ) -> GaussianMixtureFit:
-    """Maximum-likelihood weights, means and covariances for ``responsibility``
-    ``[*B, C, K]`` (each column sums to 1), plus ``covariance_floor · I``.
+    """Maximum-likelihood weights, means and covariances for ``responsibility``.
+
+    ``responsibility`` is ``[*B, C, K]`` (each column sums to 1); ``covariance_floor ·
+    I`` is added to each covariance.
     """
     count = responsibility.sum(-1) + 10 * torch.finfo(samples.dtype).eps  # [*B, C]
     weights = count / samples.shape[-2]
@@ -214,9 +229,10 @@ def mixture_entropy(
     covariance_type: str = "full",
     covariance_floor: float = 1e-6,
 ) -> Tensor:
-    """DACER's entropy estimate of the distribution behind each entry's ``K`` samples:
-    :meth:`GaussianMixtureFit.entropy` of :func:`fit_gaussian_mixture`, ``[*B]`` (DACER
-    regulates with its mean over the states).
+    """DACER's entropy estimate of the distribution behind each entry's ``K`` samples, ``[*B]``.
+
+    :meth:`GaussianMixtureFit.entropy` of :func:`fit_gaussian_mixture` (DACER regulates
+    with its mean over the states).
 
     Args:
         samples (Tensor): ``[*B, K, A]`` samples (e.g. ``K`` actions of each of ``B``

@@ -282,9 +282,11 @@ class ShiftAwareNoise(TensorDictModuleBase):
         return expected
 
     def step(self, frames: int = 1) -> None:
-        """Nothing to anneal: Eq. 10's λ is a constant. Present so that loops written for
-        TorchRL's annealed exploration modules (``policy[-1].step(frames)``, as for
-        ``AdditiveGaussianModule``) run unchanged with a DUAL policy.
+        """Does nothing: Eq. 10's λ is a constant.
+
+        Present so that loops written for TorchRL's annealed exploration modules
+        (``policy[-1].step(frames)``, as for ``AdditiveGaussianModule``) run
+        unchanged with a DUAL policy.
 
         Examples:
             >>> noise = ShiftAwareNoise(shift_weight=0.5)

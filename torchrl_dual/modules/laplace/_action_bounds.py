@@ -7,9 +7,11 @@ from torch import nn
 
 
 class ActionBounds:
-    """Mixin of :class:`~torchrl_dual.modules.LaplaceEnsembleActor` and
+    """Mixin of the Laplace ensembles: the action bounds and the clamp to them.
+
+    Used by :class:`~torchrl_dual.modules.LaplaceEnsembleActor` and
     :class:`~torchrl_dual.modules.laplace.LatentEnsembleActor`: ``action_low`` and
-    ``action_high`` (float, tensor or ``None``) and the clamp to them.
+    ``action_high`` (float, tensor or ``None``).
 
     Tensor bounds are registered as non-persistent buffers, so that ``policy.to(device)``
     moves them with the weights (a bound left on the CPU would fail the clamp of a CUDA

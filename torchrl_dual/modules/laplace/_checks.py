@@ -13,8 +13,10 @@ _F64 = torch.float64
 def checked_features_and_weights(
     features: Tensor, weights: Tensor | None, in_features: int
 ) -> tuple[Tensor, Tensor | None]:
-    """``(φ [N, d] float64, w [N] float64 or None)`` from a batch of head inputs and
-    per-sample loss weights, or an error that says what is wrong and how to fix it.
+    """Checked features ``φ [N, d]`` and weights ``w [N]`` (float64) for a Laplace fit.
+
+    From a batch of head inputs and per-sample loss weights (``w`` may be ``None``), or
+    an error that says what is wrong and how to fix it.
 
     Examples:
         >>> import torch
@@ -103,8 +105,10 @@ def checked_head(
 
 
 def checked_output_jacobian(jacobian: Tensor | None, features: Tensor, out: int) -> Tensor:
-    """The per-sample, per-output Jacobian ``J [N, out]`` (float64) of the mean action in the
-    head output, for a Gram matrix per output (``per_output_jacobian=True``), or an error.
+    """The per-sample, per-output Jacobian ``J [N, out]`` (float64) of the mean action, checked.
+
+    The Jacobian in the head output, for a Gram matrix per output
+    (``per_output_jacobian=True``), or an error.
 
     Examples:
         >>> import torch
@@ -131,8 +135,10 @@ def checked_output_jacobian(jacobian: Tensor | None, features: Tensor, out: int)
 
 
 def word_or_positive(value: str | float, name: str, word: str, bad_number: str) -> str | float:
-    """``value`` if it is ``word`` or a positive finite number (as a float), else a
-    ``ValueError`` naming ``name`` (``bad_number`` for a number out of range).
+    """``value`` as a float if it is a positive finite number, or ``word`` itself.
+
+    Anything else is a ``ValueError`` naming ``name`` (``bad_number`` for a number out
+    of range).
 
     Examples:
         >>> word_or_positive(2, "temperature", "data", "must be positive")

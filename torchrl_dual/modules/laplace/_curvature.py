@@ -65,8 +65,10 @@ class LaplaceCurvature:
     def accumulate(
         self, features: Tensor, weights: Tensor | None = None, jacobian: Tensor | None = None
     ) -> None:
-        """Add ``Σ_i w_i φ̃_i φ̃_iᵀ`` of a batch to the float64 Gram buffer (``O(B d²)``), or
-        ``Σ_i w_i J_ij² φ̃_i φ̃_iᵀ`` to each output's with ``per_output_jacobian=True``.
+        """Adds a batch's weighted Gram ``Σ_i w_i φ̃_i φ̃_iᵀ`` to the float64 buffer (``O(B d²)``).
+
+        With ``per_output_jacobian=True``, adds ``Σ_i w_i J_ij² φ̃_i φ̃_iᵀ`` to each
+        output's.
 
         Args:
             features: head inputs ``φ`` of shape ``[B, d]`` (any leading batch shape).
@@ -104,8 +106,10 @@ class LaplaceCurvature:
         self.count.add_(phi.shape[0])
 
     def gram(self) -> Tensor:
-        """Weighted Gram matrix ``G`` with weights normalised to mean 1, float64 ``[d+1, d+1]``
-        (``[out, d+1, d+1]``, one ``G_j`` per output, with ``per_output_jacobian=True``).
+        """Weighted Gram matrix ``G``, weights normalised to mean 1, float64 ``[d+1, d+1]``.
+
+        ``[out, d+1, d+1]``, one ``G_j`` per output, with
+        ``per_output_jacobian=True``.
         """
         if self.count.item() == 0:
             raise RuntimeError("no features accumulated; call accumulate() before fit().")

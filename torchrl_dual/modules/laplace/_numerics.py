@@ -1,5 +1,6 @@
-"""Numerical helpers of the last-layer Laplace fit: a robust PSD eigendecomposition and
-the evidence maximiser over the prior precision.
+"""Numerical helpers of the last-layer Laplace fit.
+
+A robust PSD eigendecomposition and the evidence maximiser over the prior precision.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ _F64 = torch.float64
 
 def psd_eigh(G: Tensor) -> tuple[Tensor, Tensor]:
     """Symmetric eigendecomposition that never fails; eigenvalues below round-off set to 0.
+
     ``G`` is ``[p, p]`` or a batch ``[*K, p, p]`` (one decomposition per matrix).
 
     Examples:

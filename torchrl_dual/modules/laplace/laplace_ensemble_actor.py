@@ -263,9 +263,11 @@ class LaplaceEnsembleActor(ActionBounds, TensorDictModuleBase):
         return features, context
 
     def get_dist(self, tensordict: TensorDictBase) -> IndependentNormal:
-        """Eq. 9's policy as a TorchRL distribution: ``IndependentNormal(μ(s), σ(s))`` with
-        the ensemble's mean and std (under ``DETERMINISTIC``: the MAP mean and ``σ̄``), as
-        ``ProbabilisticActor.get_dist``; ``tensordict`` is not written to.
+        """Eq. 9's policy as a TorchRL distribution, ``IndependentNormal(μ(s), σ(s))``.
+
+        With the ensemble's mean and std (under ``DETERMINISTIC``: the MAP mean and
+        ``σ̄``), as ``ProbabilisticActor.get_dist``; ``tensordict`` is not written
+        to.
 
         Examples:
             >>> import torch
@@ -306,6 +308,24 @@ class LaplaceEnsembleActor(ActionBounds, TensorDictModuleBase):
         write_key(tensordict, action_key, action)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """Acts with Eq. 9's ensemble policy and writes its ``out_keys``.
+
+        Under random exploration the ``M`` members give ``μ(s)`` and the epistemic variance,
+        ``σ² = epistemic + σ̄²``, and ``action ∼ N(μ, σ²)`` (or ``action = μ`` with
+        ``sample_action=False``); deterministic modes give the MAP mean and no epistemic part.
+
+        Args:
+            tensordict (TensorDictBase): holds the observation ``[*B, obs_dim]`` (and the
+                previous step with a transition model).
+
+        Returns:
+            ``tensordict`` with ``loc``, ``scale``, ``epistemic_variance``, ``action``
+            (``[*B, A]`` each), ``action_log_prob`` ``[*B]`` when this module samples, and
+            ``expected_observation`` with a transition model.
+
+        Raises:
+            RuntimeError: the posterior is not fitted (``num_samples > 0``, random exploration).
+        """
         observation = read_key(tensordict, self.in_keys[0], "LaplaceEnsembleActor")
         aleatoric = self._aleatoric_variance()
         if is_deterministic():

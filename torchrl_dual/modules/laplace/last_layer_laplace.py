@@ -187,6 +187,7 @@ class LastLayerLaplace(LaplaceCurvature, LaplaceEvidence, nn.Module):
         return cls(linear.in_features, linear.out_features, **kwargs)
 
     def extra_repr(self) -> str:
+        """The fit's settings, shown in the module's ``repr``."""
         return (
             f"in_features={self.in_features}, out_features={self.out_features}, "
             f"prior_precision={self.prior_precision_config!r}, temperature={self.temperature!r}"
@@ -194,9 +195,15 @@ class LastLayerLaplace(LaplaceCurvature, LaplaceEvidence, nn.Module):
         )
 
     def get_extra_state(self) -> dict:
+        """The dtype of the head the posterior was fitted for, saved with the state dict."""
         return {"head_dtype": str(self._head_dtype).removeprefix("torch.")}
 
     def set_extra_state(self, state: dict) -> None:
+        """Restores the head's dtype saved by :meth:`get_extra_state` (float32 if absent).
+
+        Args:
+            state (dict): ``{"head_dtype": str}``.
+        """
         self._head_dtype = getattr(torch, state.get("head_dtype", "float32"))
 
     def _apply(self, fn: Callable[[Tensor], Tensor], recurse: bool = True):
@@ -276,8 +283,9 @@ class LastLayerLaplace(LaplaceCurvature, LaplaceEvidence, nn.Module):
     # ------------------------------------------------------------------ diagnostics
     # (log_evidence of Thm. 3.3 and the eigenvalues of P_j: _evidence.py)
     def posterior_precision(self) -> Tensor:
-        """``Σ_j^{-1} = (κ G/σ_j² + λ I) / T`` as float64 ``[out, d+1, d+1]`` (``κ = T = 1``
-        at the default temperature).
+        """The posterior precisions ``Σ_j^{-1} = (κ G/σ_j² + λ I) / T`` (Eq. 8).
+
+        Float64 ``[out, d+1, d+1]``; ``κ = T = 1`` at the default temperature.
         """
         self._check_fitted("posterior_precision")
         U = self._bases()[1]

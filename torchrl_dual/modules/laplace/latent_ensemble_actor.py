@@ -127,6 +127,17 @@ class LatentEnsembleActor(ActionBounds, TensorDictModuleBase):
         transition.write_expected(tensordict, observation, predicted, valid)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """Acts with the ``τ^N``-sampling ensemble (Eq. 9's aggregation); writes ``out_keys``.
+
+        Args:
+            tensordict (TensorDictBase): holds the observation ``[*B, obs_dim]`` (and the
+                previous step with a transition model).
+
+        Returns:
+            ``tensordict`` with ``loc``, ``scale``, ``epistemic_variance``, ``action``
+            (``[*B, A]`` each), ``action_log_prob`` ``[*B]`` when this module samples, and
+            ``expected_observation`` with a transition model.
+        """
         observation = read_key(tensordict, self.in_keys[0], "LatentEnsembleActor")
         loc_key, scale_key, epistemic_key, action_key, log_prob_key = self.out_keys[:5]
         deterministic = is_deterministic()

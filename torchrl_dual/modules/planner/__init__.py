@@ -1,5 +1,7 @@
-"""The planner as a policy (Eq. 5), as DUAL's transition model ``p(s'|s, a)``, and the
-reward model of its generated transitions (EDIS's augmentation).
+"""The planner as a policy, as DUAL's transition model and as a reward model.
+
+The planner as a policy (Eq. 5), as DUAL's transition model ``p(s'|s, a)``, and the reward
+model of its generated transitions (EDIS's augmentation).
 """
 
 from torchrl_dual.modules.planner.planner_policy import PlannerPolicy

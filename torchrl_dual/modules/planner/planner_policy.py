@@ -68,6 +68,15 @@ class PlannerPolicy(TensorDictModuleBase):
         self.out_keys = [action_key, next_observation_key]
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """Plans from the observation and writes ``τ_{a_0}`` and ``τ_{s_1}`` (Eq. 5).
+
+        Args:
+            tensordict (TensorDictBase): holds the observation ``[*B, obs_dim]``.
+
+        Returns:
+            ``tensordict`` with the action ``[*B, action_dim]`` and the planned next observation
+            ``[*B, obs_dim]``, raw units.
+        """
         # Plain get/set: the outputs are written without TensorDictModule's generic
         # output handling, which costs as much as a one-step sample at batch 1.
         action, next_observation = self.module(read_key(tensordict, self.in_keys[0], "The planner"))

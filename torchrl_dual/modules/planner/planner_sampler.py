@@ -25,6 +25,18 @@ class PlannerSampler(nn.Module):
         sampler (str): ``"ddim"`` or ``"ddpm"``. Defaults to ``"ddim"``.
         action_low, action_high (float or Tensor, optional): bounds the action is
             clamped to (an env's action spec).
+
+    Examples:
+        >>> import torch
+        >>> from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
+        >>> model = TrajectoryDiffusion(TrajectoryLayout(3, 2, 4), num_steps=1, hidden=32, depth=1)
+        >>> _ = model.normalizer.fit(torch.randn(64, 3), torch.rand(64, 2) * 2 - 1)
+        >>> sampler = PlannerSampler(model, action_low=-1.0, action_high=1.0)
+        >>> action, next_observation = sampler(torch.randn(5, 3))
+        >>> action.shape, next_observation.shape, bool(action.abs().max() <= 1.0)
+        (torch.Size([5, 2]), torch.Size([5, 3]), True)
+        >>> sampler.plan(torch.randn(5, 3)).shape  # [B, H + 1, obs_dim + action_dim]
+        torch.Size([5, 5, 5])
     """
 
     def __init__(
@@ -101,6 +113,15 @@ class PlannerSampler(nn.Module):
         return torch.cat([states, actions], dim=-1)
 
     def forward(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The planned first action and next state, ``(τ_{a_0}, τ_{s_1})``, in raw units.
+
+        Args:
+            observation (Tensor): ``s``, ``[*B, obs_dim]``.
+
+        Returns:
+            ``τ_{a_0}`` ``[*B, action_dim]`` (clamped to the bounds) and ``τ_{s_1}``
+            ``[*B, obs_dim]``.
+        """
         layout, norm = self.model.layout, self.model.normalizer
         window = self.normalized_window(observation)
         action = norm.denormalize_action(window[..., 0, layout.obs_dim :])

@@ -150,6 +150,15 @@ class TransitionModel(TensorDictModuleBase):
         write_key(tensordict, self.out_keys[0], torch.where(valid, predicted, observation))
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """Writes ``ŝ_t``, the prediction for the previous step (Eq. 10), as ``out_key``.
+
+        Args:
+            tensordict (TensorDictBase): holds ``s_t``, ``s_{t-1}``, ``a_{t-1}`` and the valid
+                flag (from :class:`~torchrl_dual.transforms.PreviousTransition`).
+
+        Returns:
+            ``tensordict`` with ``ŝ_t`` ``[*B, obs_dim]`` (``s_t`` where no previous step exists).
+        """
         observation = read_key(tensordict, self.in_keys[0], "TransitionModel")
         previous_observation, previous_action, valid = self.read_previous(tensordict)
         predicted = self.predict(previous_observation, previous_action.to(observation.dtype))
