@@ -1,6 +1,4 @@
-"""TorchRL loss modules of DUAL, of the critics it is paired with, and the drivers that
-train with them.
-"""
+"""TorchRL loss modules of DUAL and of its critics, and the drivers that train with them."""
 
 from torchrl_dual.objectives.calql import PENALTY_LAYOUTS, CalQLLoss
 from torchrl_dual.objectives.density_ratio import DensityRatioLoss, make_density_ratio_network

@@ -1,5 +1,7 @@
-"""OFF2ON's density-ratio estimator (Lee et al. 2022, "Offline-to-Online Reinforcement
-Learning via Balanced Replay and Pessimistic Q-Ensemble", CoRL, arXiv:2107.00591).
+"""OFF2ON's density-ratio estimator.
+
+Lee et al. 2022, "Offline-to-Online Reinforcement Learning via Balanced Replay and
+Pessimistic Q-Ensemble", CoRL, arXiv:2107.00591.
 
 Balanced replay samples a transition in proportion to ``w(s, a) = d_online(s, a) /
 d_offline(s, a)``, which a network learns from the two data sets alone by the variational
@@ -42,8 +44,10 @@ def make_density_ratio_network(
     in_keys: Sequence[NestedKey] = ("observation", "action"),
     out_key: NestedKey = "density_ratio",
 ) -> TensorDictModule:
-    """OFF2ON's ``w_ψ(s, a) ≥ 0``: an MLP on the concatenated ``(s, a)``, output bias 1,
-    then a ReLU; writes ``out_key`` ``[*B, 1]``.
+    """OFF2ON's density-ratio network ``w_ψ(s, a) ≥ 0``.
+
+    An MLP on the concatenated ``(s, a)``, output bias 1, then a ReLU; writes
+    ``out_key`` ``[*B, 1]``.
 
     Examples:
         >>> import torch
@@ -138,9 +142,23 @@ class DensityRatioLoss(LossModule):
 
     @property
     def in_keys(self) -> list[NestedKey]:
+        """The keys the loss reads: the ratio network's inputs and the ``online`` flag."""
         return [*self.ratio_network.in_keys, self.tensor_keys.online]
 
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
+        """OFF2ON's Jensen-Shannon loss ``L(ψ)`` of the batch and the mean ratio on each part.
+
+        Args:
+            tensordict (TensorDictBase): offline and online transitions ``[*B]``, with the
+                ratio network's inputs and the boolean ``online`` flag.
+
+        Returns:
+            ``loss_density_ratio`` (a scalar, or ``[*B]`` under ``reduction="none"``) and the
+            detached means ``ratio_offline`` and ``ratio_online`` of ``w``.
+
+        Raises:
+            ValueError: the batch holds only offline or only online transitions.
+        """
         online = read_loss_input(tensordict, self.tensor_keys.online, "online")
         td = tensordict.select(*self.ratio_network.in_keys, strict=False)
         with self.ratio_network_params.to_module(self.ratio_network):

@@ -1,5 +1,6 @@
-"""Diff-QL's actor loss (Wang et al. 2023, "Diffusion policies as an expressive policy
-class for offline RL"), the loss of the recipe's ``diffql`` and ``diffql_la`` baselines.
+"""Diff-QL's actor loss, of the recipe's ``diffql`` and ``diffql_la`` baselines.
+
+Wang et al. 2023, "Diffusion policies as an expressive policy class for offline RL".
 
 ``L(θ) = L_bc(θ) − η · mean Q(s, a_π) / mean |Q(s, a_π)|``: ``L_bc`` is TorchRL's
 :class:`~torchrl.objectives.DiffusionBCLoss` (ε-prediction on the batch actions), ``a_π``
@@ -34,10 +35,12 @@ def min_q(
     observation_key: NestedKey = "observation",
     action_key: NestedKey = "action",
 ) -> torch.Tensor:
-    """``min_k Q_k(s, a)`` of the critics ``qvalue_params`` (leading dimension ``k``, e.g.
-    ``IQLLoss.qvalue_network_params``) with detached weights, ``[*B]``: gradients reach
-    ``action`` (and through it the actor), never the critic. The network reads ``s`` and
-    ``a`` under ``observation_key`` and ``action_key`` and writes ``Q`` under ``key``.
+    """``min_k Q_k(s, a)`` of the critics ``qvalue_params``, ``[*B]``, with detached weights.
+
+    ``qvalue_params`` has a leading dimension ``k`` (e.g.
+    ``IQLLoss.qvalue_network_params``). Gradients reach ``action`` (and through it the
+    actor), never the critic. The network reads ``s`` and ``a`` under
+    ``observation_key`` and ``action_key`` and writes ``Q`` under ``key``.
 
     Examples:
         >>> from torch import nn
@@ -144,6 +147,7 @@ class DiffQLActorLoss(LossModule):
 
     @property
     def in_keys(self) -> list[NestedKey]:
+        """The keys the loss reads: the observation and the data action."""
         return [self.tensor_keys.observation, self.tensor_keys.action]
 
     def _forward_value_estimator_keys(self, **kwargs) -> None:
@@ -166,9 +170,11 @@ class DiffQLActorLoss(LossModule):
         eta: float,
         reduction: str = "mean",
     ) -> DiffQLActorLoss:
-        """The loss on the twin Q networks of a TorchRL ``IQLLoss`` (its current, not its
-        target, weights; :func:`min_q`), which read the state under this loss's
-        ``tensor_keys.observation`` and the action under ``iql_loss.tensor_keys.action``.
+        """Builds the loss on the twin Q networks of a TorchRL ``IQLLoss``.
+
+        Their current, not their target, weights (:func:`min_q`); they read the
+        state under this loss's ``tensor_keys.observation`` and the action under
+        ``iql_loss.tensor_keys.action``.
         """
 
         def q_value(observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
@@ -196,6 +202,16 @@ class DiffQLActorLoss(LossModule):
         return -q.mean() / _scale(q), q.mean().detach()
 
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
+        """Diff-QL's actor loss ``L_bc + η · q_term`` and its two parts.
+
+        Args:
+            tensordict (TensorDictBase): the batch ``[*B]`` with the observation and the data
+                action.
+
+        Returns:
+            ``loss_actor`` (a scalar, or ``[*B]`` under ``reduction="none"``) and the detached
+            ``bc_term``, ``q_term`` and ``q_pi`` (the mean ``Q(s, a_π)``).
+        """
         observation = tensordict.get(self.tensor_keys.observation)
         bc = self.bc_loss(tensordict)["loss_diffusion_bc"]  # [*B, action dim]
         if self.reduction == "mean":

@@ -101,6 +101,14 @@ class DiffusionPlannerLoss(TrajectoryWindowLoss):
         return loss, metadata
 
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
+        """The reduced denoising loss of Eq. (3) and its diagnostics.
+
+        Args:
+            tensordict (TensorDictBase): a batch of windows (see the class docstring for its keys).
+
+        Returns:
+            ``loss_diffusion`` and the detached ``x0_error`` (the mean squared error of ``x̂_0``).
+        """
         loss, metadata = self.denoising_loss(tensordict)
         loss = self._reduce_loss(loss)
         return TensorDict({"loss_diffusion": loss, **metadata}, batch_size=[])
@@ -115,7 +123,58 @@ def train_planner(
     action_condition_prob: float = 0.5,
     **kwargs,
 ) -> dict[str, float]:
-    """Pre-trains the planner with :class:`DiffusionPlannerLoss` (Algorithm 1, lines 3-4)."""
+    """Pre-trains the planner with :class:`DiffusionPlannerLoss` (Algorithm 1, lines 3-4).
+
+    Runs ``num_updates`` Adam steps (fused where it can be) on the denoising loss of
+    Eq. (3) through :func:`~torchrl_dual.objectives.run_updates`; ``model``'s weights are
+    trained in place.
+
+    Args:
+        model (TrajectoryDiffusion): the planner, its normalizer fitted on the offline data.
+        sample (callable): ``() -> TensorDict`` of windows ``[B, H + 1]`` with the
+            observation ``[B, H + 1, obs_dim]`` and the action ``[B, H + 1, action_dim]``
+            (e.g. :meth:`~torchrl_dual.diffusion.WindowReplayBuffer.sample`), called once
+            per update.
+        num_updates (int): gradient steps.
+
+    Keyword Args:
+        lr (float): Adam's learning rate. Defaults to ``3e-4``.
+        action_condition_prob (float): probability that ``a_0`` is given too, which
+            trains the transition model of Algorithm 1 line 5 into the same network
+            (:class:`DiffusionPlannerLoss`). Defaults to ``0.5``.
+        **kwargs: passed to :func:`~torchrl_dual.objectives.run_updates`, which takes
+            the keywords that follow.
+        progress (bool): show a tqdm progress bar. Defaults to ``True``.
+        desc (str): the progress bar's label. Defaults to ``"planner"``.
+        logger (Logger, optional): a TorchRL logger; the loss and ``x0_error``, averaged
+            over each ``log_every`` updates, are logged as ``{log_prefix}{name}``.
+        log_prefix (str): put before each logged name. Defaults to ``""``.
+        log_every (int): updates per logged average. Defaults to ``100``.
+        step_offset (int): added to the logged step. Defaults to ``0``.
+        grad_clip (float, optional): gradient-norm clip. Defaults to ``1.0``; ``None``
+            turns it off.
+        cosine_lr (bool): decay the learning rate along a cosine. Defaults to ``False``.
+        ema (ExponentialMovingAverage, optional): updated after each step (the caller
+            copies it into the model).
+        checkpoints (UpdateCheckpoints, optional): makes the loop resumable
+            (:func:`~torchrl_dual.objectives.run_updates`).
+
+    Returns:
+        dict[str, float]: the last ``log_every`` window's averages, ``loss_diffusion``
+        and ``x0_error``.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
+        >>> model = TrajectoryDiffusion(TrajectoryLayout(2, 1, 3), hidden=16, depth=1)
+        >>> _ = model.normalizer.fit(torch.randn(64, 2), torch.randn(64, 1))  # offline data
+        >>> windows = lambda: TensorDict(observation=torch.randn(8, 4, 2),
+        ...                              action=torch.randn(8, 4, 1), batch_size=[8, 4])
+        >>> stats = train_planner(model, windows, 5, lr=1e-3, progress=False)
+        >>> sorted(stats)
+        ['loss_diffusion', 'x0_error']
+    """
     loss = DiffusionPlannerLoss(model, action_condition_prob=action_condition_prob)
     optimizer = adam(loss.parameters(), lr=lr)
     kwargs.setdefault("desc", "planner")

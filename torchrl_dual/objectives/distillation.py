@@ -136,16 +136,25 @@ class DistillationLoss(TrajectoryWindowLoss):
         return loss, metadata
 
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
+        """The reduced distillation loss and its diagnostics.
+
+        Args:
+            tensordict (TensorDictBase): a batch of windows (see the class docstring for its keys).
+
+        Returns:
+            ``loss_distillation`` and the metrics :meth:`distillation_loss` returns.
+        """
         loss, metadata = self.distillation_loss(tensordict)
         loss = self._reduce_loss(loss)
         return TensorDict({"loss_distillation": loss, **metadata}, batch_size=[])
 
 
 class _RoundCheckpoints:
-    """One round's view of :func:`progressive_distillation`'s checkpoints: its loop state
-    saved under the round's index, its updates counted over all rounds. Only the round a
-    resumed distillation continues asks ``outer`` to resume (right before its loop runs,
-    where the caller may restore its random state).
+    """One round's view of :func:`progressive_distillation`'s checkpoints.
+
+    Its loop state is saved under the round's index, its updates counted over all
+    rounds. Only the round a resumed distillation continues asks ``outer`` to resume
+    (right before its loop runs, where the caller may restore its random state).
     """
 
     def __init__(
@@ -193,8 +202,50 @@ def progressive_distillation(
     students' weights come back with the round it continues) and continues that round's
     loop; ``done`` counts the updates of all rounds.
 
+    Args:
+        teacher (TrajectoryDiffusion): the trained ``N``-step planner (Algorithm 1,
+            lines 3-4), its normalizer fitted.
+        sample (callable): ``() -> TensorDict`` of windows ``[B, H + 1]`` with the
+            observation ``[B, H + 1, obs_dim]`` and the action ``[B, H + 1, action_dim]``,
+            called once per update (as for :func:`train_planner`).
+        updates_per_round (int or sequence of int): updates of each round, or one entry
+            per round (``log2(N / final_steps)`` of them).
+
+    Keyword Args:
+        final_steps (int): the student's sampling steps at the end, ``N / 2^k``.
+            Defaults to ``1`` (DUAL's one-step actor).
+        lr (float): Adam's initial learning rate in each round (decayed along a cosine).
+            Defaults to ``1e-4``.
+        action_condition_prob (float): probability that ``a_0`` is given too
+            (:class:`DistillationLoss`), so the student stays a transition model.
+            Defaults to ``0.5``.
+        ema_decay (float, optional): decay of the weights' moving average kept at the
+            end of each round. Defaults to ``0.995``; ``None`` keeps the last weights.
+        logger (Logger, optional): a TorchRL logger; each round logs its averages as
+            ``distill_{n}/{name}`` (``n`` the student's steps).
+        progress (bool): show a tqdm progress bar per round. Defaults to ``True``.
+        checkpoints (UpdateCheckpoints, optional): makes the rounds resumable (see above).
+        **kwargs: passed to :func:`~torchrl_dual.objectives.run_updates`: ``grad_clip``
+            (default ``1.0``), ``log_every`` (``100``), ``step_offset`` (``0``).
+
     Returns:
-        the final student (the input ``teacher`` is left unchanged).
+        TrajectoryDiffusion: the final student (the input ``teacher`` is left unchanged).
+
+    Raises:
+        ValueError: ``final_steps`` is not ``N / 2^k``, or ``updates_per_round`` has
+            another number of entries than there are rounds.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
+        >>> teacher = TrajectoryDiffusion(TrajectoryLayout(2, 1, 3), num_steps=4, hidden=16, depth=1)
+        >>> _ = teacher.normalizer.fit(torch.randn(64, 2), torch.randn(64, 1))
+        >>> windows = lambda: TensorDict(observation=torch.randn(8, 4, 2),
+        ...                              action=torch.randn(8, 4, 1), batch_size=[8, 4])
+        >>> student = progressive_distillation(teacher, windows, [2, 3], progress=False)
+        >>> student.num_steps, teacher.num_steps  # two rounds: 4 -> 2 -> 1
+        (1, 4)
     """
     steps = teacher.num_steps
     if (

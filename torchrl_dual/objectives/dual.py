@@ -18,8 +18,10 @@ from torchrl_dual.objectives.weighted_map_actor import WeightedMAPActorLoss
 
 
 class DUALLoss(LossModule):
-    """DUAL's actor-critic update, Alg. 1 lines 7-8 (offline) and 15-16 (online): a critic
-    loss chosen at construction and Eq. (7)'s weighted MAP actor read on its weights.
+    """DUAL's actor-critic update, Alg. 1 lines 7-8 (offline) and 15-16 (online).
+
+    A critic loss chosen at construction and Eq. (7)'s weighted MAP actor read on its
+    weights.
 
     ``forward`` returns every term, as TorchRL's ``IQLLoss`` does: the critic's
     (:class:`~torchrl_dual.objectives.IQLCriticLoss`: ``loss_qvalue``, ``loss_value``;
@@ -145,6 +147,7 @@ class DUALLoss(LossModule):
 
     @property
     def check_finite(self) -> bool:
+        """Whether the terms are checked finite (the actor loss's setting, shared by both parts)."""
         return self.actor_objective.check_finite
 
     @check_finite.setter
@@ -156,10 +159,12 @@ class DUALLoss(LossModule):
         return self.critic, self.actor_objective
 
     def _adopt(self) -> None:
-        """Registers the parts' submodules, parameters and buffers as this loss's own, under
-        their names: TorchRL's target updaters look for ``target_*_params`` among a loss's
-        direct children. The critic's copy of the actor (Cal-QL's and SO2's policy, which
-        holds the actor's own parameters) is left out: the actor is the actor's.
+        """Registers the parts' submodules, parameters and buffers as this loss's own.
+
+        Under their names: TorchRL's target updaters look for ``target_*_params``
+        among a loss's direct children. The critic's copy of the actor (Cal-QL's and
+        SO2's policy, which holds the actor's own parameters) is left out: the actor
+        is the actor's.
         """
         actor_tensors = {id(p) for p in self.actor_objective.parameters()}
         for part in self._parts():
@@ -178,8 +183,9 @@ class DUALLoss(LossModule):
                     mine[name] = value
 
     def _apply(self, fn: Any, *args: Any, **kwargs: Any) -> DUALLoss:
-        """Casts and device moves go through the parts (each refreshes its own caches and
-        replaces its own buffers), then this loss takes their new state.
+        """Casts and moves the parts, then takes their new state.
+
+        Each part refreshes its own caches and replaces its own buffers.
         """
         for part in self._parts():
             part._apply(fn, *args, **kwargs)
@@ -191,6 +197,7 @@ class DUALLoss(LossModule):
 
     @property
     def reduction(self) -> str:
+        """Both parts' reduction, ``"mean"``, ``"sum"`` or ``"none"``; setting it sets both."""
         return self.actor_objective.reduction
 
     @reduction.setter
@@ -222,18 +229,22 @@ class DUALLoss(LossModule):
 
     @property
     def value_estimator(self) -> Any:
+        """The critic's value estimator (TD targets of Alg. 1 lines 7 and 15)."""
         return self.critic.value_estimator
 
     @property
     def tensor_keys(self) -> Any:
-        """The critic's keys (Eq. 7's actor reads the same observation, action and critic
-        outputs); ``set_keys`` renames them in both parts.
+        """The critic's keys, which Eq. 7's actor reads too.
+
+        The actor reads the same observation, action and critic outputs;
+        ``set_keys`` renames them in both parts.
         """
         return self.critic.tensor_keys
 
     def set_keys(self, **kwargs: NestedKey) -> None:
-        """Renames keys in every part that reads them; a name no part knows raises
-        ``ValueError`` listing the valid ones.
+        """Renames keys in every part that reads them.
+
+        A name no part knows raises ``ValueError`` listing the valid ones.
         """
         known = [set(vars(part.tensor_keys)) for part in self._parts()]
         unknown = set(kwargs) - set.union(*known)
@@ -257,16 +268,19 @@ class DUALLoss(LossModule):
 
     @property
     def in_keys(self) -> list[NestedKey]:
+        """The keys both parts read, each once, in order."""
         return list(dict.fromkeys(key for part in self._parts() for key in part.in_keys))
 
     @property
     def out_keys(self) -> list[str]:
+        """The critic's ``loss_*`` terms, then the actor's term and metrics."""
         return [*self.critic.critic_out_keys, *self.actor_objective.out_keys]
 
     # ------------------------------------------------------------------ the terms
     def critic_loss(self, tensordict: TensorDictBase) -> tuple[dict[str, torch.Tensor], dict]:
-        """The critic's terms (Alg. 1 lines 7 and 15), checked finite when
-        ``check_finite``; no metadata.
+        """The critic's terms (Alg. 1 lines 7 and 15); no metadata.
+
+        Checked finite when ``check_finite``.
         """
         terms = self.critic.critic_terms(tensordict)
         if self.check_finite:
@@ -275,9 +289,11 @@ class DUALLoss(LossModule):
         return terms, {}
 
     def actor_loss(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, dict]:
-        """Eq. (7) on the critic's current weights: ``loss_actor`` (reduced) and the
-        metrics ``weight_mean``, ``log_prob``, ``actor_std``; writes the per-sample
-        weights under ``actor_weight``.
+        """Eq. (7)'s weighted MAP actor loss on the critic's current weights.
+
+        Returns ``loss_actor`` (reduced) and the metrics ``weight_mean``,
+        ``log_prob``, ``actor_std``; writes the per-sample weights under
+        ``actor_weight``.
         """
         out = self.actor_objective(tensordict)
         return out["loss_actor"], {key: out[key] for key in out.keys() if key != "loss_actor"}

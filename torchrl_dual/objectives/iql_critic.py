@@ -11,8 +11,9 @@ from torchrl.objectives import IQLLoss
 
 
 class _NoActor(nn.Module):
-    """The actor slot of TorchRL's ``IQLLoss``, which cannot be left empty: a module without
-    parameters (so no actor weights are held or saved) that refuses to act.
+    """The actor slot of TorchRL's ``IQLLoss``, which cannot be left empty: refuses to act.
+
+    A module without parameters, so no actor weights are held or saved.
     """
 
     def forward(self, *observations: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -22,8 +23,9 @@ class _NoActor(nn.Module):
 
 
 class IQLCriticLoss(IQLLoss):
-    """IQL's critics (Kostrikov et al. 2022, Eq. 5-6), TorchRL's :class:`~torchrl.objectives.IQLLoss`
-    without the actor: the expectile value loss and the twin-Q TD loss.
+    """IQL's critics (Kostrikov et al. 2022, Eq. 5-6): TorchRL's ``IQLLoss`` without the actor.
+
+    :class:`~torchrl.objectives.IQLLoss`'s expectile value loss and twin-Q TD loss.
 
     * ``loss_value``: ``E[L_τ(min_k Q̄_k(s, a) − V(s))]``, with ``L_τ(u) = |τ − 1(u < 0)| u²``
       the expectile regression at ``expectile = τ`` and ``Q̄`` the target Q networks;
@@ -107,8 +109,9 @@ class IQLCriticLoss(IQLLoss):
         )
 
     def critic_terms(self, tensordict: TensorDictBase) -> dict[str, torch.Tensor]:
-        """The two losses of one critic step: ``loss_qvalue`` and ``loss_value``, each
-        TorchRL's ``IQLLoss`` method's (the class docstring).
+        """The two losses of one critic step, ``loss_qvalue`` and ``loss_value``.
+
+        Each is TorchRL's ``IQLLoss`` method's (the class docstring).
         """
         return {
             "loss_qvalue": self.qvalue_loss(tensordict)[0],
@@ -128,6 +131,14 @@ class IQLCriticLoss(IQLLoss):
             self._reset_module_parameters(name, getattr(self, name))
 
     def actor_loss(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, dict]:
+        """Refuses: this loss has no actor (DUAL's is :class:`WeightedMAPActorLoss`, Eq. 7).
+
+        Args:
+            tensordict (TensorDictBase): unused.
+
+        Raises:
+            RuntimeError: always; :class:`DUALLoss` pairs this critic with the actor's loss.
+        """
         raise RuntimeError(
             "IQLCriticLoss has no actor loss: DUAL's is WeightedMAPActorLoss (Eq. 7), and "
             "DUALLoss pairs the two."
@@ -135,8 +146,10 @@ class IQLCriticLoss(IQLLoss):
 
     @dispatch
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        """``loss_qvalue`` and ``loss_value`` (a ``[*B]`` TensorDict under
-        ``reduction="none"``); writes the TD-error priority (max over the Q networks).
+        """``loss_qvalue`` and ``loss_value``; writes the TD-error priority.
+
+        A ``[*B]`` TensorDict under ``reduction="none"``; the priority is the max
+        over the Q networks.
         """
         loss_qvalue, metadata = self.qvalue_loss(tensordict)
         loss_value = self.value_loss(tensordict)[0]

@@ -28,8 +28,10 @@ _PARAMS = tuple(
 
 
 class OnePassIQLLoss(IQLLoss):
-    """:class:`~torchrl.objectives.IQLLoss` whose :meth:`forward` (and :meth:`terms`)
-    share the target Q and ``V(s)`` between the value and the actor losses.
+    """TorchRL's IQL loss with the target Q and ``V(s)`` shared between its terms.
+
+    :class:`~torchrl.objectives.IQLLoss` whose :meth:`forward` (and :meth:`terms`) share
+    the target Q and ``V(s)`` between the value and the actor losses.
 
     Same constructor, parameters, keys and outputs as TorchRL's class; ``actor_loss``,
     ``value_loss`` and ``qvalue_loss`` remain TorchRL's for callers that need one term.
@@ -63,11 +65,12 @@ class OnePassIQLLoss(IQLLoss):
     """
 
     def terms(self, tensordict: TensorDictBase) -> dict[str, torch.Tensor]:
-        """The three losses of IQL on one batch, each equal to its TorchRL method's:
+        """The three losses of IQL on one batch, each equal to its TorchRL method's.
+
         ``loss_qvalue`` (TD to ``r + γ V(s')``), ``loss_value`` (the expectile of
-        ``min Q̄(s, a) − V(s)``) and ``loss_actor`` (``−exp(β (min Q̄ − V)) log π(a|s)``,
-        the weight clipped at 100). Writes ``log_prob`` (detached) into ``tensordict``
-        as ``actor_loss`` does.
+        ``min Q̄(s, a) − V(s)``) and ``loss_actor`` (``−exp(β (min Q̄ − V)) log
+        π(a|s)``, the weight clipped at 100). Writes ``log_prob`` (detached) into
+        ``tensordict`` as ``actor_loss`` does.
         """
         return self._terms(tensordict)[0]
 
@@ -102,9 +105,10 @@ class OnePassIQLLoss(IQLLoss):
 
     @dispatch
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        """TorchRL's ``IQLLoss.forward`` on :meth:`terms`: the three losses, the entropy
-        estimate ``−mean log π(a|s)`` and the batch's priority (the max TD error over the
-        Q networks) written into ``tensordict``.
+        """TorchRL's ``IQLLoss.forward`` on :meth:`terms`.
+
+        The three losses, the entropy estimate ``−mean log π(a|s)`` and the batch's
+        priority (the max TD error over the Q networks) written into ``tensordict``.
         """
         out, td_error = self._terms(tensordict)
         shapes = {name: term.shape for name, term in out.items()}

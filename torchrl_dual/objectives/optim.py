@@ -16,8 +16,10 @@ import torchrl_dual._versioned_cache  # noqa: F401  (its step hook: fused steps 
 
 
 def adam(params: Iterable[torch.Tensor], lr: float, *, fuse: bool = True) -> torch.optim.Adam:
-    """``torch.optim.Adam(params, lr)``, fused when ``fuse`` and every parameter is a
-    floating-point tensor on the CPU or CUDA, else PyTorch's default implementation.
+    """``torch.optim.Adam(params, lr)``, fused where it can be.
+
+    Fused when ``fuse`` and every parameter is a floating-point tensor on the CPU or
+    CUDA, else PyTorch's default implementation.
 
     Every optimizer this package builds is one of these: :func:`train_planner`'s,
     :func:`progressive_distillation`'s and every optimizer of the recipe's algorithms.

@@ -1,5 +1,7 @@
-"""SO2's ensemble critic loss (Zhang et al. 2024, "A Perspective of Q-value Estimation on
-Offline-to-Online Reinforcement Learning", arXiv:2312.07685).
+"""SO2's ensemble critic loss.
+
+Zhang et al. 2024, "A Perspective of Q-value Estimation on Offline-to-Online Reinforcement
+Learning", arXiv:2312.07685.
 
 SO2 fine-tunes an offline-pretrained Q ensemble (SAC-N / EDAC) online with two changes:
 
@@ -204,14 +206,16 @@ class SO2QLoss(LossModule):
         self._make_vmap()
 
     def _make_vmap(self) -> None:
-        """The ensemble's ``vmap`` over the members, with TorchRL's ``vmap_randomness``
-        (``"different"`` when the Q network holds a random module such as dropout).
+        """The ensemble's ``vmap`` over the members, with TorchRL's ``vmap_randomness``.
+
+        ``"different"`` when the Q network holds a random module such as dropout.
         """
         self._ensemble = _vmap_func(self.qvalue_network, (None, 0), randomness=self.vmap_randomness)
 
     def reset_parameters_recursive(self) -> None:
-        """Re-initialises the Q ensemble and its target; the actor belongs to the actor's
-        loss and is left as it is.
+        """Re-initialises the Q ensemble and its target.
+
+        The actor belongs to the actor's loss and is left as it is.
         """
         self._reset_module_parameters("qvalue_network", self.qvalue_network)
 
@@ -221,11 +225,12 @@ class SO2QLoss(LossModule):
     def make_value_estimator(
         self, value_type: ValueEstimators | None = None, **hyperparams
     ) -> SO2QLoss:
-        """TorchRL's ``make_value_estimator``, so that generic loops
-        (``loss.make_value_estimator(gamma=0.99)``) work: SO2's target is the one-step
-        (TD(0)) bootstrap ``r + γ (1 − terminated) V(s')`` over its smoothed,
-        per-member ``V(s')``, so ``ValueEstimators.TD0`` (the default) is the only type
-        and ``gamma`` its one hyperparameter.
+        """TorchRL's ``make_value_estimator``, so that generic loops work; only TD(0).
+
+        Generic loops call ``loss.make_value_estimator(gamma=0.99)``. SO2's target
+        is the one-step (TD(0)) bootstrap ``r + γ (1 − terminated) V(s')`` over its
+        smoothed, per-member ``V(s')``, so ``ValueEstimators.TD0`` (the default) is
+        the only type and ``gamma`` its one hyperparameter.
 
         Examples:
             >>> import torch
@@ -253,6 +258,7 @@ class SO2QLoss(LossModule):
 
     @property
     def in_keys(self) -> list[NestedKey]:
+        """The keys the loss reads: ``(s, a)``, the next states, the reward and ``terminated``."""
         action = self.tensor_keys.action
         states = [k for k in self.qvalue_network.in_keys if k != action]
         states = list(dict.fromkeys([*states, *self.actor_network.in_keys]))
@@ -289,8 +295,10 @@ class SO2QLoss(LossModule):
     # ------------------------------------------------------------------ target
     @torch.no_grad()
     def target_action(self, next_tensordict: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(ã', log π(a'|s'))``: the smoothed next action and the log-probability of the
-        un-noised ``a'`` (zeros when ``entropy_coef == 0``).
+        """The smoothed next action ``ã'`` and the log-probability of the un-noised ``a'``.
+
+        ``(ã', log π(a'|s'))``, the log-probability zeros when ``entropy_coef ==
+        0``.
         """
         td = next_tensordict.select(*self.actor_network.in_keys, strict=False).clone(False)
         mode = (
@@ -320,8 +328,9 @@ class SO2QLoss(LossModule):
 
     @torch.no_grad()
     def target_value(self, tensordict: TensorDictBase) -> torch.Tensor:
-        """``y = r + γ·(1 − terminated)·(Q̄(s', ã') − α·log π(a'|s'))``: ``[E, *B]`` for
-        ``target_reduction="independent"``, else ``[*B]``.
+        """The TD target ``y = r + γ·(1 − terminated)·(Q̄(s', ã') − α·log π(a'|s'))``.
+
+        ``[E, *B]`` for ``target_reduction="independent"``, else ``[*B]``.
         """
         next_td = read_key(tensordict, "next", "SO2QLoss", "Add the next step under 'next'.")
         action, log_prob = self.target_action(next_td)
@@ -367,6 +376,15 @@ class SO2QLoss(LossModule):
         return list(self.qvalue_network_params.values(True, True))
 
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
+        """SO2's reduced critic loss and its diagnostics.
+
+        Args:
+            tensordict (TensorDictBase): transitions ``[*B]`` with ``next`` states, rewards and
+                ``terminated`` flags.
+
+        Returns:
+            ``loss_qvalue`` and the detached means ``state_action_value`` and ``target_value``.
+        """
         loss, metadata = self.qvalue_loss(tensordict)
         loss = self._reduce_loss(loss, tensordict=tensordict)
         return TensorDict({"loss_qvalue": loss, **metadata}, batch_size=[])

@@ -21,9 +21,10 @@ from torchrl.objectives import SoftUpdate
 
 
 class ForeachSoftUpdate(SoftUpdate):
-    """:class:`~torchrl.objectives.SoftUpdate` whose :meth:`step` is one
-    ``torch._foreach_lerp_`` over every target leaf:
-    ``θ̄ ← θ̄ + (1 − eps)·(θ − θ̄)`` with ``1 − eps = tau``, as TorchRL's.
+    """TorchRL's ``SoftUpdate`` with one ``torch._foreach_lerp_`` over every target leaf.
+
+    :class:`~torchrl.objectives.SoftUpdate` whose :meth:`step` is ``θ̄ ← θ̄ + (1 −
+    eps)·(θ − θ̄)`` with ``1 − eps = tau``, as TorchRL's, in one foreach call.
 
     Construction, ``init_``, ``state_dict`` and the checks are TorchRL's (this class only
     replaces the per-group ``TensorDict.data`` round trips of ``step``).
@@ -68,8 +69,9 @@ class ForeachSoftUpdate(SoftUpdate):
 
 
 def _leaf_data(value: torch.Tensor | TensorDictBase) -> list[torch.Tensor]:
-    """The ``.data`` views of a tensor or of a TensorDict's leaves, in the order
-    ``TensorDictBase.lerp_`` pairs them.
+    """The ``.data`` views of a tensor or of a TensorDict's leaves.
+
+    In the order ``TensorDictBase.lerp_`` pairs them.
     """
     if isinstance(value, TensorDictBase):
         return [leaf.data for leaf in value.values(True, True)]

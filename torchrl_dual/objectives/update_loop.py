@@ -39,6 +39,7 @@ class ExponentialMovingAverage:
 
     @torch.no_grad()
     def update(self) -> None:
+        """Moves each average toward its parameter: ``θ̄ ← decay·θ̄ + (1 − decay)·θ``."""
         torch._foreach_lerp_(self.shadow, [p.detach() for p in self.params], 1.0 - self.decay)
 
     def state_dict(self) -> dict[str, list[torch.Tensor]]:
@@ -63,17 +64,53 @@ class UpdateCheckpoints(Protocol):
 
     The recipe's offline stages pass one (``O2ORun.stage_checkpoints``): it saves the run
     with the loop's state every so many updates and when the run is interrupted.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
+        >>> from torchrl_dual.objectives import DiffusionPlannerLoss
+        >>> class InMemory:  # keeps the last state; interrupts the loop once, at update 2
+        ...     saved, stop_at = None, 2
+        ...     def resume(self):
+        ...         return self.saved
+        ...     def after_update(self, done, total, state):
+        ...         self.saved = state()
+        ...         if done == self.stop_at:
+        ...             self.stop_at = None
+        ...             raise KeyboardInterrupt
+        >>> model = TrajectoryDiffusion(TrajectoryLayout(2, 1, 3), hidden=16, depth=1)
+        >>> _ = model.normalizer.fit(torch.randn(64, 2), torch.randn(64, 1))
+        >>> loss = DiffusionPlannerLoss(model)
+        >>> optimizer = torch.optim.Adam(loss.parameters())
+        >>> windows = lambda: TensorDict(observation=torch.randn(4, 4, 2),
+        ...                              action=torch.randn(4, 4, 1), batch_size=[4, 4])
+        >>> checkpoints = InMemory()
+        >>> run = lambda: run_updates(loss, windows, 5, optimizer, progress=False,
+        ...                           checkpoints=checkpoints)
+        >>> try:
+        ...     _ = run()
+        ... except KeyboardInterrupt:
+        ...     print("interrupted after update", checkpoints.saved["done"])
+        interrupted after update 2
+        >>> _ = run()
+        >>> checkpoints.saved["done"]  # resumed at update 2, finished at 5
+        5
     """
 
     def resume(self) -> dict[str, Any] | None:
-        """The loop state to continue from (what an ``after_update`` call's ``state()``
-        returned), or ``None`` to start at update 0; called right before the loop runs.
+        """The loop state to continue from, or ``None`` to start at update 0.
+
+        What an ``after_update`` call's ``state()`` returned; called right before
+        the loop runs.
         """
 
     def after_update(self, done: int, total: int, state: Callable[[], dict[str, Any]]) -> None:
-        """Called after each update: ``done`` of ``total`` updates are done and ``state()``
-        is the loop's state now (built only when called). May raise ``KeyboardInterrupt``
-        to stop the loop there.
+        """Called after each update with the progress and a builder of the loop's state.
+
+        ``done`` of ``total`` updates are done and ``state()`` is the loop's state
+        now (built only when called). May raise ``KeyboardInterrupt`` to stop the
+        loop there.
         """
 
 
@@ -101,6 +138,31 @@ def run_updates(
     ``{log_prefix}{name}``; the last window's averages are returned. With
     ``checkpoints``, the loop continues from the state its ``resume()`` returns and hands
     its state to ``after_update`` after each step (:class:`UpdateCheckpoints`).
+
+    Args:
+        loss_module (LossModule): its output's ``loss_*`` entries are summed and
+            minimised; every scalar entry is averaged for the log.
+        sample (callable): ``() -> TensorDictBase``, the batch of one update.
+        num_updates (int): gradient steps (in all, counting those before a resume).
+        optimizer (torch.optim.Optimizer): steps the loss module's parameters.
+
+    Keyword Args:
+        grad_clip (float, optional): gradient-norm clip over the parameters that require
+            a gradient. Defaults to ``1.0``; ``None`` turns it off.
+        desc (str): the progress bar's label. Defaults to ``"updates"``.
+        logger (Logger, optional): a TorchRL logger, see above.
+        log_prefix (str): put before each logged name. Defaults to ``""``.
+        log_every (int): updates per averaged window. Defaults to ``100``.
+        step_offset (int): added to the logged step (the update count). Defaults to ``0``.
+        progress (bool): show a tqdm progress bar. Defaults to ``True``.
+        cosine_lr (bool): decay the learning rate along a cosine over ``num_updates``.
+            Defaults to ``False``.
+        ema (ExponentialMovingAverage, optional): updated after each step.
+        checkpoints (UpdateCheckpoints, optional): where the loop resumes from and
+            leaves its state.
+
+    Returns:
+        dict[str, float]: the last window's average of each scalar entry.
 
     Examples:
         >>> import torch

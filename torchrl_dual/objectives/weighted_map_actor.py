@@ -174,8 +174,9 @@ class WeightedMAPActorLoss(LossModule):
 
     @classmethod
     def from_iql(cls, actor: LastLayerActor, iql_loss, **kwargs) -> WeightedMAPActorLoss:
-        """Builds the loss on the critics of a TorchRL ``IQLLoss`` (the target twin Q and
-        V), or of any critic loss with ``qvalue_network`` and target Q parameters, e.g.
+        """Builds the loss on the critics of a TorchRL ``IQLLoss`` (the target twin Q and V).
+
+        Or of any critic loss with ``qvalue_network`` and target Q parameters, e.g.
         :class:`~torchrl_dual.objectives.CalQLLoss` (no V: ``weighting="sac"`` or
         ``"uniform"`` only).
         """
@@ -202,12 +203,14 @@ class WeightedMAPActorLoss(LossModule):
         pass
 
     def _make_vmap(self) -> None:
-        """TorchRL's hook of ``set_vmap_randomness``: nothing to rebuild, the twin-Q
-        evaluation reads :attr:`vmap_randomness` at each call.
+        """TorchRL's hook of ``set_vmap_randomness``: nothing to rebuild.
+
+        The twin-Q evaluation reads :attr:`vmap_randomness` at each call.
         """
 
     @property
     def in_keys(self) -> list[NestedKey]:
+        """The keys the loss reads: the observation and the data action."""
         return [self.tensor_keys.observation, self.tensor_keys.action]
 
     # ------------------------------------------------------------------ critics
@@ -236,7 +239,45 @@ class WeightedMAPActorLoss(LossModule):
 
     @torch.no_grad()
     def advantage_weights(self, tensordict: TensorDictBase) -> torch.Tensor:
-        """``min(exp(β·(Q(s,a) − V(s))), w_max)``, shape ``[*B]``."""
+        """IQL's advantage weights ``w = min(exp(β·(Q(s,a) − V(s))), w_max)`` of Eq. 7.
+
+        The weights of the ``"advantage"`` weighting: ``Q`` is the minimum over the
+        critic ensemble (``qvalue_params``), ``V`` the value network's, both read
+        without gradient to the critic; ``β`` is ``temperature`` and ``w_max``
+        ``max_weight``. :meth:`~torchrl_dual.modules.LaplaceEnsembleActor.fit_laplace`
+        reuses them (``weight_fn=loss.advantage_weights``) so that Eq. 8's posterior is
+        that of the loss the actor was trained with.
+
+        Args:
+            tensordict (TensorDictBase): transitions ``[*B]`` holding what the Q and
+                value networks read (observation and action).
+
+        Returns:
+            Tensor: the weights, ``[*B]``, in ``(0, w_max]``.
+
+        Raises:
+            ValueError: a weight is NaN or inf (with ``check_finite``), naming the
+                batch's first bad entry.
+
+        Examples:
+            >>> import torch
+            >>> from torch import nn
+            >>> from tensordict import TensorDict
+            >>> from torchrl.modules import MLP, ValueOperator
+            >>> from torchrl_dual.modules import LinearHeadActor
+            >>> def constant(value, in_features):  # a network that outputs ``value``
+            ...     net = MLP(in_features=in_features, out_features=1, depth=0)
+            ...     _ = nn.init.zeros_(net[0].weight), nn.init.constant_(net[0].bias, value)
+            ...     return net
+            >>> loss = WeightedMAPActorLoss(
+            ...     LinearHeadActor(MLP(in_features=3, out_features=2, num_cells=[16]), 2),
+            ...     qvalue_network=ValueOperator(constant(1.0, 5), in_keys=["observation", "action"]),
+            ...     value_network=ValueOperator(constant(0.5, 3), in_keys=["observation"]),
+            ...     temperature=2.0)
+            >>> td = TensorDict(observation=torch.randn(4, 3), action=torch.randn(4, 2), batch_size=[4])
+            >>> loss.advantage_weights(td)  # exp(2 · (1.0 − 0.5)) = e
+            tensor([2.7183, 2.7183, 2.7183, 2.7183])
+        """
         q = self.q_value(tensordict)
         v = self._evaluate(
             self.value_network, self.value_params, tensordict, self.tensor_keys.value
@@ -248,8 +289,9 @@ class WeightedMAPActorLoss(LossModule):
 
     # ------------------------------------------------------------------ loss
     def reset_parameters_recursive(self) -> None:
-        """Re-initialises the actor, the one module this loss owns (the critic it reads
-        belongs to the critic's loss).
+        """Re-initialises the actor, the one module this loss owns.
+
+        The critic it reads belongs to the critic's loss.
         """
         with self.actor_params.to_module(self.actor):
             self.actor.reset_parameters_recursive()
@@ -301,6 +343,16 @@ class WeightedMAPActorLoss(LossModule):
         return loss, metadata
 
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
+        """The reduced loss of Eq. (7); writes the per-sample weights ``w_i`` under ``weight``.
+
+        Args:
+            tensordict (TensorDictBase): transitions ``[*B]`` with the observation and the
+                action (and what the critics read).
+
+        Returns:
+            ``loss_actor`` (a scalar, or ``[*B]`` under ``reduction="none"``) and the detached
+            metrics ``weight_mean``, ``log_prob`` and ``actor_std``.
+        """
         loss, metadata = self.actor_loss(tensordict)
         weight = metadata.pop("_weight")
         tensordict.set(self.tensor_keys.weight, weight)

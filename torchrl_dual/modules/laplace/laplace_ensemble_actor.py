@@ -188,6 +188,41 @@ class LaplaceEnsembleActor(ActionBounds, TensorDictModuleBase):
         mean in the head output (:meth:`~LastLayerActor.mean_jacobian`, a generalised
         Gauss-Newton Hessian) and ``σ_head = σ̄``.
         Feed the whole data set: the posterior of Eq. (8) is over the summed loss.
+        The ``M`` sub-policies are drawn anew (:meth:`resample`).
+
+        Args:
+            batches (iterable of TensorDictBase): the data to fit on, e.g.
+                ``[offline_data]`` or the replay buffer's offline and online storages;
+                each holds states ``[*B, obs_dim]`` under the observation key (only the
+                states are read, plus what ``weight_fn`` reads).
+
+        Keyword Args:
+            weight_fn (callable, optional): ``batch -> w [*B]``, the non-negative Eq. 7
+                weight of each sample (e.g. ``WeightedMAPActorLoss.advantage_weights``);
+                normalised to mean 1 over all batches. Uniform when ``None``.
+
+        Returns:
+            LastLayerLaplace: the fitted posterior (:attr:`laplace`), with its MAP head
+            ``θ*``, prior precision ``λ`` and the precisions of Eq. 8.
+
+        Raises:
+            ValueError: ``batches`` holds no state; a weight is negative, NaN or inf, or
+                not shaped like the batch; the features or the MAP head hold a NaN or
+                inf.
+            KeyError: a batch lacks the observation key.
+
+        Examples:
+            >>> import torch
+            >>> from tensordict import TensorDict
+            >>> from torchrl.modules import MLP
+            >>> from torchrl_dual.modules import LinearHeadActor
+            >>> actor = LinearHeadActor(MLP(in_features=3, out_features=2, num_cells=[16]), 2)
+            >>> policy = LaplaceEnsembleActor(actor, num_samples=4)
+            >>> data = TensorDict(observation=torch.randn(128, 3), batch_size=[128])
+            >>> laplace = policy.fit_laplace([data[:64], data[64:]],
+            ...                              weight_fn=lambda batch: torch.ones(batch.shape))
+            >>> laplace.is_fitted, tuple(policy.member_actions(torch.randn(5, 3)).shape)
+            (True, (4, 5, 2))
         """
         actor = self.actor
         self.laplace.reset()
