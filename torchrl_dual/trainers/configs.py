@@ -65,6 +65,20 @@ class IQLCriticLossConfig:
 
     IQL's twin Q and expectile V (IQL's paper values: ``loss_function="l2"``,
     ``expectile`` 0.7 or 0.9).
+
+    Examples:
+        >>> from hydra.utils import instantiate
+        >>> from omegaconf import OmegaConf
+        >>> from torchrl.modules import MLP, ValueOperator
+        >>> make = instantiate(OmegaConf.structured(IQLCriticLossConfig(expectile=0.9)),
+        ...                    _partial_=True)  # the networks complete the partial
+        >>> critic = make(
+        ...     qvalue_network=ValueOperator(MLP(in_features=5, out_features=1, num_cells=[8]),
+        ...                                  in_keys=["observation", "action"]),
+        ...     value_network=ValueOperator(MLP(in_features=3, out_features=1, num_cells=[8]),
+        ...                                 in_keys=["observation"]))
+        >>> type(critic).__name__, critic.expectile
+        ('IQLCriticLoss', 0.9)
     """
 
     qvalue_network: Any = None
@@ -83,6 +97,24 @@ class DUALLossConfig:
     The weighted MAP actor of Eq. 7 on the critic (Alg. 1 lines 7-8). ``critic`` is the
     critic loss itself, e.g. built from ``loss=dual_iql_critic``: Eq. 7 then reads the
     weights that loss trains.
+
+    Examples:
+        >>> from hydra.utils import instantiate
+        >>> from omegaconf import OmegaConf
+        >>> from torchrl.modules import MLP, ValueOperator
+        >>> from torchrl_dual.modules import LinearHeadActor
+        >>> from torchrl_dual.objectives import IQLCriticLoss
+        >>> critic = IQLCriticLoss(
+        ...     ValueOperator(MLP(in_features=5, out_features=1, num_cells=[8]),
+        ...                   in_keys=["observation", "action"]),
+        ...     ValueOperator(MLP(in_features=3, out_features=1, num_cells=[8]),
+        ...                   in_keys=["observation"]))
+        >>> actor = LinearHeadActor(MLP(in_features=3, out_features=2, num_cells=[8]), 2)
+        >>> config = OmegaConf.structured(DUALLossConfig(temperature=2.0))
+        >>> make = instantiate(config, _partial_=True)
+        >>> loss = make(actor=actor, critic=critic)
+        >>> type(loss).__name__, loss.actor_objective.temperature
+        ('DUALLoss', 2.0)
     """
 
     actor: Any = None
@@ -98,7 +130,18 @@ class DUALLossConfig:
 
 @dataclass
 class DiffusionPlannerLossConfig:
-    """:class:`~torchrl_dual.objectives.DiffusionPlannerLoss`: Eq. 3 on H-step windows."""
+    """:class:`~torchrl_dual.objectives.DiffusionPlannerLoss`: Eq. 3 on H-step windows.
+
+    Examples:
+        >>> from hydra.utils import instantiate
+        >>> from omegaconf import OmegaConf
+        >>> from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
+        >>> model = TrajectoryDiffusion(TrajectoryLayout(3, 2, 4), hidden=16, depth=1)
+        >>> config = DiffusionPlannerLossConfig(action_condition_prob=0.25)
+        >>> loss = instantiate(OmegaConf.structured(config), _partial_=True)(model=model)
+        >>> type(loss).__name__, loss.action_condition_prob
+        ('DiffusionPlannerLoss', 0.25)
+    """
 
     model: Any = None
     action_condition_prob: float = 0.5
@@ -109,7 +152,22 @@ class DiffusionPlannerLossConfig:
 
 @dataclass
 class DistillationLossConfig:
-    """:class:`~torchrl_dual.objectives.DistillationLoss`: one progressive-distillation round."""
+    """:class:`~torchrl_dual.objectives.DistillationLoss`: one progressive-distillation round.
+
+    Examples:
+        >>> import copy
+        >>> from hydra.utils import instantiate
+        >>> from omegaconf import OmegaConf
+        >>> from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
+        >>> layout = TrajectoryLayout(3, 2, 4)
+        >>> teacher = TrajectoryDiffusion(layout, num_steps=4, hidden=16, depth=1)
+        >>> student = copy.deepcopy(teacher)
+        >>> student.num_steps = 2  # one round: 4 -> 2 steps
+        >>> make = instantiate(OmegaConf.structured(DistillationLossConfig()), _partial_=True)
+        >>> loss = make(student=student, teacher=teacher)
+        >>> type(loss).__name__, loss.student.num_steps, loss.teacher.num_steps
+        ('DistillationLoss', 2, 4)
+    """
 
     student: Any = None
     teacher: Any = None
@@ -121,7 +179,18 @@ class DistillationLossConfig:
 
 @dataclass
 class ShiftAwareNoiseConfig:
-    """:class:`~torchrl_dual.modules.ShiftAwareNoise`: Eq. 10's shift-aware variance."""
+    """:class:`~torchrl_dual.modules.ShiftAwareNoise`: Eq. 10's shift-aware variance.
+
+    Examples:
+        >>> from hydra.utils import instantiate
+        >>> from omegaconf import OmegaConf
+        >>> from torchrl.data import Bounded
+        >>> make = instantiate(OmegaConf.structured(ShiftAwareNoiseConfig(shift_weight=0.25)),
+        ...                    _partial_=True)
+        >>> noise = make(spec=Bounded(-1.0, 1.0, shape=(2,)))
+        >>> type(noise).__name__, float(noise.shift_weight)
+        ('ShiftAwareNoise', 0.25)
+    """
 
     spec: Any = None
     shift_weight: float = 0.5
@@ -133,7 +202,21 @@ class ShiftAwareNoiseConfig:
 
 @dataclass
 class LaplaceRefitHookConfig:
-    """:class:`~torchrl_dual.trainers.LaplaceRefitHook`: Eq. 8 every ``interval`` steps."""
+    """:class:`~torchrl_dual.trainers.LaplaceRefitHook`: Eq. 8 every ``interval`` steps.
+
+    Examples:
+        >>> from hydra.utils import instantiate
+        >>> from omegaconf import OmegaConf
+        >>> from torchrl.modules import MLP
+        >>> from torchrl_dual.modules import LaplaceEnsembleActor, LinearHeadActor
+        >>> ensemble = LaplaceEnsembleActor(
+        ...     LinearHeadActor(MLP(in_features=3, out_features=2, num_cells=[8]), 2))
+        >>> make = instantiate(OmegaConf.structured(LaplaceRefitHookConfig(interval=100)),
+        ...                    _partial_=True)
+        >>> hook = make(ensemble=ensemble, batches_fn=lambda: [])
+        >>> type(hook).__name__, hook.interval
+        ('LaplaceRefitHook', 100)
+    """
 
     ensemble: Any = None
     batches_fn: Any = None
@@ -145,7 +228,15 @@ class LaplaceRefitHookConfig:
 
 @dataclass
 class DUALSignalsLogHookConfig:
-    """:class:`~torchrl_dual.trainers.DUALSignalsLogHook`: Eq. 9-10's signals per batch."""
+    """:class:`~torchrl_dual.trainers.DUALSignalsLogHook`: Eq. 9-10's signals per batch.
+
+    Examples:
+        >>> from hydra.utils import instantiate
+        >>> from omegaconf import OmegaConf
+        >>> hook = instantiate(OmegaConf.structured(DUALSignalsLogHookConfig(prefix="signals/")))
+        >>> type(hook).__name__, hook.prefix
+        ('DUALSignalsLogHook', 'signals/')
+    """
 
     prefix: str = "dual/"
     log_pbar: bool = False
@@ -159,6 +250,15 @@ class NormalizedScoreLogHookConfig:
 
     Logs the evaluation's score every ``interval`` collected batches (``evaluate`` is a
     callable: pass it in).
+
+    Examples:
+        >>> from hydra.utils import instantiate
+        >>> from omegaconf import OmegaConf
+        >>> make = instantiate(OmegaConf.structured(NormalizedScoreLogHookConfig(interval=1)),
+        ...                    _partial_=True)
+        >>> hook = make(evaluate=lambda: {"normalized_score": 42.0})
+        >>> hook(None)
+        {'eval/normalized_score': 42.0}
     """
 
     evaluate: Any = None
@@ -175,6 +275,21 @@ class OfflineToOnlineReplayBufferConfig:
     Each batch draws ``offline_fraction`` of it from ``D_offline`` (a Minari id, or a
     replay buffer passed in) and the rest from the online storage, a fixed share as DUAL
     samples.
+
+    Examples:
+        >>> import torch
+        >>> from hydra.utils import instantiate
+        >>> from omegaconf import OmegaConf
+        >>> from tensordict import TensorDict
+        >>> from torchrl.data import LazyTensorStorage, ReplayBuffer
+        >>> offline = ReplayBuffer(storage=LazyTensorStorage(10))
+        >>> _ = offline.extend(TensorDict(observation=torch.randn(10, 3), batch_size=[10]))
+        >>> config = OfflineToOnlineReplayBufferConfig(online_capacity=100, batch_size=8)
+        >>> make = instantiate(OmegaConf.structured(config), _partial_=True)
+        >>> replay = make(offline_dataset=offline)
+        >>> _ = replay.extend(TensorDict(observation=torch.randn(4, 3), batch_size=[4]))
+        >>> replay.sample().shape  # half offline, half online
+        torch.Size([8])
     """
 
     offline_dataset: Any = None
@@ -187,7 +302,19 @@ class OfflineToOnlineReplayBufferConfig:
 
 @dataclass
 class DUALTrainerConfig:
-    """:class:`~torchrl_dual.trainers.DUALTrainer`: Algorithm 1 on TorchRL's ``Trainer``."""
+    """:class:`~torchrl_dual.trainers.DUALTrainer`: Algorithm 1 on TorchRL's ``Trainer``.
+
+    Examples:
+        The trainer's modules complete the partial (:class:`~torchrl_dual.trainers.DUALTrainer`
+        shows a run built from them):
+
+        >>> from hydra.utils import instantiate
+        >>> from omegaconf import OmegaConf
+        >>> make = instantiate(OmegaConf.structured(DUALTrainerConfig(total_frames=40)),
+        ...                    _partial_=True)
+        >>> make.func.__name__, make.keywords["total_frames"], make.keywords["refit_interval"]
+        ('DUALTrainer', 40, 5000)
+    """
 
     collector: Any = None
     policy: Any = None

@@ -73,6 +73,58 @@ class DUALTrainer(Trainer):
             by default.
         **trainer_kwargs: the rest of :class:`~torchrl.trainers.Trainer`'s arguments
             (``save_trainer_file``, ``logger``, ``progress_bar``, ...).
+
+    Examples:
+        A toy run on Pendulum: a 40-step rollout stands in for the offline data set, and the
+        offline stages are cut to three updates and the Laplace fit.
+
+        >>> import torch
+        >>> from torchrl.data import LazyTensorStorage, OfflineToOnlineReplayBuffer, ReplayBuffer
+        >>> from torchrl.envs import GymEnv
+        >>> from torchrl.modules import MLP, ValueOperator
+        >>> from torchrl.objectives import SoftUpdate
+        >>> from torchrl_dual.data import TRANSITION_KEYS
+        >>> from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
+        >>> from torchrl_dual.modules import PlannerActor, TransitionModel, make_dual_policy
+        >>> from torchrl_dual.objectives import DUALLoss, IQLCriticLoss
+        >>> from torchrl_dual.trainers import CriticActorStepper, dual_collector
+        >>> from torchrl_dual.transforms import PreviousTransition
+        >>> env = GymEnv("Pendulum-v1").append_transform(PreviousTransition())
+        >>> data = env.rollout(max_steps=40)
+        >>> offline = ReplayBuffer(storage=LazyTensorStorage(40))
+        >>> _ = offline.extend(data.select(*[key for key in TRANSITION_KEYS if key != "episode"]))
+        >>> model = TrajectoryDiffusion(TrajectoryLayout(3, 1, 2), num_steps=1, hidden=16, depth=1)
+        >>> _ = model.normalizer.fit(data["observation"], data["action"])
+        >>> actor = PlannerActor(model)
+        >>> critic = IQLCriticLoss(
+        ...     ValueOperator(MLP(in_features=4, out_features=1, num_cells=[16]),
+        ...                   in_keys=["observation", "action"]),
+        ...     ValueOperator(MLP(in_features=3, out_features=1, num_cells=[16]),
+        ...                   in_keys=["observation"]))
+        >>> loss = DUALLoss(actor, critic)
+        >>> loss.make_value_estimator(gamma=0.99)
+        >>> stepper = CriticActorStepper(
+        ...     loss,
+        ...     torch.optim.Adam(loss.critic_parameters()),
+        ...     torch.optim.Adam(loss.actor_parameters()),
+        ...     target_update=SoftUpdate(loss, tau=0.005))
+        >>> policy = make_dual_policy(actor, env.action_spec, num_samples=3,
+        ...                           transition_model=TransitionModel.frozen_copy(model))
+        >>> weights = loss.actor_objective.advantage_weights
+        >>> trainer = DUALTrainer(
+        ...     collector=dual_collector(env, policy, frames_per_batch=20, total_frames=40),
+        ...     policy=policy,
+        ...     stepper=stepper,
+        ...     replay_buffer=OfflineToOnlineReplayBuffer(
+        ...         offline, online_capacity=100, offline_fraction=0.5, batch_size=16),
+        ...     offline_stages=[
+        ...         ("pretrain", lambda: [stepper.update(offline.sample(16)) for _ in range(3)]),
+        ...         ("laplace", lambda: policy[0].fit_laplace([offline[:]], weight_fn=weights))],
+        ...     total_frames=40, optim_steps_per_batch=2, refit_interval=4, weight_fn=weights,
+        ...     progress_bar=False)
+        >>> trainer.train()
+        >>> trainer.collected_frames, trainer.offline_stages.done, trainer.laplace_refit.num_refits
+        (40, ['pretrain', 'laplace'], 1)
     """
 
     def __init__(
