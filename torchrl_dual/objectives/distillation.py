@@ -239,7 +239,8 @@ def progressive_distillation(
         >>> import torch
         >>> from tensordict import TensorDict
         >>> from torchrl_dual.diffusion import TrajectoryDiffusion, TrajectoryLayout
-        >>> teacher = TrajectoryDiffusion(TrajectoryLayout(2, 1, 3), num_steps=4, hidden=16, depth=1)
+        >>> layout = TrajectoryLayout(obs_dim=2, action_dim=1, horizon=3)
+        >>> teacher = TrajectoryDiffusion(layout, num_steps=4, hidden=16, depth=1)
         >>> _ = teacher.normalizer.fit(torch.randn(64, 2), torch.randn(64, 1))
         >>> windows = lambda: TensorDict(observation=torch.randn(8, 4, 2),
         ...                              action=torch.randn(8, 4, 1), batch_size=[8, 4])

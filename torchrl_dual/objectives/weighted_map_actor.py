@@ -271,10 +271,12 @@ class WeightedMAPActorLoss(LossModule):
             ...     return net
             >>> loss = WeightedMAPActorLoss(
             ...     LinearHeadActor(MLP(in_features=3, out_features=2, num_cells=[16]), 2),
-            ...     qvalue_network=ValueOperator(constant(1.0, 5), in_keys=["observation", "action"]),
+            ...     qvalue_network=ValueOperator(constant(1.0, 5),
+            ...                                  in_keys=["observation", "action"]),
             ...     value_network=ValueOperator(constant(0.5, 3), in_keys=["observation"]),
             ...     temperature=2.0)
-            >>> td = TensorDict(observation=torch.randn(4, 3), action=torch.randn(4, 2), batch_size=[4])
+            >>> td = TensorDict(observation=torch.randn(4, 3), action=torch.randn(4, 2),
+            ...                 batch_size=[4])
             >>> loss.advantage_weights(td)  # exp(2 · (1.0 − 0.5)) = e
             tensor([2.7183, 2.7183, 2.7183, 2.7183])
         """

@@ -67,9 +67,11 @@ _OTHER_CONFIG = ("config_path", "config_name", "config_dir", "experimental_rerun
 
 
 def run(cfg: DictConfig) -> Any:
-    """Validates ``cfg`` (raising :class:`~torchrl_dual.recipe.settings.errors.ConfigError`) and
-    runs its algorithm: Algorithm 1's loop (``o2o/loop.py``) with the ``algo`` entry's
-    learner (``settings/algos.py``; DUAL's is ``algos/dual.py``). Returns the finished
+    """Validates ``cfg`` and runs its algorithm; returns the finished run.
+
+    Raises :class:`~torchrl_dual.recipe.settings.errors.ConfigError` for a bad config.
+    Runs Algorithm 1's loop (``o2o/loop.py``) with the ``algo`` entry's learner
+    (``settings/algos.py``; DUAL's is ``algos/dual.py``) and returns the finished
     :class:`~torchrl_dual.recipe.O2ORun`.
     """
     validate_config(cfg)
@@ -97,9 +99,11 @@ def _group_options(config_dir: Path, group: str) -> list[str] | None:
 
 
 def _options_with_key(config_dir: Path, key: str) -> list[str]:
-    """The ``group=option`` choices whose config file defines ``key`` (e.g.
-    ``critic.bellman_loss`` is ``critic=calql``'s): files of the key's first segment's
-    group, and ``_global_`` files of any group (an ``algo`` file sets ``actor.*``).
+    """The ``group=option`` choices whose config file defines ``key``.
+
+    E.g. ``critic.bellman_loss`` is ``critic=calql``'s: files of the key's first
+    segment's group, and ``_global_`` files of any group (an ``algo`` file sets
+    ``actor.*``).
     """
     owners = []
     for path in sorted(config_dir.glob("*/*.yaml")):
@@ -182,7 +186,9 @@ def compose_checked(config_dir: str | Path, overrides: Sequence[str], config_nam
 
 @contextlib.contextmanager
 def _recipe_composition(config_dir: Path) -> Iterator[None]:
-    """Composes the recipe's config tree on its own, wherever it is called from:
+    """Composes the recipe's config tree on its own, wherever it is called from.
+
+    Within the block it:
 
     * hides the entries of Hydra's process-wide ``ConfigStore`` named like a group of
       ``config_dir``: Hydra would otherwise validate the recipe's ``logger/csv.yaml``
@@ -218,8 +224,9 @@ def _debug(overrides: Sequence[str]) -> bool:
 def check_command_line(
     config_dir: str | Path, config_name: str = "config", argv: Sequence[str] | None = None
 ) -> DictConfig | None:
-    """Exits with 2 and one ``error:`` line if the command line's config is not valid;
-    returns the composed config (``None`` for what is left to Hydra unchecked).
+    """Checks the command line's config; returns it, or exits with 2 and one ``error:`` line.
+
+    Returns the composed config (``None`` for what is left to Hydra unchecked).
 
     Leaves ``--help``, ``--cfg``, ``--info``, ``--multirun`` and the options that pick
     another config to Hydra; a multirun checks each job's config when it starts.
@@ -260,13 +267,15 @@ def hydra_task(cfg: DictConfig) -> Any:
 
 
 def main() -> None:
-    """Runs the recipe for the command line's overrides (``sys.argv``): one ``error:``
-    line and exit code 2 for a bad config or an ``output_dir`` another run is writing
-    (:mod:`~torchrl_dual.recipe.o2o.run_lock`, taken before Hydra writes its files
-    there), then Hydra's ``main`` on :data:`CONFIG_DIR`.
+    """Runs the recipe for the command line's overrides (``sys.argv``).
+
+    One ``error:`` line and exit code 2 for a bad config or an ``output_dir`` another
+    run is writing (:mod:`~torchrl_dual.recipe.o2o.run_lock`, taken before Hydra writes
+    its files there), then Hydra's ``main`` on :data:`CONFIG_DIR`.
+
     Ctrl-C or SIGTERM before the run begins (while the command line is checked and Hydra
-    sets up) ends it with one line and exit code 130; within the run,
-    :func:`hydra_task` and :func:`~torchrl_dual.recipe.run_o2o` take them.
+    sets up) ends it with one line and exit code 130; within the run, :func:`hydra_task`
+    and :func:`~torchrl_dual.recipe.run_o2o` take them.
 
     Examples:
         ``torchrl-dual budget=smoke``, ``python -m torchrl_dual.recipe algo=iql``,

@@ -53,18 +53,26 @@ class CalQLLearner(Learner):
         return {**self.critic.modules(), "actor_optimizer": self.actor_optimizer}
 
     def offline_stages(self) -> list:
+        """One offline stage: ``budget.offline_updates`` actor-critic updates on D_offline."""
         return [("actor_critic", self.run.pretrain_updates)]
 
     def online_transitions(self, transitions: TensorDictBase) -> TensorDictBase:
+        """The finished episodes among ``transitions``, labelled with Cal-QL's returns-to-go.
+
+        The unfinished tail is held until its episode ends (:class:`MonteCarloLabels`).
+        """
         return self.labels.online_transitions(transitions)
 
     def start_episodes(self) -> None:
+        """Ends the held episode at its last transition, as a new collector starts."""
         self.labels.cut()
 
     def update(self, batch: TensorDictBase) -> dict:
-        """Cal-QL's losses on one batch: the critics on TD + bounded penalty, the actor
-        and ``log α`` on SAC's losses (which read the Q networks detached); one step of
-        each optimizer, then the soft target update.
+        """Cal-QL's update on one batch: critic, actor and ``log α`` steps, then the target update.
+
+        The critics on TD + bounded penalty, the actor and ``log α`` on SAC's losses
+        (which read the Q networks detached); one step of each optimizer, then the
+        soft target update.
         """
         loss = self.critic.loss
         out = loss(batch)
@@ -86,9 +94,11 @@ class CalQLLearner(Learner):
         return logged
 
     def state_dict(self) -> dict:
+        """The held episode of the Monte-Carlo labels (checkpointed)."""
         return self.labels.state_dict()
 
     def load_state_dict(self, state: dict) -> None:
+        """Restores the held episode of the Monte-Carlo labels."""
         self.labels.load_state_dict(state)
 
 

@@ -85,6 +85,7 @@ class DACERLearner(DiffQLLearner):
         self.entropy = float("nan")  # the last Ĥ
 
     def modules(self) -> dict[str, Any]:
+        """Diff-QL's modules, the entropy-regulated noise and the temperature's optimizer."""
         return {
             **super().modules(),
             "exploration_noise": self.noise,
@@ -96,9 +97,11 @@ class DACERLearner(DiffQLLearner):
         return super().modules()
 
     def regulate(self, observation: torch.Tensor) -> torch.Tensor:
-        """``Ĥ`` on ``observation`` ``[B, S]`` (:func:`sampled_entropy` of the noisy, clamped
-        actor, averaged over the states), then one Adam step on ``−log α · (H̄ − Ĥ)``;
-        returns ``Ĥ``.
+        """Estimates the policy's entropy ``Ĥ``, then steps the temperature; returns ``Ĥ``.
+
+        ``Ĥ`` on ``observation`` ``[B, S]`` (:func:`sampled_entropy` of the noisy,
+        clamped actor, averaged over the states), then one Adam step on ``−log α ·
+        (H̄ − Ĥ)``.
         """
         d = self.cfg.dacer
         entropy = sampled_entropy(self.noisy_actor, observation, d.num_samples, d.num_components)
@@ -109,8 +112,10 @@ class DACERLearner(DiffQLLearner):
         return self.entropy
 
     def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor | float]:
-        """Diff-QL's update; online (once frames were collected) the regulator's step
-        every ``dacer.entropy_every`` updates, starting with the first.
+        """Diff-QL's update, plus online the entropy regulator's step.
+
+        Online (once frames were collected) the regulator steps every
+        ``dacer.entropy_every`` updates, starting with the first.
         """
         metrics = super().update(batch)
         if self.run.frames == 0:  # the offline phase: Diff-QL alone
@@ -122,6 +127,7 @@ class DACERLearner(DiffQLLearner):
         return {**metrics, "alpha": self.noise.alpha.detach(), "entropy": self.entropy}
 
     def state_dict(self) -> dict[str, Any]:
+        """Diff-QL's counters, the online updates done and the last entropy estimate."""
         return {
             **super().state_dict(),
             "online_updates": self.online_updates,
@@ -129,6 +135,7 @@ class DACERLearner(DiffQLLearner):
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restores what :meth:`state_dict` returned."""
         super().load_state_dict(state)
         self.online_updates = state["online_updates"]
         self.entropy = state["entropy"]

@@ -87,9 +87,10 @@ def vp_betas(num_steps: int, beta_min: float = 0.1, beta_max: float = 10.0) -> t
 def make_diffusion_actor(
     settings: DiffQLActorSettings, obs_dim: int, action_dim: int, device: DEVICE_TYPING = "cpu"
 ) -> DiffusionActor:
-    """TorchRL's ``DiffusionActor`` with an MLP score network ``ε̂(x_t, s, t)`` (``depth``
-    hidden layers of ``activation``) ending in ``nn.Linear``, and the VP schedule of
-    :func:`vp_betas`, on ``device``.
+    """TorchRL's ``DiffusionActor`` with an MLP score network ``ε̂(x_t, s, t)``, on ``device``.
+
+    The network has ``depth`` hidden layers of ``activation`` and ends in ``nn.Linear``;
+    the schedule is the VP one of :func:`vp_betas`.
     """
     a = settings
     layers: list[nn.Module] = []
@@ -117,6 +118,7 @@ class ActionBox(nn.Module):
         self.register_buffer("high", high.clone())
 
     def forward(self, action: torch.Tensor) -> torch.Tensor:
+        """Clamps ``action`` ``[..., A]`` to ``[low, high]``."""
         return torch.maximum(torch.minimum(action, self.high), self.low)
 
 
@@ -149,6 +151,7 @@ class DiffQLLearner(Learner):
         return projected_policy(self.cfg, policy)
 
     def modules(self) -> dict:
+        """The actor, the critic's modules and the actor's optimizer."""
         return {
             "actor": self.actor,
             **self.critic.modules(),
@@ -156,6 +159,7 @@ class DiffQLLearner(Learner):
         }
 
     def offline_stages(self) -> list:
+        """One offline stage: ``budget.offline_updates`` actor-critic updates on D_offline."""
         return [("actor_critic", self.run.pretrain_updates)]
 
     def update(self, batch: TensorDictBase) -> dict:
@@ -173,9 +177,11 @@ class DiffQLLearner(Learner):
 
 
 class DiffQLLALearner(LaplaceRefits, DiffQLLearner):
-    """Diff-QL w LA: Diff-QL's training, acting with the Laplace ensemble of its last
-    DDPM step (Eq. 8-9) and ``λ = 0`` noise, refitted every ``budget.laplace_refit_every``
-    updates (:class:`LaplaceRefits`) with ``σ̄`` = :meth:`noise_std`.
+    """Diff-QL w LA: Diff-QL's training, acting with the Laplace ensemble of its last DDPM step.
+
+    The ensemble of Eq. 8-9 with ``λ = 0`` noise, refitted every
+    ``budget.laplace_refit_every`` updates (:class:`LaplaceRefits`) with ``σ̄`` =
+    :meth:`noise_std`.
     """
 
     title = "Diff-QL w LA"
@@ -207,11 +213,13 @@ class DiffQLLALearner(LaplaceRefits, DiffQLLearner):
 
     @torch.no_grad()
     def noise_std(self) -> torch.Tensor:
-        """``σ̄_a² = Σ_i w_i (a_i − μ(s_i))_a² / Σ_i w_i`` on ``D_offline ∪ D_online``: the
-        maximiser of Eq. (7) in ``σ̄`` at the current mean ``μ`` (the zero-latent chain)
-        with the same weights ``w_i`` as Eq. (8); Diff-QL's loss trains no ``σ̄``. ``[A]``.
-        :meth:`~LaplaceRefits.fit_laplace` sets it, then fits Eq. (8) (Alg. 1 lines 9
-        and 17 on the last DDPM step).
+        """``σ̄`` of the fit, ``[A]``: the weighted RMS of the data actions around the mean ``μ``.
+
+        ``σ̄_a² = Σ_i w_i (a_i − μ(s_i))_a² / Σ_i w_i`` on ``D_offline ∪ D_online``:
+        the maximiser of Eq. (7) in ``σ̄`` at the current mean ``μ`` (the
+        zero-latent chain) with the same weights ``w_i`` as Eq. (8); Diff-QL's loss
+        trains no ``σ̄``. :meth:`~LaplaceRefits.fit_laplace` sets it, then fits Eq.
+        (8) (Alg. 1 lines 9 and 17 on the last DDPM step).
         """
         total, weight_sum = 0.0, 0.0
         for batch in self.run.all_transitions():

@@ -68,14 +68,17 @@ class DiffuserLearner(Learner):
         self.exploration_policy = projected_policy(cfg, policy)
 
     def modules(self) -> dict:
+        """The planner and its optimizer."""
         return {"planner": self.planner, "planner_optimizer": self.optimizer}
 
     def offline_stages(self) -> list:
+        """One offline stage: the planner's pre-training (Eq. 3)."""
         return [("planner", self.pretrain_planner)]
 
     def pretrain_planner(self) -> None:
-        """``budget.planner_updates`` ``L_VLB`` steps on ``D_offline`` windows (Eq. 3),
-        checkpointed within the stage.
+        """Pre-trains the planner on ``D_offline`` windows (Eq. 3), checkpointed within the stage.
+
+        ``budget.planner_updates`` ``L_VLB`` steps.
         """
         with self.run.stage_checkpoints() as checkpoints:
             run_updates(
@@ -102,9 +105,7 @@ class DiffuserLearner(Learner):
         return torch.cat([batch[:offline].select(*keys), online.select(*keys)], 0)
 
     def refresh_online_windows(self) -> None:
-        """Rebuilds the online windows when ``D_online`` has grown (once per collected
-        batch).
-        """
+        """Rebuilds the online windows when ``D_online`` has grown (once per collected batch)."""
         online = self.run.replay.online_buffer
         if len(online) == self.online_length:
             return

@@ -43,8 +43,9 @@ from torchrl_dual.trainers.stepper import CriticActorStepper
 def make_actor(
     actor: ActorSettings, final_steps: int, teacher: TrajectoryDiffusion
 ) -> PlannerActor:
-    """The actor ``π_θ`` (Eq. 5, 7): a planner shaped like the teacher with ``final_steps``
-    steps (``distillation.final_steps``, 1 for DUAL), whose weights the distillation loads.
+    """The actor ``π_θ`` (Eq. 5, 7): a planner shaped like the teacher with ``final_steps`` steps.
+
+    ``distillation.final_steps`` is 1 for DUAL; the distillation loads its weights.
 
     Built before any training, it holds the teacher's fresh initialisation and its
     normalizer fitted on ``D_offline``: with ``actor.init=scratch`` that is what Eq. 7
@@ -57,8 +58,9 @@ def make_actor(
 def make_transition_model(
     kind: str, final_steps: int, teacher: TrajectoryDiffusion, actor: PlannerActor
 ) -> TransitionModel:
-    """``p(s' | s, a; θ)``, the source of Eq. (10)'s ``ŝ_t``; ``kind`` is
-    ``exploration.transition_model``.
+    """The transition model ``p(s' | s, a; θ)``, the source of Eq. (10)'s ``ŝ_t``.
+
+    ``kind`` is ``exploration.transition_model``.
 
     ``frozen``: its own frozen copy of the distilled student (loaded after distillation),
     which the actor's fine-tuning leaves alone; saved inside the ensemble. ``shared``: the
@@ -77,9 +79,10 @@ def make_loss(
     action_spec: TensorSpec,
     entropy_coef: float | None = None,
 ) -> DUALLoss:
-    """DUAL's update (Alg. 1 lines 7-8): the critic's loss and Eq. (7)'s weighted MAP actor
-    on it; ``action_spec`` bounds the actions at which the ``sac`` weighting reads Q,
-    whose ``α`` is ``entropy_coef`` when the critic has one (SO2: the same ``α`` as its
+    """DUAL's update (Alg. 1 lines 7-8): the critic's loss and Eq. (7)'s weighted MAP actor on it.
+
+    ``action_spec`` bounds the actions at which the ``sac`` weighting reads Q, whose
+    ``α`` is ``entropy_coef`` when the critic has one (SO2: the same ``α`` as its
     targets).
     """
     entropy = {} if entropy_coef is None else {"entropy_coef": entropy_coef}
@@ -96,8 +99,31 @@ def make_loss(
 
 # ---------------------------------------------------------------------- the learner
 class DualLearner(Learner):
-    """DUAL's networks (teacher ``g_θ'``, actor ``π_θ``, transition model, IQL critics),
-    its offline stages, its update (IQL critic step, then Eq. 7) and its Laplace refits.
+    """DUAL's learner: its networks, offline stages, update and Laplace refits.
+
+    The networks are the teacher ``g_θ'``, the actor ``π_θ``, the transition model and
+    the IQL critics; the update is an IQL critic step, then Eq. 7.
+
+    Examples:
+        Algorithm 1 at toy size on Frozen-Lake: every offline stage, then 100 online frames.
+
+        >>> import contextlib, io, tempfile
+        >>> from torchrl_dual.recipe import CONFIG_DIR, compose_checked, run_o2o
+        >>> out = tempfile.mkdtemp()
+        >>> cfg = compose_checked(CONFIG_DIR, [
+        ...     "algo=dual", "env=frozenlake", "budget=smoke", "progress=false",
+        ...     f"output_dir={out}/run", f"data_cache_dir={out}/data",
+        ...     "budget.dataset_transitions=1000", "budget.network_width=16",
+        ...     "budget.planner_updates=4", "budget.distill_updates=[2,2,2,2,2]",
+        ...     "budget.offline_updates=4", "budget.online_frames=100",
+        ...     "budget.frames_per_batch=50", "budget.laplace_refit_every=10",
+        ...     "budget.eval_episodes=1"])
+        >>> with contextlib.redirect_stdout(io.StringIO()):
+        ...     run = run_o2o(cfg, DualLearner)
+        >>> run.stages_done
+        ['planner', 'distillation', 'actor_critic', 'laplace', 'offline_eval']
+        >>> run.frames, run.learner.actor.model.num_steps  # the distilled one-step actor
+        (100, 1)
     """
 
     title = "DUAL"
@@ -165,8 +191,10 @@ class DualLearner(Learner):
 
     # ------------------------------------------------------------------ the protocol
     def modules(self) -> dict:
-        """Each weight once: the frozen transition model is inside the ensemble, a shared
-        one is the actor's own planner; with ``augment.kind=planner``, the augmenter's.
+        """What the checkpoint holds, each weight once.
+
+        The frozen transition model is inside the ensemble, a shared one is the
+        actor's own planner; with ``augment.kind=planner``, the augmenter's.
         """
         return {
             "teacher": self.teacher,
@@ -177,8 +205,10 @@ class DualLearner(Learner):
         }
 
     def shared_modules(self) -> dict:
-        """The shared offline phase without the ensemble's M posterior draws (their number
-        is ``laplace.num_samples``); the Laplace stage runs after it in every run.
+        """The shared offline phase, without the ensemble's ``M`` posterior draws.
+
+        Their number is ``laplace.num_samples``; the Laplace stage runs after it in
+        every run.
         """
         shared = {
             "teacher": self.teacher,
@@ -191,6 +221,7 @@ class DualLearner(Learner):
         return shared
 
     def state_dict(self) -> dict:
+        """The updates since the refit, the noise's ``d_0``, the augmenter's and labels' state."""
         state = {
             "updates_since_refit": self.refits.since,
             "shift_floor": float(self.noise.shift_floor),
@@ -202,6 +233,7 @@ class DualLearner(Learner):
         return state
 
     def load_state_dict(self, state: dict) -> None:
+        """Restores what :meth:`state_dict` returned."""
         self.refits.since = state["updates_since_refit"]
         self.noise.shift_floor.fill_(state.get("shift_floor", 0.0))  # 0: before the floor
         if self.augmenter and "augment" in state:  # absent: a shared offline phase
@@ -219,6 +251,12 @@ class DualLearner(Learner):
             self.labels.cut()
 
     def offline_stages(self) -> list:
+        """Algorithm 1's offline stages, lines 3-9.
+
+        The planner's pre-training (l. 3-4, Eq. 3), the distillation (l. 5), the actor-critic
+        updates (l. 6-8, Eq. 7), the Laplace fit (l. 9, Eq. 8) and, with a nonzero
+        ``exploration.shift_floor``, the noise's ``d_0``.
+        """
         return [
             ("planner", self.pretrain_planner),  # l.3-4: L_VLB (Eq. 3)
             ("distillation", self.distill),  # l.5: N=32 -> 1, π_θ and p(s'|s,a)
@@ -230,12 +268,14 @@ class DualLearner(Learner):
 
     @property
     def uses_shift_floor(self) -> bool:
+        """Whether an offline stage sets the noise's ``d_0`` (``exploration.shift_floor != 0``)."""
         return self.settings.exploration.shift_floor != 0
 
     def update(self, batch: TensorDictBase) -> dict:
-        """One critic (IQL, Cal-QL's TD + bounded penalty, or SO2's ensemble TD: one step
-        per batch of a stacked ``[k, B]``) and one actor (Eq. 7) gradient step, Alg. 1
-        lines 7-8 / 15-16.
+        """One critic and one actor (Eq. 7) gradient step, Alg. 1 lines 7-8 / 15-16.
+
+        The critic is IQL, Cal-QL's TD + bounded penalty, or SO2's ensemble TD (one
+        step per batch of a stacked ``[k, B]``).
         """
         self.critic.set_phase(online=self.run.frames > 0)
         return dict(self.stepper.update(batch).items())
@@ -245,9 +285,11 @@ class DualLearner(Learner):
         self.refits.count()
 
     def after_updates(self) -> None:
-        """Alg. 1 line 17: refit the posterior once ``budget.laplace_refit_every`` updates
-        have accumulated since the last fit; then line 14 (``augment.kind=planner``): add
-        guided planner transitions to D_online for the next block when due.
+        """Alg. 1 line 17: refits the posterior when due; then line 14's planner augmentation.
+
+        The posterior is refitted once ``budget.laplace_refit_every`` updates have
+        accumulated since the last fit; with ``augment.kind=planner``, guided
+        planner transitions are added to D_online for the next block when due.
         """
         if self.refits.due:
             self.fit_laplace()
@@ -255,8 +297,10 @@ class DualLearner(Learner):
             self.augmenter.after_updates()
 
     def batch_metrics(self, batch: TensorDictBase) -> dict:
-        """d_t, the ensemble's epistemic std and share of the executed variance and the
-        executed action's std sqrt(σ² + λ d_t) (Eq. 9-10), each over the collected batch
+        """DUAL's exploration signals (Eq. 9-10), each averaged over the collected batch.
+
+        ``d_t``, the ensemble's epistemic std and share of the executed variance,
+        and the executed action's std ``sqrt(σ² + λ d_t)``
         (:func:`~torchrl_dual.modules.exploration_signals`).
         """
         return exploration_signals(batch)
@@ -292,9 +336,11 @@ class DualLearner(Learner):
             self.transition.model.load_state_dict(student.state_dict())
 
     def fit_laplace(self) -> None:
-        """Alg. 1 lines 9 and 17: last-layer Laplace of L_π on D (Eq. 8); skipped in the
-        no-UQ ablation (``laplace.num_samples=0``), which never draws from the posterior,
-        and in the latent-UQ one (``laplace.uq=latent``), which has none.
+        """Alg. 1 lines 9 and 17: the last-layer Laplace of L_π on D (Eq. 8).
+
+        Skipped in the no-UQ ablation (``laplace.num_samples=0``), which never draws
+        from the posterior, and in the latent-UQ one (``laplace.uq=latent``), which
+        has none.
         """
         self.refits.reset()
         if not self.uses_posterior:
@@ -310,9 +356,10 @@ class DualLearner(Learner):
         self.run.log({"prior_precision": laplace.prior_precision}, self.run.updates, "laplace/")
 
     def set_shift_floor(self) -> None:
-        """``exploration.shift_floor``: ``d_0`` of the noise's ``λ max(d_t − d_0, 0)``; a
-        number, or ``offline``: the mean of :meth:`offline_shift_distances` (up to 20000
-        transitions), the transition model's error where it was fitted.
+        """Sets ``d_0`` of the noise's ``λ max(d_t − d_0, 0)`` from ``exploration.shift_floor``.
+
+        A number, or ``offline``: the mean of :meth:`offline_shift_distances` (up to
+        20000 transitions), the transition model's error where it was fitted.
         """
         floor = self.settings.exploration.shift_floor
         if floor == "offline":
@@ -322,8 +369,10 @@ class DualLearner(Learner):
 
     @torch.no_grad()
     def offline_shift_distances(self, samples: int, seed: int) -> torch.Tensor:
-        """``‖ŝ' − s'‖`` of the transition model on ``samples`` of D_offline's transitions
-        (drawn without replacement with ``seed``): Eq. 10's ``d`` on the fitted data.
+        """Eq. 10's ``d = ‖ŝ' − s'‖`` of the transition model on ``samples`` offline transitions.
+
+        Drawn from D_offline without replacement with ``seed``: ``d`` on the fitted
+        data.
         """
         data = self.run.data.transitions
         gen = torch.Generator().manual_seed(seed)

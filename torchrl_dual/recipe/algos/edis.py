@@ -1,6 +1,7 @@
-"""The ``edis`` baseline: EDIS (Liu et al. 2024, "Energy-Guided Diffusion Sampling for
-Offline-to-Online Reinforcement Learning"), as the DUAL paper runs it (Appendix,
-"EDIS"; Section 2.2; Algorithm 1 line 14).
+"""The ``edis`` baseline: EDIS, as the DUAL paper runs it.
+
+Liu et al. 2024, "Energy-Guided Diffusion Sampling for Offline-to-Online Reinforcement
+Learning" (the DUAL paper's Appendix, "EDIS"; Section 2.2; Algorithm 1 line 14).
 
 * **Offline.** The trajectory planner is pre-trained on ``D_offline`` with ``L_VLB``
   (Eq. 3), exactly as DUAL's (``planner.*`` keys, ``budget.planner_updates``, H = 8,
@@ -56,12 +57,15 @@ class EDISLearner(IQLLearner):
         self.extra_online_capacity = augment_capacity(cfg)
 
     def shared_modules(self) -> dict[str, Any]:
+        """IQL's modules and the planner: what the shared offline phase hands over."""
         return {**super().modules(), "planner": self.planner}
 
     def modules(self) -> dict[str, Any]:
+        """The shared modules and the augmenter's (its guide, reward model and their optimizers)."""
         return {**self.shared_modules(), **self.augmenter.modules()}
 
     def offline_stages(self) -> list:
+        """The planner's pre-training, then IQL's offline stages."""
         return [("planner", self.pretrain_planner), *super().offline_stages()]
 
     def pretrain_planner(self) -> None:
@@ -73,8 +77,10 @@ class EDISLearner(IQLLearner):
         self.augmenter.after_updates()
 
     def state_dict(self) -> dict[str, Any]:
+        """IQL's counters and the augmenter's."""
         return {**super().state_dict(), "augment": self.augmenter.state_dict()}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restores what :meth:`state_dict` returned."""
         super().load_state_dict(state)
         self.augmenter.load_state_dict(state["augment"])

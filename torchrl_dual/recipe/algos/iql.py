@@ -54,9 +54,10 @@ def make_iql_actor(
     return_log_prob: bool = False,
     device: DEVICE_TYPING = "cpu",
 ) -> ProbabilisticActor:
-    """The AWR baselines' MLP actor (``settings.depth`` hidden layers of
-    ``settings.hidden`` units) on the action box of ``action_spec`` (writing
-    ``"action_log_prob"`` too with ``return_log_prob``), on ``device``.
+    """The AWR baselines' MLP actor on the action box of ``action_spec``, on ``device``.
+
+    ``settings.depth`` hidden layers of ``settings.hidden`` units; with
+    ``return_log_prob`` it writes ``"action_log_prob"`` too.
 
     ``distribution="gaussian"`` is CORL's and d3rlpy's IQL actor:
     ``π(a|s) = N(c + r ⊙ tanh(f(s)), diag σ²)`` with one learned ``σ = exp(log σ)`` per
@@ -103,7 +104,25 @@ def make_iql_actor(
 
 
 class IQLLearner(Learner):
-    """IQL: one ``budget.offline_updates`` stage offline, then the same update online."""
+    """IQL: one ``budget.offline_updates`` stage offline, then the same update online.
+
+    Examples:
+        >>> import contextlib, io, tempfile
+        >>> from torchrl_dual.recipe import CONFIG_DIR, compose_checked, run_o2o
+        >>> out = tempfile.mkdtemp()
+        >>> cfg = compose_checked(CONFIG_DIR, [
+        ...     "algo=iql", "env=frozenlake", "budget=smoke", "progress=false",
+        ...     f"output_dir={out}/run", f"data_cache_dir={out}/data",
+        ...     "budget.dataset_transitions=1000", "budget.network_width=16",
+        ...     "budget.offline_updates=4", "budget.online_frames=100",
+        ...     "budget.frames_per_batch=50", "budget.eval_episodes=1"])
+        >>> with contextlib.redirect_stdout(io.StringIO()):
+        ...     run = run_o2o(cfg, IQLLearner)
+        >>> run.stages_done, run.frames
+        (['actor_critic', 'offline_eval'], 100)
+        >>> sorted(run.learner.modules())  # what the checkpoint holds
+        ['actor_optimizer', 'critic', 'critic_optimizer']
+    """
 
     title = "IQL"
     shared_stages = ("actor_critic",)  # offline_cache: shared by every online shift
@@ -135,13 +154,15 @@ class IQLLearner(Learner):
         }
 
     def offline_stages(self) -> list:
+        """One offline stage: ``budget.offline_updates`` IQL updates on D_offline."""
         return [("actor_critic", self.run.pretrain_updates)]
 
     def update(self, batch: TensorDictBase) -> dict:
-        """IQL's three losses on one batch (the actor's and V's targets are the target Q
-        networks, so no gradient crosses; :meth:`~torchrl_dual.objectives.OnePassIQLLoss.terms`
-        evaluates them and ``V(s)`` once for both), one step of each optimizer, soft target
-        update.
+        """IQL's three losses on one batch, one step of each optimizer, then the soft target update.
+
+        The actor's and V's targets are the target Q networks, so no gradient
+        crosses; :meth:`~torchrl_dual.objectives.OnePassIQLLoss.terms` evaluates
+        them and ``V(s)`` once for both.
         """
         loss = self.critic.loss
         terms = loss.terms(batch)

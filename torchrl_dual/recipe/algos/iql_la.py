@@ -57,8 +57,9 @@ IQL_MAX_WEIGHT = 100.0
 
 
 class IQLLALearner(LaplaceRefits, IQLLearner):
-    """IQL + LA: IQL's learner, acting online with the Laplace ensemble of its actor,
-    fitted with ``σ̄`` = :meth:`noise_std` and IQL's AWR weights every
+    """IQL + LA: IQL's learner, acting online with the Laplace ensemble of its actor.
+
+    Fitted with ``σ̄`` = :meth:`noise_std` and IQL's AWR weights every
     ``budget.laplace_refit_every`` updates (:class:`LaplaceRefits`).
     """
 
@@ -89,9 +90,11 @@ class IQLLALearner(LaplaceRefits, IQLLearner):
 
     @torch.no_grad()
     def noise_std(self) -> torch.Tensor:
-        """``σ̄`` per action dimension, set before each fit: ``laplace.noise_std`` if it is
-        a number, else (``iql``) ``σ̄_a = sqrt(mean_D scale_a(s)²)``, the IQL actor's
-        std (pre-tanh for ``tanh_normal``), root mean square over ``D_offline ∪ D_online``.
+        """``σ̄`` per action dimension, set before each fit.
+
+        ``laplace.noise_std`` if it is a number, else (``iql``) ``σ̄_a = sqrt(mean_D
+        scale_a(s)²)``, the IQL actor's std (pre-tanh for ``tanh_normal``), root
+        mean square over ``D_offline ∪ D_online``.
         """
         fixed = self.run.cfg.laplace.noise_std
         if fixed != "iql":

@@ -34,8 +34,9 @@ from torchrl_dual.recipe.settings.rules import as_settings
 
 
 class SO2Learner(Learner):
-    """SO2: SAC-N offline, then SO2's smoothed per-member targets and ``k`` critic steps
-    per actor step online.
+    """SO2: SAC-N offline, then SO2's critic updates online.
+
+    Online: SO2's smoothed per-member targets and ``k`` critic steps per actor step.
     """
 
     title = "SO2"
@@ -64,10 +65,13 @@ class SO2Learner(Learner):
         }
 
     def offline_stages(self) -> list:
+        """One offline stage: ``budget.offline_updates`` SAC-N updates on D_offline."""
         return [("actor_critic", self.run.pretrain_updates)]
 
     def actor_loss(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(E[α·log π(ã|s) − min_k Q_k(s, ã)], E[−log π(ã|s)])`` with ``ã`` a
+        """SAC's actor loss and the policy's entropy estimate.
+
+        ``(E[α·log π(ã|s) − min_k Q_k(s, ã)], E[−log π(ã|s)])``; ``ã`` is a
         reparameterised sample; the ensemble's weights are read detached.
         """
         observation = batch["observation"]
@@ -78,9 +82,7 @@ class SO2Learner(Learner):
         return (self.alpha * log_prob - q).mean(), -log_prob.mean().detach()
 
     def update(self, batch: TensorDictBase) -> dict:
-        """Critic steps (one per batch of a stacked ``[k, B]``), then one actor step on the
-        last batch.
-        """
+        """Critic steps, one per batch of a stacked ``[k, B]``, then an actor step on the last."""
         critic = self.critic.step(batch, online=self.run.frames > 0)
         actor_loss, entropy = self.actor_loss(batch[-1] if batch.ndim > 1 else batch)
         self.actor_optimizer.zero_grad(set_to_none=True)

@@ -1,5 +1,6 @@
-"""The builders of the PointMaze and Frozen-Lake env kits, and what every run asks of
-its kit (Algorithm 1 line 1): :func:`make_offline_dataset`, :func:`make_train_env`,
+"""The builders of the PointMaze and Frozen-Lake env kits, and what every run asks of its kit.
+
+Algorithm 1 line 1: :func:`make_offline_dataset`, :func:`make_train_env`,
 :class:`TrainEnvFactory`, :func:`make_evaluator`, :func:`projected_policy`.
 
 The table of kits, :data:`~torchrl_dual.recipe.settings.envs.ENV_KITS`, names these
@@ -57,7 +58,9 @@ Evaluator = Callable[[nn.Module], dict[str, float]]
 
 
 def check_pointmaze(cfg: DictConfig) -> None:
-    """``env.goal_cell`` and every ``env.data_avoid_cells`` and ``env.start_avoid_cells``
+    """Checks the PointMaze cells of the config against ``env.maze``.
+
+    ``env.goal_cell`` and every ``env.data_avoid_cells`` and ``env.start_avoid_cells``
     entry are open cells of ``env.maze`` (``[row, col]`` pairs), and the latter leave a
     cell to start in (:func:`~torchrl_dual.envs.start_cells`).
     """
@@ -105,6 +108,11 @@ def _pointmaze_starts_avoided(env: DictConfig) -> list[list[int]] | None:
 
 
 def pointmaze_data(cfg: DictConfig) -> OfflineDataset:
+    """The PointMaze kit's ``D_offline``: controller episodes of ``env.maze``, cached on disk.
+
+    Generated (or loaded from ``cfg.data_cache_dir``) with ``budget.dataset_transitions``
+    transitions; rewards scaled and shifted as the online env's.
+    """
     env = cfg.env
     data = load_or_generate_maze_dataset(
         env.maze,
@@ -122,6 +130,7 @@ def pointmaze_data(cfg: DictConfig) -> OfflineDataset:
 
 
 def pointmaze_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
+    """The PointMaze kit's online env, with the config's goal, starts, reward and shift."""
     env = cfg.env
     return make_pointmaze_env(
         env.maze,
@@ -137,6 +146,11 @@ def pointmaze_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
 
 
 def pointmaze_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
+    """The PointMaze kit's evaluator: deterministic episodes, scored by the data's references.
+
+    Runs ``budget.eval_episodes`` episodes in the shifted env (and, under ``env.shift``, in
+    the unshifted one too).
+    """
     env = cfg.env
 
     def returns(policy: nn.Module, shift: dict[str, Any]) -> np.ndarray:
@@ -174,11 +188,12 @@ def pointmaze_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
 
 
 def pointmaze_start_distances(env: DictConfig) -> dict[str, dict[int, int]]:
-    """How far from the goal and from the cells the data never enter the episodes of a
-    PointMaze ``env.*`` config start (the online env's and the evaluator's, which share
-    the reset): ``{"goal": {moves: start cells}, "avoided": {moves: start cells}}``, the
-    shortest path in cell moves through the maze from each start cell of the env (its
-    Gymnasium-Robotics reset cells, equally likely) to ``env.goal_cell`` and to the nearest
+    """How far the episodes of a PointMaze ``env.*`` config start from the goal and avoided cells.
+
+    The online env's and the evaluator's, which share the reset: ``{"goal": {moves:
+    start cells}, "avoided": {moves: start cells}}``, the shortest path in cell moves
+    through the maze from each start cell of the env (its Gymnasium-Robotics reset
+    cells, equally likely) to ``env.goal_cell`` and to the nearest
     ``env.data_avoid_cells`` cell (0: inside them); an entry is left out when its key is
     null. Start cells over all of them is the share of episodes.
 
@@ -208,6 +223,7 @@ def pointmaze_start_distances(env: DictConfig) -> dict[str, dict[int, int]]:
 
 
 def frozenlake_data(cfg: DictConfig) -> OfflineDataset:
+    """The Frozen-Lake kit's ``D_offline``: epsilon-greedy episodes, cached on disk."""
     env = cfg.env
     return load_or_generate_frozenlake_dataset(
         env.map_name,
@@ -222,6 +238,7 @@ def frozenlake_data(cfg: DictConfig) -> OfflineDataset:
 
 
 def frozenlake_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
+    """The Frozen-Lake kit's online env, at ``env.online_success_rate`` and ``env.shift``."""
     env = cfg.env
     return make_frozenlake_env(
         env.map_name,
@@ -262,13 +279,12 @@ def frozenlake_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
 
 
 def one_hot_argmax(action: torch.Tensor) -> torch.Tensor:
-    """The executed discrete action as a one-hot vector (what the env receives), without
-    a host read.
-    """
+    """The executed discrete action as the one-hot vector the env receives, without a host read."""
     return one_hot_at(action.argmax(-1, keepdim=True), action, -1)
 
 
 def env_kit(cfg: DictConfig) -> EnvKit:
+    """The :class:`EnvKit` of ``cfg.env.kind``."""
     return ENV_KITS[cfg.env.kind]
 
 
@@ -290,9 +306,12 @@ def make_offline_dataset(cfg: DictConfig) -> OfflineDataset:
 
 
 def warn_if_batches_exceed_data(cfg: DictConfig, transitions: int) -> None:
-    """One ``warning:`` line when an update draws more transitions (``online.batch_size``)
-    or windows (``planner.batch_size``) than ``D_offline`` holds: sampled with replacement,
-    such a batch repeats the data many times over at a cost that grows with its size.
+    """Warns when an update's batch is larger than ``D_offline``.
+
+    One ``warning:`` line when an update draws more transitions (``online.batch_size``)
+    or windows (``planner.batch_size``) than ``D_offline`` holds: sampled with
+    replacement, such a batch repeats the data many times over at a cost that grows with
+    its size.
     """
     for section in ("online", "planner"):
         node = cfg.get(section)
@@ -310,8 +329,10 @@ def warn_if_batches_exceed_data(cfg: DictConfig, transitions: int) -> None:
 
 
 def projected_policy(cfg: DictConfig, policy: nn.Module) -> nn.Module:
-    """``policy`` followed by the env kit's ``action_projection`` (the executed action the
-    replay buffer stores, e.g. Frozen-Lake's one-hot argmax), or ``policy`` itself.
+    """``policy`` followed by the env kit's ``action_projection``, or ``policy`` itself.
+
+    The projection gives the executed action the replay buffer stores, e.g.
+    Frozen-Lake's one-hot argmax.
     """
     projection = env_kit(cfg).action_projection
     if projection is None:
@@ -322,18 +343,21 @@ def projected_policy(cfg: DictConfig, policy: nn.Module) -> nn.Module:
 
 
 def make_train_env(cfg: DictConfig, data: OfflineDataset | None = None) -> EnvBase:
-    """The online env with :class:`PreviousTransition`, which carries ``(s_{t-1}, a_{t-1})``
-    to the policy; the policy turns them into ``d_t`` of Eq. (10). ``data`` is
-    ``D_offline`` when the caller has it (kits whose env depends on it read it otherwise).
+    """The online env with :class:`PreviousTransition`, which carries ``(s_{t-1}, a_{t-1})``.
+
+    The policy turns them into ``d_t`` of Eq. (10). ``data`` is ``D_offline`` when the
+    caller has it (kits whose env depends on it read it otherwise).
     """
     return env_kit(cfg).make_env(cfg, data).append_transform(PreviousTransition())
 
 
 def make_collection_env(cfg: DictConfig, data: OfflineDataset | None, env: EnvBase) -> EnvBase:
-    """The env ``collector=single`` steps: the online env ``env`` itself, or with
-    ``collector.num_envs = N > 1`` N more copies of it (:func:`make_train_env`) stepped as
-    one batch ``[N]`` (:func:`~torchrl_dual.envs.vectorized_env`: one Gymnasium vector env,
-    each copy with the kit's Gymnasium wrappers, the transforms once over the batch).
+    """The env ``collector=single`` steps: the online env, or ``N`` copies of it as one batch.
+
+    With ``collector.num_envs = N > 1``, ``N`` more copies of ``env``
+    (:func:`make_train_env`) are stepped as one batch ``[N]``
+    (:func:`~torchrl_dual.envs.vectorized_env`: one Gymnasium vector env, each copy with
+    the kit's Gymnasium wrappers, the transforms once over the batch).
     """
     num_envs = cfg.collector.get("num_envs", 1)
     if num_envs == 1:
@@ -372,6 +396,7 @@ class TrainEnvFactory:
         self.data = None if data is None else data.without_transitions()
 
     def __call__(self) -> EnvBase:
+        """A fresh online env built from the stored config and data (in a worker process)."""
         return make_train_env(OmegaConf.create(self.config), self.data)
 
 

@@ -1,5 +1,6 @@
-"""``env.protocol``: what a Minari data set's run changes to follow D4RL's (and so CORL's and
-the paper's) protocol, per family.
+"""``env.protocol``: what a Minari data set's run changes to follow D4RL's protocol, per family.
+
+D4RL's protocol is also CORL's and the paper's.
 
 =============  ============================================  =================================
 family         ``protocol=d4rl`` (default)                   ``protocol=minari``
@@ -120,9 +121,9 @@ def ant_step_seconds(dataset_id: str) -> float:
 
 
 def horizon_of_seconds(cfg: DictConfig) -> int | None:
-    """The time limit in steps that ``env.horizon_seconds`` gives (AntMaze; ``None``
-    when it is unset): the seconds (``d4rl``: D4RL's, 0.1 s x 700 / 1000) at the data's
-    env step.
+    """The time limit in steps that ``env.horizon_seconds`` gives (AntMaze), or ``None`` if unset.
+
+    The seconds (``d4rl``: D4RL's, 0.1 s x 700 / 1000) at the data's env step.
     """
     seconds = cfg.env.get("horizon_seconds")
     if seconds is None:

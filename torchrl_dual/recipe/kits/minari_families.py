@@ -72,8 +72,9 @@ OBSERVATION_STD_EPS = 1e-3
 
 
 def check_observation_layout(dataset_space: Any, env_space: Any, dataset_id: str) -> None:
-    """Raises :class:`UserError` unless the env's observations have the data set's layout
-    (same dict entries with the same shapes, or the same array shape).
+    """Raises :class:`UserError` unless the env's observations have the data set's layout.
+
+    The same dict entries with the same shapes, or the same array shape.
 
     Examples:
         >>> import gymnasium as gym
@@ -107,8 +108,9 @@ def _episode_returns(data: OfflineDataset) -> torch.Tensor:
 
 
 def observation_normalizer(data: OfflineDataset, enabled: bool) -> tuple[np.ndarray, np.ndarray]:
-    """``(loc, scale)`` of the state normalization: the data set's mean and std + 1e-3
-    over its observations, or ``(0, 1)`` when disabled.
+    """``(loc, scale)`` of the state normalization, or ``(0, 1)`` when disabled.
+
+    The data set's mean and std + 1e-3 over its observations.
     """
     obs = data.transitions["observation"].double()
     if not enabled:
@@ -119,7 +121,9 @@ def observation_normalizer(data: OfflineDataset, enabled: bool) -> tuple[np.ndar
 
 
 def _time_limit(cfg: DictConfig, dataset_id: str) -> int | None:
-    """``env.max_episode_steps``, else AntMaze's ``env.horizon_seconds``, else the
+    """The episodes' time limit of a Minari run.
+
+    ``env.max_episode_steps``, else AntMaze's ``env.horizon_seconds``, else the
     protocol's, else the data set's env spec.
     """
     if cfg.env.max_episode_steps is not None:
@@ -137,6 +141,12 @@ def _time_limit(cfg: DictConfig, dataset_id: str) -> int | None:
 
 
 def minari_data(cfg: DictConfig) -> OfflineDataset:
+    """A Minari family's ``D_offline``, following ``env.protocol``.
+
+    The data set's transitions (D4RL's single goal relabelled for AntMaze), the references of
+    the protocol, and the reward transform (:func:`reward_transform`) applied and recorded in
+    the metadata.
+    """
     env = cfg.env
     dataset_id = FAMILIES[env.kind].dataset_id(env)
     protocol = data_protocol(cfg)
@@ -210,6 +220,7 @@ def minari_gym_env(cfg: DictConfig, data: OfflineDataset, *, eval_env: bool, shi
 
 
 def minari_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
+    """A Minari family's online env: flat, normalized observations, the data's reward transform."""
     if data is None:  # its observation normalization and reward scale come from the data
         data = minari_data(cfg)
     return make_flat_env(

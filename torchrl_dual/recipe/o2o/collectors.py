@@ -73,10 +73,12 @@ def collector_device(cfg: DictConfig) -> torch.device:
 
 
 def make_single(run: O2ORun, total_frames: int) -> BaseCollector:
-    """TorchRL's ``Collector`` on ``run.collection_env`` (``run.env``, or its
-    ``collector.num_envs`` copies as one batch; seeded ``seed + 1 + frames``, copy ``i``
-    ``seed + 1 + frames + i``), acting on ``collector.device`` (a copy of the policy there
-    if the learner's is elsewhere).
+    """TorchRL's ``Collector`` on ``run.collection_env``, seeded, acting on ``collector.device``.
+
+    ``run.collection_env`` is ``run.env``, or its ``collector.num_envs`` copies as one
+    batch; it is seeded ``seed + 1 + frames``, copy ``i`` ``seed + 1 + frames + i``. The
+    collector acts with a copy of the policy on ``collector.device`` if the learner's is
+    elsewhere.
     """
     cfg = run.cfg
     env = run.collection_env
@@ -124,8 +126,10 @@ make_multi_async = make_multi(MultiAsyncCollector)
 
 
 def stop_collecting(collector: BaseCollector) -> None:
-    """Ends ``collector`` at a cut point of the online loop: its workers stop; the run's own
-    env (``collector=single``) stays open for the next collector, which re-seeds it.
+    """Ends ``collector`` at a cut point of the online loop.
+
+    Its workers stop; the run's own env (``collector=single``) stays open for the next
+    collector, which re-seeds it.
     """
     if isinstance(collector, Collector):
         collector.shutdown(close_env=False)
@@ -134,17 +138,20 @@ def stop_collecting(collector: BaseCollector) -> None:
 
 
 def push_to_single(collector: BaseCollector, policy: nn.Module) -> None:
-    """``collector=single``: nothing to push where it acts with ``policy`` itself (one
-    device); else TorchRL's ``update_policy_weights_`` copies ``policy``'s parameters and
-    buffers into the collector's copy on ``collector.device``.
+    """Pushes ``policy``'s weights to a ``collector=single`` collector acting on another device.
+
+    Nothing to push where it acts with ``policy`` itself (one device); else TorchRL's
+    ``update_policy_weights_`` copies ``policy``'s parameters and buffers into the
+    collector's copy on ``collector.device``.
     """
     if collector.policy is not policy:
         collector.update_policy_weights_(TensorDict.from_module(policy).data)
 
 
 def push_to_processes(collector: BaseCollector, policy: nn.Module) -> None:
-    """Copies ``policy``'s current parameters and buffers into the collector's acting copy,
-    which its worker processes share.
+    """Copies ``policy``'s current parameters and buffers into the collector's acting copy.
+
+    The worker processes share that copy.
 
     Raises:
         RuntimeError: a worker process has died (its traceback is printed above); the

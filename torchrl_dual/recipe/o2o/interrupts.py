@@ -1,5 +1,6 @@
-"""Ctrl-C and SIGTERM in a recipe run: both stop it as a ``KeyboardInterrupt``, at a point
-where its state is whole.
+"""Ctrl-C and SIGTERM in a recipe run: both stop it as a ``KeyboardInterrupt``.
+
+At a point where its state is whole.
 
 :func:`signals_as_interrupts` (entered by :func:`~torchrl_dual.recipe.run_o2o` for the
 whole run) makes SIGTERM, what a cluster scheduler or ``kill`` sends before it kills a
@@ -40,9 +41,11 @@ def _interrupt(signum: int, frame: object) -> None:
 
 @contextmanager
 def signals_as_interrupts() -> Iterator[None]:
-    """Within the block, SIGINT and SIGTERM raise ``KeyboardInterrupt`` (held back inside
-    :func:`held`); the previous handlers come back at its end. Signal handlers belong to
-    the main thread: in another thread the block changes nothing.
+    """Within the block, SIGINT and SIGTERM raise ``KeyboardInterrupt``.
+
+    They are held back inside :func:`held`; the previous handlers come back at its end.
+    Signal handlers belong to the main thread: in another thread the block changes
+    nothing.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -62,8 +65,10 @@ def signals_as_interrupts() -> Iterator[None]:
 
 @contextmanager
 def held() -> Iterator[None]:
-    """Within the block a signal only sets :func:`requested`; if no one took it, the block
-    raises ``KeyboardInterrupt`` when it ends (not when it ends in an exception).
+    """Within the block a signal only sets :func:`requested`; it is raised when the block ends.
+
+    If no one took it, the block raises ``KeyboardInterrupt`` when it ends (not when it
+    ends in an exception).
     """
     _state.holding += 1
     try:

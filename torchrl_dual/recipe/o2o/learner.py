@@ -19,10 +19,12 @@ from torch import nn
 
 
 class RunContext(Protocol):
-    """What a learner and the parts it builds may use of the run (an
-    :class:`~torchrl_dual.recipe.O2ORun`): the config, the data and env, the counters, the
-    buffers, logging and the two helpers below. ``tests/test_import_layering.py`` checks
-    that ``recipe/algos`` and ``recipe/parts`` read nothing else of it.
+    """What a learner and the parts it builds may use of the run.
+
+    Of an :class:`~torchrl_dual.recipe.O2ORun`: the config, the data and env, the
+    counters, the buffers, logging and the two helpers below.
+    ``tests/test_import_layering.py`` checks that ``recipe/algos`` and ``recipe/parts``
+    read nothing else of it.
 
     Attributes:
         cfg (DictConfig): the validated config.
@@ -57,8 +59,10 @@ class RunContext(Protocol):
         """Rebuilds ``offline_buffer`` from ``data`` (after the learner relabelled it)."""
 
     def stage_checkpoints(self) -> AbstractContextManager[Any]:
-        """``with run.stage_checkpoints() as checkpoints:`` around an offline stage's update
-        loop: its ``checkpoints=`` (``UpdateCheckpoints``, or ``None`` outside a stage).
+        """The running offline stage's checkpoints, for its update loop's ``checkpoints=``.
+
+        Use as ``with run.stage_checkpoints() as checkpoints:`` around an offline
+        stage's update loop: an ``UpdateCheckpoints``, or ``None`` outside a stage.
         """
 
 
@@ -77,6 +81,36 @@ class Learner(ABC):
             kit's ``action_projection``, if any).
         evaluation_policy (nn.Module): what the evaluator runs, under
             ``ExplorationType.DETERMINISTIC``.
+
+    Examples:
+        A learner that acts with a fixed random linear policy and learns nothing, run for
+        100 online frames of Frozen-Lake:
+
+        >>> import contextlib, io, tempfile
+        >>> from tensordict.nn import TensorDictModule
+        >>> from torch import nn
+        >>> from torchrl_dual.recipe import CONFIG_DIR, compose_checked, run_o2o
+        >>> class LinearPolicyLearner(Learner):
+        ...     title = "random linear policy"
+        ...     def __init__(self, run):
+        ...         net = nn.Linear(run.data.obs_dim, run.data.action_dim)
+        ...         policy = TensorDictModule(net, in_keys=["observation"], out_keys=["action"])
+        ...         self.exploration_policy = self.evaluation_policy = policy
+        ...     def modules(self):
+        ...         return {}
+        ...     def offline_stages(self):
+        ...         return []
+        ...     def update(self, batch):
+        ...         return {}
+        >>> out = tempfile.mkdtemp()
+        >>> cfg = compose_checked(CONFIG_DIR, [
+        ...     "env=frozenlake", "budget=smoke", "progress=false", f"output_dir={out}/run",
+        ...     f"data_cache_dir={out}/data", "budget.dataset_transitions=1000",
+        ...     "budget.online_frames=100", "budget.frames_per_batch=50", "budget.eval_episodes=1"])
+        >>> with contextlib.redirect_stdout(io.StringIO()):  # the run's progress lines
+        ...     run = run_o2o(cfg, LinearPolicyLearner)
+        >>> run.frames, run.stages_done, [point["frames"] for point in run.history]
+        (100, ['offline_eval'], [0, 100])
     """
 
     title: str = "?"
@@ -101,50 +135,60 @@ class Learner(ABC):
 
     @abstractmethod
     def modules(self) -> dict[str, Any]:
-        """Name -> object with ``state_dict``/``load_state_dict`` (networks, losses,
-        optimizers): what the checkpoint holds, each weight once.
+        """What the checkpoint holds, each weight once: name -> networks, losses, optimizers.
+
+        Each object has ``state_dict``/``load_state_dict``.
         """
 
     @abstractmethod
     def offline_stages(self) -> list[tuple[str, Callable[[], None]]]:
-        """The offline phase as ordered ``(name, fn)`` stages, each checkpointed when done
-        and skipped on resume; a stage's update loop is checkpointed within it through
-        ``run.stage_checkpoints()``. :meth:`O2ORun.pretrain_updates` is the shared
-        ``budget.offline_updates`` stage. The run appends ``offline_eval``.
+        """The offline phase as ordered ``(name, fn)`` stages.
+
+        Each is checkpointed when done and skipped on resume; a stage's update loop
+        is checkpointed within it through ``run.stage_checkpoints()``.
+        :meth:`O2ORun.pretrain_updates` is the shared ``budget.offline_updates``
+        stage. The run appends ``offline_eval``.
         """
 
     @abstractmethod
     def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor | float]:
-        """One gradient update (critic and actor) on ``batch``; returns its metrics as
-        detached 0-dim tensors (left on the device: :meth:`O2ORun.log` reads them back
-        only when it logs, every 100 updates, so an update never syncs the host).
+        """One gradient update (critic and actor) on ``batch``; returns its metrics.
+
+        The metrics are detached 0-dim tensors, left on the device:
+        :meth:`O2ORun.log` reads them back only when it logs, every 100 updates, so
+        an update never syncs the host.
         """
 
     def after_update(self) -> None:  # noqa: B027 - optional hook
-        """Called after each :meth:`update`, outside its compiled or CUDA-graph step: the
-        update's Python bookkeeping (DUAL counts the updates since its last refit). An
-        update whose algorithm allows ``compile.cudagraphs`` leaves every Python attribute
-        as it was, since a CUDA graph replays its kernels only.
+        """Called after each :meth:`update`, outside its compiled or CUDA-graph step.
+
+        The update's Python bookkeeping (DUAL counts the updates since its last
+        refit). An update whose algorithm allows ``compile.cudagraphs`` leaves every
+        Python attribute as it was, since a CUDA graph replays its kernels only.
         """
 
     def after_updates(self) -> None:  # noqa: B027 - optional hook
         """Called after each block of online updates (DUAL refits its Laplace posterior)."""
 
     def start_episodes(self) -> None:  # noqa: B027 - optional hook
-        """Called when a collector starts (the online phase's start, each checkpoint's cut
-        point, a resume): the episode in progress ends at its last transition (Cal-QL's
-        labels release it, truncated).
+        """Called when a collector starts: the episode in progress ends at its last transition.
+
+        A collector starts at the online phase's start, each checkpoint's cut point
+        and a resume (Cal-QL's labels release the episode, truncated).
         """
 
     def shared_modules(self) -> dict[str, Any]:
-        """What a shared offline phase hands over (defaults to :meth:`modules`); leave out
-        what depends on :attr:`online_keys` (e.g. DUAL's M posterior draws).
+        """What a shared offline phase hands over (defaults to :meth:`modules`).
+
+        Leave out what depends on :attr:`online_keys` (e.g. DUAL's ``M`` posterior
+        draws).
         """
         return self.modules()
 
     def online_transitions(self, transitions: TensorDictBase) -> TensorDictBase:
-        """What of the collected ``transitions`` enters ``D_online`` now (Alg. 1 l. 13);
-        all of them by default. Cal-QL holds an episode until it ends to label it.
+        """What of the collected ``transitions`` enters ``D_online`` now (Alg. 1 l. 13).
+
+        All of them by default. Cal-QL holds an episode until it ends to label it.
         """
         return transitions
 

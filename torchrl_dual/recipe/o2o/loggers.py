@@ -26,8 +26,9 @@ def make_logger(
     state: dict | None = None,
     previous: Logger | None = None,
 ) -> Logger:
-    """The TorchRL logger of ``cfg.logger`` writing under ``log_dir``, continuing ``state``
-    (a ``Logger.state_dict()`` of a checkpoint) if given.
+    """The TorchRL logger of ``cfg.logger`` writing under ``log_dir``.
+
+    It continues ``state`` (a ``Logger.state_dict()`` of a checkpoint) if given.
 
     The run writes where it is now, whatever directory ``state`` was saved from (a moved
     ``output_dir``; a shared offline phase's snapshot); this also avoids TorchRL 0.14.1's

@@ -38,8 +38,9 @@ from torchrl_dual.recipe.settings.o2o import COLLECTORS
 
 
 def online_batch(replay: Replay, k: int, device: torch.device) -> TensorDictBase:
-    """One update's sample of D_offline ∪ D_online (``replay``) on ``device``: a ``[B]``
-    batch, or ``[k, B]`` (``k`` batches stacked) for a learner with
+    """One update's sample of D_offline ∪ D_online (``replay``) on ``device``.
+
+    A ``[B]`` batch, or ``[k, B]`` (``k`` batches stacked) for a learner with
     :attr:`~torchrl_dual.recipe.Learner.online_batches_per_update` ``k > 1`` (SO2).
     """
     if k == 1:
@@ -48,9 +49,10 @@ def online_batch(replay: Replay, k: int, device: torch.device) -> TensorDictBase
 
 
 def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORun:
-    """Runs (or resumes) one offline-to-online run of ``make_learner``'s algorithm for a
-    validated ``cfg``: its offline stages, the offline evaluation, then the online phase
-    (collect, store, update, the learner's hook, evaluate, checkpoint); returns the run.
+    """Runs (or resumes) one offline-to-online run of ``make_learner``'s algorithm; returns it.
+
+    For a validated ``cfg``: its offline stages, the offline evaluation, then the online
+    phase (collect, store, update, the learner's hook, evaluate, checkpoint).
 
     Ctrl-C or SIGTERM (``interrupt_at_frames``, ``interrupt_at_offline_updates``) ends it
     early with a checkpoint and one line; before the run is built (data, networks), the

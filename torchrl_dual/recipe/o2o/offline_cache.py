@@ -74,9 +74,10 @@ ONLINE_KEYS: tuple[str, ...] = (
 evaluation, which runs after the snapshot on the possibly shifted env, and bookkeeping)."""
 
 def offline_key_config(cfg: DictConfig, extra_online_keys: tuple[str, ...] = ()) -> dict:
-    """The resolved config without the online-only keys: what a shared offline phase is
-    computed from. Every config key is in :data:`ONLINE_KEYS` or in the record of keyed
-    names that ``tests/recipe/test_offline_cache.py`` checks the config against.
+    """The resolved config without the online-only keys: what a shared offline phase comes from.
+
+    Every config key is in :data:`ONLINE_KEYS` or in the record of keyed names that
+    ``tests/recipe/test_offline_cache.py`` checks the config against.
     """
     container = OmegaConf.to_container(cfg, resolve=True)
     for dotted in (*ONLINE_KEYS, *extra_online_keys):
@@ -87,8 +88,9 @@ def offline_key_config(cfg: DictConfig, extra_online_keys: tuple[str, ...] = ())
 
 
 def _parent(container: dict, dotted: str) -> tuple[dict | None, str]:
-    """The dict holding ``dotted``'s last part (``None`` if a parent is missing), and
-    that part.
+    """The dict holding ``dotted``'s last part, and that part.
+
+    The dict is ``None`` if a parent is missing.
     """
     *parents, leaf = dotted.split(".")
     node = container
@@ -127,6 +129,7 @@ class OfflinePhaseCache:
         self._key_config = key_config
 
     def exists(self) -> bool:
+        """Whether the entry's snapshot has been written."""
         return self._checkpoint.exists()
 
     @contextmanager
@@ -141,8 +144,9 @@ class OfflinePhaseCache:
                 fcntl.flock(handle, fcntl.LOCK_UN)
 
     def save(self, state: dict[str, Any], logs_dir: Path | None) -> None:
-        """Writes the snapshot (atomically), a copy of the run's logs and a readable
-        ``config.json``; call it under :meth:`lock`.
+        """Writes the snapshot (atomically), a copy of the run's logs and a ``config.json``.
+
+        Call it under :meth:`lock`.
         """
         self.directory.mkdir(parents=True, exist_ok=True)
         if logs_dir is not None and logs_dir.exists():
@@ -167,9 +171,11 @@ class OfflinePhaseCache:
 
 
 def run_offline_stages(run: O2ORun) -> None:
-    """Runs the learner's offline stages, sharing its :attr:`Learner.shared_stages` through
-    ``cfg.offline_cache`` when set: loads the snapshot if another run wrote it, else
-    computes them and writes it (under the entry's lock); then the remaining stages.
+    """Runs the learner's offline stages, sharing its shared stages through the offline cache.
+
+    With ``cfg.offline_cache`` set, :attr:`Learner.shared_stages` are loaded from the
+    snapshot if another run wrote it, else computed and written (under the entry's
+    lock); then the remaining stages run.
     """
     learner = run.learner
     stages = learner.offline_stages()

@@ -32,9 +32,10 @@ exploration found any, ``benchmarks/studies/online_reward.py``)."""
 
 
 def online_signals(frames: int, metrics: dict) -> dict | None:
-    """The :data:`ONLINE_SIGNALS` and :data:`RECORDED_ONLY` metrics among one collected
-    batch's ``metrics``, with the online frames at the end of the batch; ``None`` when
-    there are none.
+    """The online-signal metrics of one collected batch, with the online frames at its end.
+
+    The :data:`ONLINE_SIGNALS` and :data:`RECORDED_ONLY` metrics among the batch's
+    ``metrics``; ``None`` when there are none.
 
     Examples:
         >>> online_signals(200, {"reward_per_step": 0.1, "shift_distance": 0.5, "loss": 2.0})
@@ -50,9 +51,11 @@ def online_signals(frames: int, metrics: dict) -> dict | None:
 def plot_learning_curve(
     history: list[dict], path: Path, *, title: str = "", signals: list[dict] | None = None
 ) -> Path:
-    """Writes the normalized score against online frames (the offline score is the point
-    at 0) and, below it on the same frame axis, each :data:`ONLINE_SIGNALS` series found
-    in ``signals`` (records of :func:`online_signals`). Returns ``path``.
+    r"""Plots the learning curve and the online signals below it; returns ``path``.
+
+    The normalized score against online frames (the offline score is the point at 0)
+    and, below it on the same frame axis, each :data:`ONLINE_SIGNALS` series found in
+    ``signals`` (records of :func:`online_signals`).
 
     Examples:
         >>> import tempfile
@@ -60,7 +63,7 @@ def plot_learning_curve(
         >>> signals = [{"frames": 50, "epistemic_std": 0.2}, {"frames": 100, "epistemic_std": 0.1}]
         >>> png = plot_learning_curve(history, Path(tempfile.mkdtemp()) / "c.png", signals=signals)
         >>> png.read_bytes()[:4]
-        b'\\x89PNG'
+        b'\x89PNG'
     """
     signals = signals or []
     panels = [name for name in ONLINE_SIGNALS if any(name in s for s in signals)]

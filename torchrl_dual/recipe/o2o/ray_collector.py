@@ -53,8 +53,9 @@ if TYPE_CHECKING:
 
 
 class InterleavedTrajectories:
-    """Trajectory ids of remote collector ``worker`` of ``workers``: ``worker``,
-    ``worker + workers``, ``worker + 2 * workers``, ... (TorchRL's ``traj_pool=``).
+    """Trajectory ids of remote collector ``worker`` of ``workers`` (TorchRL's ``traj_pool=``).
+
+    ``worker``, ``worker + workers``, ``worker + 2 * workers``, ...
 
     Args:
         worker (int): this collector's index in ``[0, workers)``.
@@ -92,9 +93,10 @@ class InterleavedTrajectories:
 
 
 def make_ray(run: O2ORun, total_frames: int) -> BaseCollector:
-    """TorchRL's ``RayCollector`` for ``run`` (``collector.num_workers`` actors), seeded,
-    with the policy's current weights already pushed (the weight channel is connected
-    before the first batch).
+    """TorchRL's ``RayCollector`` for ``run``, seeded, with the policy's weights already pushed.
+
+    ``collector.num_workers`` actors; the weight channel is connected before the first
+    batch.
     """
     from torchrl.collectors.distributed import RayCollector  # imports ray
 
@@ -140,7 +142,9 @@ def make_ray(run: O2ORun, total_frames: int) -> BaseCollector:
 
 
 def push_to_actors(collector: BaseCollector, policy: nn.Module) -> None:
-    """Sends ``policy``'s current parameters and buffers to every remote collector; returns
-    once each has loaded them (an actor busy collecting loads them after its batch).
+    """Sends ``policy``'s current parameters and buffers to every remote collector.
+
+    Returns once each has loaded them (an actor busy collecting loads them after its
+    batch).
     """
     collector.update_policy_weights_(TensorDict.from_module(policy).data)

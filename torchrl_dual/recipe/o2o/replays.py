@@ -1,5 +1,6 @@
-"""The online phase's replay of ``D_offline ∪ D_online`` (Alg. 1 line 15), a table by
-``replay.name``.
+"""The online phase's replay of ``D_offline ∪ D_online`` (Alg. 1 line 15).
+
+A table by ``replay.name``.
 
 * ``mixed`` (``replay/mixed.yaml``, the default): TorchRL's
   :class:`~torchrl.data.OfflineToOnlineReplayBuffer`; every batch takes
@@ -73,12 +74,13 @@ class Replay:
 
 
 class JointReplay(Replay):
-    """``D_offline ∪ D_online`` as one buffer, CORL's fine-tuning replay: each of the
-    ``B`` transitions of a batch is any stored transition with equal probability. Drawn as
-    ``k ~ Binomial(B, N_off / (N_off + N_on))`` uniform offline transitions and ``B − k``
-    uniform online ones, which is the distribution of ``B`` uniform draws (with
-    replacement) from the union, over TorchRL's ``OfflineToOnlineReplayBuffer`` (its own
-    fixed share unused).
+    """``D_offline ∪ D_online`` as one buffer, CORL's fine-tuning replay.
+
+    Each of the ``B`` transitions of a batch is any stored transition with equal
+    probability. Drawn as ``k ~ Binomial(B, N_off / (N_off + N_on))`` uniform offline
+    transitions and ``B − k`` uniform online ones, which is the distribution of ``B``
+    uniform draws (with replacement) from the union, over TorchRL's
+    ``OfflineToOnlineReplayBuffer`` (its own fixed share unused).
     """
 
     def __init__(self, buffer: OfflineToOnlineReplayBuffer, batch_size: int) -> None:
@@ -86,6 +88,7 @@ class JointReplay(Replay):
         self.batch_size = batch_size
 
     def sample(self) -> TensorDictBase:
+        """One batch of ``batch_size`` uniform draws from ``D_offline ∪ D_online``."""
         offline, online = self.buffer.offline_buffer, self.buffer.online_buffer
         share = len(offline) / (len(offline) + len(online))
         size = torch.tensor(float(self.batch_size))
@@ -95,8 +98,9 @@ class JointReplay(Replay):
 
 
 def make_mixed_replay(run: O2ORun) -> Replay:
-    """TorchRL's ``OfflineToOnlineReplayBuffer`` with ``online.offline_fraction``
-    (``joint``: :class:`JointReplay`).
+    """TorchRL's ``OfflineToOnlineReplayBuffer`` with ``online.offline_fraction``.
+
+    (``joint``: :class:`JointReplay`.)
 
     Its offline share is drawn from a buffer over the same storage as
     ``run.offline_buffer`` but without a default batch size: TorchRL 0.14 samples it with
@@ -138,8 +142,10 @@ class BalancedReplay(Replay):
         )
 
     def after_update(self, batch: TensorDictBase) -> dict[str, float]:
-        """One density-ratio step, then ``p = clip(w^{1/T} / mean_off w^{1/T})`` for the
-        transitions of ``batch`` (flattened if stacked).
+        """One density-ratio step, then refreshes the priorities of ``batch``'s transitions.
+
+        ``p = clip(w^{1/T} / mean_off w^{1/T})`` for the transitions of ``batch``
+        (flattened if stacked).
         """
         buffer: BalancedReplayBuffer = self.buffer
         ratio_batch = buffer.ratio_batch(self.ratio_batch_size).to(self.device)
@@ -156,6 +162,7 @@ class BalancedReplay(Replay):
         }
 
     def state_dict(self) -> dict[str, Any]:
+        """The priorities, the density-ratio network and its optimizer (checkpointed)."""
         return {
             "priorities": self.buffer.state_dict(),
             "ratio": self.loss.state_dict(),
@@ -163,6 +170,7 @@ class BalancedReplay(Replay):
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restores what :meth:`state_dict` returned."""
         self.buffer.load_state_dict(state["priorities"])
         self.loss.load_state_dict(state["ratio"])
         self.optimizer.load_state_dict(state["ratio_optimizer"])

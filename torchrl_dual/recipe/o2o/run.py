@@ -81,6 +81,21 @@ class O2ORun:
 
     ``cfg`` must have passed :func:`~torchrl_dual.recipe.validate_config`;
     ``make_learner`` is ``run -> Learner`` (usually the learner class).
+
+    Examples:
+        >>> import contextlib, io, tempfile
+        >>> from torchrl_dual.recipe import CONFIG_DIR, IQLLearner, compose_checked
+        >>> out = tempfile.mkdtemp()
+        >>> cfg = compose_checked(CONFIG_DIR, [
+        ...     "algo=iql", "env=frozenlake", "budget=smoke", "progress=false",
+        ...     f"output_dir={out}/run", f"data_cache_dir={out}/data",
+        ...     "budget.dataset_transitions=1000"])
+        >>> with contextlib.redirect_stdout(io.StringIO()):
+        ...     run = O2ORun(cfg, IQLLearner)  # data, env, evaluator, learner, replay
+        >>> len(run.data), run.data.obs_dim, run.frames, run.updates
+        (1000, 16, 0, 0)
+        >>> type(run.learner).__name__, [name for name, _ in run.learner.offline_stages()]
+        ('IQLLearner', ['actor_critic'])
     """
 
     def __init__(self, cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> None:
@@ -140,8 +155,9 @@ class O2ORun:
         self.make_logger(logger_state)
 
     def make_logger(self, state: dict | None = None) -> None:
-        """The ``cfg.logger`` backend's TorchRL logger under ``output_dir/logs`` (continuing
-        ``state``, if given; it replaces and closes the current one).
+        """The ``cfg.logger`` backend's TorchRL logger under ``output_dir/logs``.
+
+        It continues ``state``, if given; it replaces and closes the current one.
         """
         previous = getattr(self, "logger", None)
         self.logger = make_logger(self.cfg, self.output_dir / "logs", self.name, state, previous)
@@ -149,16 +165,20 @@ class O2ORun:
     # ------------------------------------------------------------------ bookkeeping
     @staticmethod
     def seed_everything(seed: int) -> None:
+        """Seeds Python's, NumPy's and torch's random number generators with ``seed``."""
         random.seed(seed)
         np.random.seed(seed)
         torch.manual_seed(seed)
 
     def say(self, text: str) -> None:
+        """Prints ``text`` on one line, prefixed by the run's name."""
         print(f"[{self.name}] {text}")
 
     def _offline_buffer(self) -> ReplayBuffer:
-        """Uniform transitions from D_offline; a plain ``ReplayBuffer`` so its samples carry
-        the same keys as the online part of ``OfflineToOnlineReplayBuffer``.
+        """Uniform transitions from D_offline, as a plain ``ReplayBuffer``.
+
+        Its samples carry the same keys as the online part of
+        ``OfflineToOnlineReplayBuffer``.
         """
         buffer = ReplayBuffer(
             storage=LazyTensorStorage(len(self.data), device=self.cfg.device),
@@ -169,15 +189,19 @@ class O2ORun:
         return buffer
 
     def refresh_offline_buffer(self) -> None:
-        """Rebuilds :attr:`offline_buffer` from ``data`` (a learner that relabels the
-        offline transitions, e.g. Cal-QL's Monte-Carlo bound, calls it).
+        """Rebuilds :attr:`offline_buffer` from ``data``.
+
+        A learner that relabels the offline transitions (e.g. Cal-QL's Monte-Carlo
+        bound) calls it.
         """
         self.offline_buffer = self._offline_buffer()
 
     def state(self, modules: dict[str, Any] | None = None) -> dict[str, Any]:
-        """Everything needed to continue: ``modules`` (default: the learner's, and then the
-        replay's state too), counters, online data, RNG and logger state. A shared offline
-        phase passes its ``modules`` and leaves the replay out: the replay is online-only.
+        """Everything needed to continue the run.
+
+        ``modules`` (default: the learner's, and then the replay's state too),
+        counters, online data, RNG and logger state. A shared offline phase passes
+        its ``modules`` and leaves the replay out: the replay is online-only.
         """
         online = self.replay.online_buffer
         state = {} if modules is not None else {"replay": self.replay.state_dict()}
@@ -204,8 +228,9 @@ class O2ORun:
             raise UserError("resume", True, str(err)) from err
 
     def load(self, state: dict | None = None, modules: dict[str, Any] | None = None):
-        """Restores the checkpoint's ``state`` (read if not given) into ``modules`` (default:
-        the learner's); returns the logger's state.
+        """Restores the checkpoint's ``state`` into ``modules``; returns the logger's state.
+
+        ``state`` is read if not given; ``modules`` defaults to the learner's.
         """
         state = self._load_checkpoint() if state is None else state
         modules = self.learner.modules() if modules is None else modules
@@ -234,8 +259,10 @@ class O2ORun:
         return state["logger"]
 
     def stage(self, name: str, fn: Callable[[], Any]) -> None:
-        """Runs one offline stage unless a resumed run already did it (continuing its
-        update loop from a checkpoint within it, if there is one); then checkpoints.
+        """Runs one offline stage unless a resumed run already did it; then checkpoints.
+
+        A resumed stage continues its update loop from a checkpoint within it, if
+        there is one.
         """
         if name in self.stages_done:
             self.say(f"{name}: done in the checkpoint, skipped")
@@ -259,15 +286,17 @@ class O2ORun:
 
     @contextmanager
     def stage_checkpoints(self) -> Iterator[StageCheckpoints | None]:
-        """The running offline stage's :class:`StageCheckpoints`, for its update loop
-        (``checkpoints=`` of ``run_updates``); Ctrl-C and SIGTERM stop the loop after an
-        update (:func:`~torchrl_dual.recipe.o2o.interrupts.held`). ``None`` outside a
-        stage (a learner's stage method called on its own).
+        """The running offline stage's :class:`StageCheckpoints`, for its update loop.
+
+        The ``checkpoints=`` of ``run_updates``; Ctrl-C and SIGTERM stop the loop
+        after an update (:func:`~torchrl_dual.recipe.o2o.interrupts.held`). ``None``
+        outside a stage (a learner's stage method called on its own).
         """
         with held():
             yield None if self.current_stage is None else StageCheckpoints(self)
 
     def log(self, values: dict, step: int, prefix: str) -> None:
+        """Logs each of ``values`` as ``{prefix}{key}`` at ``step``."""
         for key, value in values.items():
             self.logger.log_scalar(f"{prefix}{key}", float(value), step=step)
 
@@ -286,9 +315,10 @@ class O2ORun:
         return metrics
 
     def pretrain_updates(self) -> None:
-        """``budget.offline_updates`` updates on D_offline (DUAL: Alg. 1 lines 6-8),
-        checkpointed within (:meth:`stage_checkpoints`; the weights, optimizers, counters
-        and random state are the run's own state).
+        """``budget.offline_updates`` updates on D_offline (DUAL: Alg. 1 lines 6-8).
+
+        Checkpointed within (:meth:`stage_checkpoints`; the weights, optimizers,
+        counters and random state are the run's own state).
         """
         total = self.cfg.budget.offline_updates
         tenth = max(total // 10, 1)
@@ -315,6 +345,11 @@ class O2ORun:
                     checkpoints.after_update(i + 1, total, lambda done=i + 1: {"done": done})
 
     def evaluate(self, label: str) -> dict:
+        """Evaluates the learner's evaluation policy, logs and prints the result; returns it.
+
+        The result (``return``, ``normalized_score``, ...) gets ``frames`` and ``label`` and is
+        appended to the run's history.
+        """
         result = self.evaluate_policy(self.learner.evaluation_policy)
         result.update(frames=self.frames, label=label)
         self.history.append(result)
@@ -329,8 +364,10 @@ class O2ORun:
 
     # ------------------------------------------------------------------ online phase
     def collector(self) -> BaseCollector:
-        """Acts with the learner's exploration policy in the online env (Alg. 1 l. 11-12):
-        the ``collector.name`` entry of :data:`~torchrl_dual.recipe.settings.o2o.COLLECTORS`.
+        """A collector acting with the learner's exploration policy online (Alg. 1 l. 11-12).
+
+        The ``collector.name`` entry of
+        :data:`~torchrl_dual.recipe.settings.o2o.COLLECTORS`.
         """
         remaining = max(self.cfg.budget.online_frames - self.frames, 0)
         self.open_episodes = {}  # a new collector starts new trajectories
@@ -359,9 +396,7 @@ class O2ORun:
         }
 
     def finish(self) -> None:
-        """Writes the learning curve and ``summary.json``, closes the logger; prints where
-        everything is.
-        """
+        """Writes the learning curve and ``summary.json``, closes the logger, prints the paths."""
         self.save()
         self.logger.shutdown()
         write_summary(self, self.output_dir / "summary.json")

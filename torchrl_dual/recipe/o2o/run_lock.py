@@ -49,8 +49,9 @@ def _shortened(text: str, limit: int = 80) -> str:
 
 
 def acquire_run_directory(output_dir: str | Path) -> bool:
-    """Takes the lock of ``output_dir`` (created if need be) for this process; returns
-    whether this call took it (``False``: the process held it already).
+    """Takes the lock of ``output_dir`` (created if need be) for this process.
+
+    Returns whether this call took it (``False``: the process held it already).
 
     Raises:
         UserError: another live process holds it.
@@ -111,8 +112,10 @@ def release_run_directory(output_dir: str | Path) -> None:
 
 @contextlib.contextmanager
 def run_directory_lock(output_dir: str | Path) -> Iterator[None]:
-    """Holds the lock of ``output_dir`` for the block (released at its end if the block
-    took it; a lock the process held before stays held).
+    """Holds the lock of ``output_dir`` for the block.
+
+    It is released at the block's end if the block took it; a lock the process held
+    before stays held.
 
     Examples:
         >>> import tempfile

@@ -1,5 +1,6 @@
-"""Checkpoints within an offline stage: :class:`StageCheckpoints`, and the line an
-interrupted offline phase ends with (:func:`offline_interruption`).
+"""Checkpoints within an offline stage, and the line an interrupted offline phase ends with.
+
+:class:`StageCheckpoints` and :func:`offline_interruption`.
 
 An offline stage's update loop (the planner's ``L_VLB`` updates, the distillation rounds,
 the actor-critic updates) saves the run every ``budget.offline_checkpoint_every`` offline
@@ -40,8 +41,9 @@ class StageRun(Protocol):
 
 
 class StageCheckpoints:
-    """The running offline stage's checkpoints within it, for its update loop
-    (:class:`~torchrl_dual.objectives.UpdateCheckpoints`); ``O2ORun.stage_checkpoints``
+    """The running offline stage's checkpoints within it, for its update loop.
+
+    An :class:`~torchrl_dual.objectives.UpdateCheckpoints`; ``O2ORun.stage_checkpoints``
     makes one.
     """
 
@@ -50,8 +52,9 @@ class StageCheckpoints:
         self.stage = run.current_stage
 
     def resume(self) -> dict[str, Any] | None:
-        """The loop state saved within this stage (and the random state of that moment
-        restored), or ``None`` to start the loop at update 0.
+        """The loop state saved within this stage, or ``None`` to start the loop at update 0.
+
+        The random state of that moment is restored with it.
         """
         progress = self.run.stage_progress
         if progress is None or progress["stage"] != self.stage:
@@ -60,9 +63,11 @@ class StageCheckpoints:
         return progress["loop"]
 
     def after_update(self, done: int, total: int, state: Callable[[], dict[str, Any]]) -> None:
-        """Counts one offline update; saves the run with ``state()`` when
-        ``budget.offline_checkpoint_every`` divides the count, and when the run is to stop
-        (a signal, ``interrupt_at_offline_updates``), then raises ``KeyboardInterrupt``.
+        """Counts one offline update; saves the run when due, and stops it when asked.
+
+        Saves the run with ``state()`` when ``budget.offline_checkpoint_every``
+        divides the count, and when the run is to stop (a signal,
+        ``interrupt_at_offline_updates``), then raises ``KeyboardInterrupt``.
         """
         run = self.run
         run.offline_steps += 1
@@ -83,10 +88,12 @@ class StageCheckpoints:
 
 
 def offline_interruption(run: StageRun) -> str:
-    """The one line of an offline phase stopped by Ctrl-C or SIGTERM: where it stopped and
-    what the checkpoint holds. Stopped inside an update loop, the loop saved that update;
-    elsewhere (between updates' loops, the Laplace fit, the offline evaluation) the last
-    checkpoint is kept, and the step in progress runs again on resume.
+    """The one line of an offline phase stopped by Ctrl-C or SIGTERM.
+
+    Where it stopped and what the checkpoint holds. Stopped inside an update loop, the
+    loop saved that update; elsewhere (between updates' loops, the Laplace fit, the
+    offline evaluation) the last checkpoint is kept, and the step in progress runs again
+    on resume.
     """
     if run.stopped_at is not None:
         said = f"interrupted at {run.stopped_at}; checkpoint saved."

@@ -1,5 +1,6 @@
-"""How a run calls its learner's update: eager, through ``torch.compile``, or replayed as
-CUDA graphs (the ``compile.*`` keys, as TorchRL's sota-implementations name them).
+"""How a run calls its learner's update: eager, through ``torch.compile``, or as CUDA graphs.
+
+The ``compile.*`` keys, as TorchRL's sota-implementations name them.
 
 * ``compile.compile=true``: ``learner.update`` through ``torch.compile``
   (``compile.compile_mode``). The losses trace whole (no graph break,
@@ -40,8 +41,9 @@ CUDA_GRAPH_WARMUP = 3
 def make_update_step(
     learner: Learner, settings: DictConfig | None, phase: Callable[[], Any]
 ) -> Callable[[TensorDictBase], dict]:
-    """``batch -> metrics``: ``learner.update`` as ``settings`` (the ``compile`` section)
-    asks; ``phase()`` names the current phase (one CUDA graph each).
+    """``batch -> metrics``: ``learner.update`` as ``settings`` (the ``compile`` section) asks.
+
+    ``phase()`` names the current phase (one CUDA graph each).
     """
     update = learner.update
     if settings is not None and settings.compile:
@@ -84,6 +86,10 @@ class GraphedUpdate:
         return TensorDict(self.update(batch))  # CudaGraphModule returns tensordicts
 
     def __call__(self, batch: TensorDictBase) -> dict:
+        """Runs ``update`` on ``batch`` by replaying the CUDA graph of its phase and shape.
+
+        The graph is captured at the first call of each ``(phase(), batch shape)``.
+        """
         from tensordict.nn import CudaGraphModule
 
         key = (self.phase(), tuple(batch.shape))
@@ -122,10 +128,12 @@ def optimizers_of(learner: Learner) -> list[torch.optim.Optimizer]:
 
 
 def make_capturable(optimizers: list[torch.optim.Optimizer]) -> None:
-    """Sets ``capturable=True`` in every parameter group and moves the step counters of
-    the optimizers' state (if they have stepped or loaded a checkpoint) next to their
-    parameters as float32, where a CUDA graph updates them (what ``torch.optim`` does when
-    it loads the state of a capturable optimizer).
+    """Makes the optimizers capturable by a CUDA graph.
+
+    Sets ``capturable=True`` in every parameter group and moves the step counters of the
+    optimizers' state (if they have stepped or loaded a checkpoint) next to their
+    parameters as float32, where a CUDA graph updates them (what ``torch.optim`` does
+    when it loads the state of a capturable optimizer).
 
     Examples:
         >>> import torch

@@ -46,9 +46,10 @@ CriticLoss = IQLCriticLoss | OnePassIQLLoss | CalQLLoss | SO2QLoss
 
 @dataclass
 class Critic:
-    """A critic loss (TorchRL ``IQLLoss``, :class:`~torchrl_dual.objectives.CalQLLoss` or
-    :class:`~torchrl_dual.objectives.SO2QLoss`), the optimizer of its Q (and V) networks,
-    and its target-network updater.
+    """A critic loss, the optimizer of its Q (and V) networks, and its target-network updater.
+
+    The loss is TorchRL's ``IQLLoss``, :class:`~torchrl_dual.objectives.CalQLLoss` or
+    :class:`~torchrl_dual.objectives.SO2QLoss`.
     """
 
     loss: CriticLoss
@@ -73,17 +74,20 @@ class Critic:
         settings: CriticSettings,
         **options: Any,
     ) -> Critic:
-        """Every builder's tail: Adam over ``params`` at ``critic.lr`` and the soft target
-        update at ``critic.target_update_tau`` around ``loss`` (``options``: the fields
-        after :attr:`target_updater`).
+        """Every builder's tail: the critic's optimizer and soft target update around ``loss``.
+
+        Adam over ``params`` at ``critic.lr`` and the soft target update at
+        ``critic.target_update_tau`` (``options``: the fields after
+        :attr:`target_updater`).
         """
         optimizer = adam(params, lr=settings.lr)
         updater = ForeachSoftUpdate(loss, tau=settings.target_update_tau)
         return cls(loss, optimizer, updater, **options)
 
     def modules(self) -> dict[str, Any]:
-        """What a learner's checkpoint holds of the critics (:meth:`Learner.modules`): the
-        loss (V, the Q and the target Q networks) and its optimizer.
+        """What a learner's checkpoint holds of the critics (:meth:`Learner.modules`).
+
+        The loss (V, the Q and the target Q networks) and its optimizer.
         """
         return {
             "critic": _CriticState(self.loss, keep_actor=self.saves_actor),
@@ -91,12 +95,13 @@ class Critic:
         }
 
     def step(self, batch: TensorDictBase, *, online: bool = False) -> dict[str, torch.Tensor]:
-        """The critic updates of the Diff-QL and SO2 baselines: per batch (``[B]``, or each
-        of a stacked ``[k, B]``), one gradient step on the sum of the loss's
-        ``critic_terms`` (IQL: TD to ``r + γ V(s')`` plus the expectile V loss; SO2: the
-        ensemble's TD), then the soft update of the target Q networks. ``online`` selects
-        the critic's online settings (SO2's smoothed, per-member targets). Returns the
-        last step's terms, detached.
+        """The critic updates of the Diff-QL and SO2 baselines; returns the last step's terms.
+
+        Per batch (``[B]``, or each of a stacked ``[k, B]``), one gradient step on
+        the sum of the loss's ``critic_terms`` (IQL: TD to ``r + γ V(s')`` plus the
+        expectile V loss; SO2: the ensemble's TD), then the soft update of the
+        target Q networks. ``online`` selects the critic's online settings (SO2's
+        smoothed, per-member targets). The terms are returned detached.
 
         DUAL's update is :class:`~torchrl_dual.trainers.CriticActorStepper` on a
         :class:`~torchrl_dual.objectives.DUALLoss`; the IQL and Cal-QL baselines sum the
@@ -120,8 +125,10 @@ class Critic:
 
 
 class _CriticState:
-    """What a checkpoint holds of a critic loss: its ``state_dict``, without the actor
-    weights it samples unless ``keep_actor`` (else the learner saves them as its actor's).
+    """What a checkpoint holds of a critic loss: its ``state_dict``, without the actor's weights.
+
+    The actor weights it samples are left out unless ``keep_actor`` (else the learner
+    saves them as its actor's).
     """
 
     def __init__(self, loss: nn.Module, *, keep_actor: bool) -> None:
@@ -132,11 +139,12 @@ class _CriticState:
         return state if self.keep_actor else {k: v for k, v in state.items() if not _is_actor(k)}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        """Loads ``state`` after checking its keys here: TorchRL 0.14's ``LossModule``
-        (its ``TensorDictParams``) reports a parameter key it does not have as matched and
-        skips it, even with ``strict=True``, which would leave those networks as they were
-        initialised without a word (``test_critic_checkpoint.py`` shows the upstream
-        behaviour).
+        """Loads ``state`` after checking its keys here.
+
+        TorchRL 0.14's ``LossModule`` (its ``TensorDictParams``) reports a parameter
+        key it does not have as matched and skips it, even with ``strict=True``,
+        which would leave those networks as they were initialised without a word
+        (``test_critic_checkpoint.py`` shows the upstream behaviour).
         """
         given = {k for k in state if self.keep_actor or not _is_actor(k)}
         expected = set(self.state_dict())
@@ -159,8 +167,9 @@ def make_critic(
     actor: ProbabilisticActor | None = None,
     temperature: float = 1.0,
 ) -> Critic:
-    """The ``critic.name`` entry of :data:`~torchrl_dual.recipe.settings.parts.CRITICS`
-    built from its typed ``critic`` section on ``cfg.device`` (``actor`` and
+    """The ``critic.name`` entry of :data:`~torchrl_dual.recipe.settings.parts.CRITICS`, built.
+
+    Built from its typed ``critic`` section on ``cfg.device`` (``actor`` and
     ``temperature`` as its builder takes them).
     """
     kind = CRITICS[cfg.critic.name]
@@ -225,12 +234,13 @@ def make_calql_critic(
     actor: ProbabilisticActor | None = None,
     temperature: float = 1.0,
 ) -> Critic:
-    """Cal-QL's twin Q networks in a :class:`~torchrl_dual.objectives.CalQLLoss` on
-    ``actor`` (a TorchRL ``TanhNormal`` actor: the penalty and the SAC actor loss sample
-    it); ``temperature`` is unused (Cal-QL's actor loss is SAC's, not AWR). The critic's
-    optimizer holds the Q networks (and, with ``critic.lagrange_gap``, the penalty's
-    ``log α'`` at the critic's learning rate, as Cal-QL's code); the learner steps the actor
-    and ``log_alpha``.
+    """Cal-QL's twin Q networks in a :class:`~torchrl_dual.objectives.CalQLLoss` on ``actor``.
+
+    ``actor`` is a TorchRL ``TanhNormal`` actor: the penalty and the SAC actor loss
+    sample it; ``temperature`` is unused (Cal-QL's actor loss is SAC's, not AWR). The
+    critic's optimizer holds the Q networks (and, with ``critic.lagrange_gap``, the
+    penalty's ``log α'`` at the critic's learning rate, as Cal-QL's code); the learner
+    steps the actor and ``log_alpha``.
     """
     if actor is None:
         raise ValueError("critic=calql needs the actor it samples (a TanhNormal actor).")
@@ -264,8 +274,9 @@ def make_so2_critic(
     actor: ProbabilisticActor | None = None,
     temperature: float = 1.0,
 ) -> Critic:
-    """SO2's ensemble of ``critic.num_qvalue_nets`` Q networks in a
-    :class:`~torchrl_dual.objectives.SO2QLoss` whose targets sample ``actor`` (with its
+    """SO2's ensemble of Q networks in a :class:`~torchrl_dual.objectives.SO2QLoss`.
+
+    ``critic.num_qvalue_nets`` networks, whose targets sample ``actor`` (with its
     log-probability: ``return_log_prob=True``); ``temperature`` is unused. Built in the
     offline (SAC-N) setting: :func:`so2_phase` switches to SO2's online one.
     """
@@ -292,8 +303,11 @@ def make_so2_critic(
 
 
 def so2_phase(loss: SO2QLoss, *, settings: SO2CriticSettings, online: bool) -> None:
-    """Offline: SAC-N's targets (``critic.offline_target_reduction``, no noise); online:
-    SO2's (``critic.target_reduction`` at the action smoothed by ``critic.policy_noise``).
+    """Switches SO2's critic between SAC-N's offline targets and SO2's online ones.
+
+    Offline: SAC-N's targets (``critic.offline_target_reduction``, no noise); online:
+    SO2's (``critic.target_reduction`` at the action smoothed by
+    ``critic.policy_noise``).
     """
     c = settings
     loss.target_reduction = c.target_reduction if online else c.offline_target_reduction
@@ -301,8 +315,10 @@ def so2_phase(loss: SO2QLoss, *, settings: SO2CriticSettings, online: bool) -> N
 
 
 def q_network(settings: CriticSettings, obs_dim: int, action_dim: int) -> ValueOperator:
-    """``Q(s, a)``: an MLP on the concatenated ``(s, a)``, ``critic.depth`` hidden layers of
-    ``critic.hidden`` units (every critic's: IQL's twin, Cal-QL's twin, SO2's ensemble).
+    """``Q(s, a)``: an MLP on the concatenated ``(s, a)``.
+
+    ``critic.depth`` hidden layers of ``critic.hidden`` units (every critic's: IQL's
+    twin, Cal-QL's twin, SO2's ensemble).
     """
     c = settings
     mlp = MLP(
@@ -327,10 +343,11 @@ class _MeanAndStd(nn.Module):
 
 
 def policy_view(actor: nn.Module, action_spec: TensorSpec) -> ProbabilisticActor:
-    """A TorchRL ``ProbabilisticActor`` sampling ``N(μ(s), σ̄²)`` from DUAL's last-layer
-    actor (the policy of Eq. 7's ``sac`` weighting), for a critic whose loss samples the
-    policy (Cal-QL's penalty and target actions, SO2's target actions). Its draws are
-    clamped to the action box (:class:`~torchrl_dual.modules.actors.action_box.ClippedNormal`):
+    """A TorchRL ``ProbabilisticActor`` sampling ``N(μ(s), σ̄²)`` from DUAL's last-layer actor.
+
+    The policy of Eq. 7's ``sac`` weighting, for a critic whose loss samples the policy
+    (Cal-QL's penalty and target actions, SO2's target actions). Its draws are clamped
+    to the action box (:class:`~torchrl_dual.modules.actors.action_box.ClippedNormal`):
     the critics read Q at the actions the env would execute, never at an extrapolation.
     It holds the actor's own parameters: the critic's optimizer never steps them and
     :meth:`Critic.modules` does not save them.

@@ -31,9 +31,11 @@ from torchrl_dual.recipe.settings.rules import as_settings
 
 
 class RefitSchedule:
-    """Alg. 1 line 17's schedule, the one home of it: the posterior is refitted after the
-    first block of updates that brings the count since the last fit to ``every``
-    (``budget.laplace_refit_every``). The count is checkpointed by the learner.
+    """Alg. 1 line 17's schedule, the one home of it.
+
+    The posterior is refitted after the first block of updates that brings the count
+    since the last fit to ``every`` (``budget.laplace_refit_every``). The count is
+    checkpointed by the learner.
 
     Examples:
         >>> schedule = RefitSchedule(every=3)
@@ -65,8 +67,10 @@ class RefitSchedule:
 
 
 class LaplaceRefits:
-    """Mixin: Eq. (8)'s posterior fitted after the base learner's offline stages and
-    refitted on ``D_offline ∪ D_online`` every ``budget.laplace_refit_every`` updates.
+    """Mixin: Eq. (8)'s posterior, fitted after the offline stages and refitted online.
+
+    Fitted after the base learner's offline stages and refitted on ``D_offline ∪
+    D_online`` every ``budget.laplace_refit_every`` updates.
 
     Attributes:
         actor (nn.Module): the base learner's actor, whose weights its modules save.
@@ -90,11 +94,14 @@ class LaplaceRefits:
         return self._refits
 
     def act_with_ensemble(self, actor: LastLayerActor) -> None:
-        """Acts online with the Laplace ensemble over ``actor`` (Eq. 9, ``M =
-        laplace.num_samples``, ``laplace.prior_precision``), then Eq. (10)'s noise with
-        ``λ = exploration.shift_weight`` (0 without a transition model:
-        :func:`~torchrl_dual.recipe.settings.algo_common.check_no_shift_weight`) and the env kit's
-        ``action_projection``. Sets ``policy``, ``ensemble`` and ``exploration_policy``.
+        """Acts online with the Laplace ensemble over ``actor`` (Eq. 9), then Eq. (10)'s noise.
+
+        The ensemble has ``M = laplace.num_samples`` and
+        ``laplace.prior_precision``; the noise has ``λ = exploration.shift_weight``
+        (0 without a transition model:
+        :func:`~torchrl_dual.recipe.settings.algo_common.check_no_shift_weight`),
+        followed by the env kit's ``action_projection``. Sets ``policy``,
+        ``ensemble`` and ``exploration_policy``.
         """
         cfg = self.run.cfg
         self.policy = make_policy(
@@ -117,15 +124,18 @@ class LaplaceRefits:
         return super().modules()
 
     def noise_std(self) -> torch.Tensor | None:
-        """``σ̄`` per action dimension to fit with; ``None`` keeps the actor's own (DUAL
-        learns it by Eq. 7).
+        """``σ̄`` per action dimension to fit with.
+
+        ``None`` keeps the actor's own (DUAL learns it by Eq. 7).
         """
         return None
 
     def fit_laplace(self) -> None:
-        """``σ̄`` from :meth:`noise_std`, then Eq. (8) on ``run.all_transitions()``; no
-        posterior with ``num_samples=0`` (the ensemble then acts with the MAP action and
-        ``σ̄`` only). Logs ``laplace/noise_std`` and ``laplace/prior_precision``.
+        """Fits Eq. (8) on ``run.all_transitions()`` with ``σ̄`` from :meth:`noise_std`.
+
+        No posterior with ``num_samples=0`` (the ensemble then acts with the MAP
+        action and ``σ̄`` only). Logs ``laplace/noise_std`` and
+        ``laplace/prior_precision``.
         """
         actor, metrics = self.ensemble.actor, {}
         std = self.noise_std()
@@ -146,9 +156,11 @@ class LaplaceRefits:
         self.fit_laplace()
 
     def offline_stages(self) -> list:
+        """The base learner's offline stages, then the Laplace fit (Alg. 1 line 9)."""
         return [*super().offline_stages(), ("laplace", self.refit)]
 
     def after_update(self) -> None:
+        """The base learner's bookkeeping, then counts the update toward the next refit."""
         super().after_update()
         self.refits.count()
 
@@ -158,22 +170,27 @@ class LaplaceRefits:
             self.refit()
 
     def batch_metrics(self, batch: TensorDictBase) -> dict[str, float]:
+        """The base learner's batch metrics and the ensemble's exploration signals (Eq. 9-10)."""
         return {**super().batch_metrics(batch), **exploration_signals(batch)}
 
     def state_dict(self) -> dict[str, Any]:
+        """The base learner's counters and the updates since the last refit."""
         return {**super().state_dict(), "updates_since_refit": self.refits.since}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restores what :meth:`state_dict` returned."""
         super().load_state_dict(state)
         self.refits.since = state["updates_since_refit"]
 
 
 class EnsembleOwnState:
-    """``state_dict``/``load_state_dict`` of a Laplace ensemble without the entries of its
-    actor that ``saved_elsewhere`` holds (the same tensors), so the checkpoint saves each
-    weight once: the IQL actor's trunk and head (``iql_la``, saved by the IQL loss), the
-    DDPM actor's score network and schedule (``diffql_la``, saved as ``actor``). What is
-    left is the ensemble's own state: ``σ̄`` (``actor.log_std``), the actor's own buffers
+    """The state of a Laplace ensemble without the actor's entries saved elsewhere.
+
+    ``state_dict``/``load_state_dict`` without the entries of its actor that
+    ``saved_elsewhere`` holds (the same tensors), so the checkpoint saves each weight
+    once: the IQL actor's trunk and head (``iql_la``, saved by the IQL loss), the DDPM
+    actor's score network and schedule (``diffql_la``, saved as ``actor``). What is left
+    is the ensemble's own state: ``σ̄`` (``actor.log_std``), the actor's own buffers
     (e.g. its squash's box), the posterior and the ``M`` draws.
 
     Args:
@@ -191,10 +208,16 @@ class EnsembleOwnState:
         }
 
     def state_dict(self) -> dict[str, Any]:
+        """The ensemble's state dict without the entries held elsewhere."""
         state = self.ensemble.state_dict()
         return {name: value for name, value in state.items() if name not in self.shared}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Loads the ensemble's own entries; the shared ones stay as they are.
+
+        Raises:
+            RuntimeError: an entry of the ensemble's own is missing, or one is unexpected.
+        """
         missing, unexpected = self.ensemble.load_state_dict(state, strict=False)
         if unexpected or set(missing) != self.shared:
             raise RuntimeError(

@@ -1,5 +1,7 @@
-"""Cal-QL's Monte-Carlo bound on the recipe's data: ``D_offline`` once, ``D_online`` per
-finished episode (Nakamoto et al. 2023; the ``calql`` critic).
+"""Cal-QL's Monte-Carlo bound on the recipe's data.
+
+``D_offline`` once, ``D_online`` per finished episode (Nakamoto et al. 2023; the ``calql``
+critic).
 
 :class:`MonteCarloLabels` is what a learner on ``critic=calql`` (``algo=calql``, and
 ``algo=dual critic=calql``) owns: built with the learner, it labels ``D_offline`` with
@@ -58,8 +60,9 @@ class MonteCarloLabels:
         self.pending: TensorDictBase | None = None  # the online episode in progress
 
     def online_transitions(self, transitions: TensorDictBase) -> TensorDictBase:
-        """The finished episodes among the held and the new ``transitions``, labelled with
-        their returns-to-go; the unfinished tail is held until its episode ends.
+        """The finished episodes among the held and new ``transitions``, with their returns-to-go.
+
+        The unfinished tail is held until its episode ends.
         """
         if self.pending is not None:
             transitions = torch.cat([self.pending, transitions])
@@ -72,15 +75,19 @@ class MonteCarloLabels:
         return label_transitions(transitions[:end].clone(), self.cfg)
 
     def state_dict(self) -> dict[str, Any]:
+        """The held (unfinished) episode, ``{"pending": TensorDict or None}``."""
         return {"pending": self.pending}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restores the held episode from :meth:`state_dict`."""
         self.pending = state.get("pending")
 
     def cut(self) -> None:
-        """Ends the held episode at its last transition (marked truncated and done; released
-        with the next finished episode, under its own id), as a new collector starts a new
-        episode (:meth:`~torchrl_dual.recipe.Learner.start_episodes`: each checkpoint's cut
+        """Ends the held episode at its last transition, as a new collector starts a new episode.
+
+        It is marked truncated and done, and released with the next finished
+        episode, under its own id
+        (:meth:`~torchrl_dual.recipe.Learner.start_episodes`: each checkpoint's cut
         point and a resume).
         """
         if self.pending is not None:

@@ -25,8 +25,9 @@ from torchrl_dual.recipe.settings.dual import EnsembleSettings, PlannerSettings
 def make_planner(
     planner: PlannerSettings, data: OfflineDataset, device: DEVICE_TYPING = "cpu"
 ) -> TrajectoryDiffusion:
-    """The N-step diffusion planner ``g_θ'`` (Eq. 3) of ``planner``, its normalizer fitted
-    on ``D_offline``.
+    """The N-step diffusion planner ``g_θ'`` (Eq. 3) of ``planner``.
+
+    Its normalizer is fitted on ``D_offline``.
     """
     layout = TrajectoryLayout(data.obs_dim, data.action_dim, planner.horizon)
     model = TrajectoryDiffusion(
@@ -41,8 +42,9 @@ def make_planner(
 
 
 def student_like(teacher: TrajectoryDiffusion, num_steps: int = 1) -> TrajectoryDiffusion:
-    """An untrained copy of the teacher (architecture, initial weights and fitted
-    normalizer) sampled with ``num_steps`` steps, for loading the distilled student into.
+    """An untrained copy of the teacher sampled with ``num_steps`` steps, to load the student into.
+
+    The copy has the teacher's architecture, initial weights and fitted normalizer.
     """
     student = copy.deepcopy(teacher)
     student.num_steps = num_steps
@@ -59,11 +61,13 @@ def make_policy(
     action_projection: Callable[[torch.Tensor], torch.Tensor] | None = None,
     device: DEVICE_TYPING = "cpu",
 ) -> TensorDictSequential:
-    """The acting policy of a ``laplace`` section: the ensemble of Eq. (9) over the Laplace
-    posterior (or, with DUAL's ``laplace.uq=latent``, over planner latents), which also
-    answers the transition model's ``ŝ_t`` when there is one, then the shift-aware noise
-    (Eq. 10, ``λ = shift_weight``) and the env kit's ``action_projection``. DUAL's, and the
-    ``*_la`` baselines' (no transition model, ``λ = 0``).
+    """The acting policy of a ``laplace`` section: Eq. 9's ensemble, then Eq. 10's noise.
+
+    The ensemble of Eq. (9) over the Laplace posterior (or, with DUAL's
+    ``laplace.uq=latent``, over planner latents), which also answers the transition
+    model's ``ŝ_t`` when there is one, then the shift-aware noise (Eq. 10, ``λ =
+    shift_weight``) and the env kit's ``action_projection``. DUAL's, and the ``*_la``
+    baselines' (no transition model, ``λ = 0``).
     """
     return make_dual_policy(
         actor,

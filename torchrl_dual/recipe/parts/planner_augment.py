@@ -1,5 +1,6 @@
-"""Planner data augmentation (EDIS; Algorithm 1 line 14, the grey step): generated
-transitions added to ``D_online``.
+"""Planner data augmentation: generated transitions added to ``D_online``.
+
+EDIS; Algorithm 1 line 14, the grey step.
 
 Every ``augment.every`` online updates (by default ``budget.laplace_refit_every``, the
 "update frequency" of Algorithm 1 whose ``IF`` holds lines 14 and 17), a round:
@@ -61,8 +62,10 @@ _REWARD_KEYS = (
 
 
 def augment_capacity(cfg: DictConfig) -> int:
-    """Room the online buffer needs beyond the collected frames: at most one round per
-    ``augment.every`` online updates, ``num_windows × H`` transitions each.
+    """Room the online buffer needs beyond the collected frames for the generated transitions.
+
+    At most one round per ``augment.every`` online updates, ``num_windows × H``
+    transitions each.
     """
     a = cfg.get("augment")
     if a is None or a.kind == "none":
@@ -123,6 +126,7 @@ class PlannerAugmenter:
 
     # ------------------------------------------------------------------ learner protocol
     def modules(self) -> dict[str, Any]:
+        """The guide, the reward model and their optimizers (checkpointed)."""
         return {
             "augment_guider": self.guider,
             "augment_guider_optimizer": self.guider_optimizer,
@@ -131,9 +135,11 @@ class PlannerAugmenter:
         }
 
     def state_dict(self) -> dict[str, int]:
+        """The augmentation rounds done and the windows generated."""
         return {"rounds_done": self.rounds_done, "generated_windows": self.generated_windows}
 
     def load_state_dict(self, state: dict[str, int]) -> None:
+        """Restores what :meth:`state_dict` returned."""
         self.rounds_done = state["rounds_done"]
         self.generated_windows = state["generated_windows"]
 
@@ -214,8 +220,9 @@ class PlannerAugmenter:
 
     @torch.no_grad()
     def generate(self, states: torch.Tensor) -> torch.Tensor:
-        """``augment.num_windows`` raw guided windows ``[W, H + 1, D]``, ``s_0`` drawn
-        among ``states`` (kept exact).
+        """``augment.num_windows`` raw guided windows ``[W, H + 1, D]``.
+
+        ``s_0`` is drawn among ``states`` (kept exact).
         """
         a = self.settings
         s0 = states[torch.randint(states.shape[0], (a.num_windows,))].to(self.run.cfg.device)
@@ -229,9 +236,10 @@ class PlannerAugmenter:
         return self.guider(normalized, normalized.new_zeros(normalized.shape[0]))
 
     def windows_to_transitions(self, windows: torch.Tensor, first: int) -> TensorDictBase:
-        """Raw ``[W, H + 1, D]`` windows -> the flat transitions ``(s_i, a_i, s_{i+1})``,
-        ``i < H``, with the reward model's labels; window ``w`` gets ``episode = −(first
-        + w + 1)``, and its transitions after the first predicted terminal are dropped.
+        """Raw ``[W, H + 1, D]`` windows -> flat transitions ``(s_i, a_i, s_{i+1})``, ``i < H``.
+
+        With the reward model's labels; window ``w`` gets ``episode = −(first + w +
+        1)``, and its transitions after the first predicted terminal are dropped.
         """
         layout = self.layout
         states, actions = layout.observations(windows), layout.actions(windows)

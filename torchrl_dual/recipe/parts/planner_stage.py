@@ -1,5 +1,6 @@
-"""The planner's offline stage, shared by every learner that trains the trajectory planner
-(``dual``, ``diffuser``, ``edis``): its window buffer, the ``L_VLB`` pre-training on
+"""The planner's offline stage, shared by every learner that trains the trajectory planner.
+
+``dual``, ``diffuser``, ``edis``: its window buffer, the ``L_VLB`` pre-training on
 ``D_offline`` (Eq. 3, Algorithm 1 lines 3-4) and the check that a window fits an episode.
 """
 
@@ -19,8 +20,9 @@ if TYPE_CHECKING:
 
 
 def offline_windows(cfg: DictConfig, data: OfflineDataset, batch_size: int) -> WindowReplayBuffer:
-    """``batch_size`` windows of ``planner.horizon + 1`` steps per draw from ``D_offline``;
-    a :class:`UserError` on ``planner.horizon`` if no episode is long enough.
+    """``batch_size`` windows of ``planner.horizon + 1`` steps per draw from ``D_offline``.
+
+    A :class:`UserError` on ``planner.horizon`` if no episode is long enough.
     """
     try:
         return WindowReplayBuffer(
@@ -33,9 +35,11 @@ def offline_windows(cfg: DictConfig, data: OfflineDataset, batch_size: int) -> W
 def pretrain_planner(
     run: RunContext, planner: TrajectoryDiffusion, windows: WindowReplayBuffer
 ) -> None:
-    """``budget.planner_updates`` ``L_VLB`` steps on ``D_offline`` windows (Eq. 3), with the
-    ``planner.*`` learning rate and ``a_0``-conditioning probability; logs ``planner/``;
-    checkpointed within the stage (``run.stage_checkpoints``).
+    """Pre-trains the planner on ``D_offline`` windows (Eq. 3), checkpointed within the stage.
+
+    ``budget.planner_updates`` ``L_VLB`` steps with the ``planner.*`` learning rate and
+    ``a_0``-conditioning probability; logs ``planner/``; checkpointed through
+    ``run.stage_checkpoints``.
     """
     cfg = run.cfg
     with run.stage_checkpoints() as checkpoints:

@@ -40,8 +40,9 @@ class AlgorithmSettings:
 
 @dataclass(frozen=True)
 class Algorithm:
-    """One entry of :data:`~torchrl_dual.recipe.settings.algos.ALGORITHMS`: its settings and
-    the learner :func:`~torchrl_dual.recipe.run_o2o` runs.
+    """One entry of :data:`~torchrl_dual.recipe.settings.algos.ALGORITHMS`.
+
+    Its settings and the learner :func:`~torchrl_dual.recipe.run_o2o` runs.
 
     Args:
         settings (AlgorithmSettings): its config sections, critics and checks.
@@ -51,6 +52,14 @@ class Algorithm:
         no_cuda_graph (str, optional): why its update cannot be captured as a CUDA graph
             (``compile.cudagraphs=true`` is then refused with this reason); ``None``: its
             update is graph-safe (``tests/recipe/test_graph_safe_updates.py``).
+
+    Examples:
+        >>> from torchrl_dual.recipe import ALGORITHMS
+        >>> entry = ALGORITHMS["dual"]
+        >>> entry.learner  # imported when a run starts: the table stays torch-free
+        Ref('torchrl_dual.recipe.algos.dual:DualLearner')
+        >>> entry.learner.resolve().__name__, entry.no_cuda_graph
+        ('DualLearner', None)
     """
 
     settings: AlgorithmSettings
@@ -80,8 +89,9 @@ def check_nothing(cfg: DictConfig) -> None:
 
 @dataclass
 class NoShiftExplorationSettings:
-    """``exploration`` of a baseline without a transition model (``iql_la``, ``diffql_la``):
-    Eq. (10) with ``λ = 0``.
+    """``exploration`` of a baseline without a transition model: Eq. (10) with ``λ = 0``.
+
+    ``iql_la``, ``diffql_la``.
     """
 
     shift_weight: float = key(Real(0), "λ of Eq. 10; must be 0 (no transition model)")

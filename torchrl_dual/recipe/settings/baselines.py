@@ -1,6 +1,7 @@
-"""The baselines' config sections (``algo/<name>.yaml``), their checks across keys and
-their :data:`~torchrl_dual.recipe.ALGORITHMS` entries; each learner is in its own module of
-:mod:`torchrl_dual.recipe.algos`.
+"""The baselines' config sections (``algo/<name>.yaml``), their checks and their entries.
+
+Their checks across keys and their :data:`~torchrl_dual.recipe.ALGORITHMS` entries; each
+learner is in its own module of :mod:`torchrl_dual.recipe.algos`.
 
 Sections another algorithm defines are reused, not copied: ``edis`` and ``diffuser``
 read DUAL's ``planner``, ``iql_la`` DUAL's ``laplace`` keys, ``dacer`` Diff-QL's
@@ -42,9 +43,10 @@ the default) or ``tanh_normal`` (TorchRL's ``TanhNormal`` with a state-dependent
 
 @dataclass
 class MLPActorSettings:
-    """``actor`` of the MLP-actor baselines: its width, depth and learning rate
-    (``algo/calql.yaml`` and ``algo/so2.yaml``: the tanh-Gaussian actor of a SAC actor loss;
-    Cal-QL's ``lr`` is also that of ``log α``).
+    """``actor`` of the MLP-actor baselines: its width, depth and learning rate.
+
+    ``algo/calql.yaml`` and ``algo/so2.yaml``: the tanh-Gaussian actor of a SAC actor
+    loss; Cal-QL's ``lr`` is also that of ``log α``.
     """
 
     hidden: int = key(Integer(1), "MLP width of the actor")
@@ -73,8 +75,9 @@ IQL = AlgorithmSettings(
 
 @dataclass
 class IQLLALaplaceSettings(EnsembleSettings):
-    """``algo/iql_la.yaml``'s ``laplace``: DUAL's keys of Eq. (8-9) that apply to a plain
-    actor (``M``, the prior and ``T``, with DUAL's rules) and where ``σ̄`` comes from.
+    """``algo/iql_la.yaml``'s ``laplace``: DUAL's Eq. (8-9) keys for a plain actor, and ``σ̄``.
+
+    ``M``, the prior and ``T``, with DUAL's rules, and where ``σ̄`` comes from.
     """
 
     noise_std: Any = key(
@@ -119,8 +122,9 @@ class DiffQLActorSettings:
 
 @dataclass
 class DiffQLLaplaceSettings(EnsembleSettings):
-    """``algo/diffql_la.yaml``'s ``laplace``: Eq. (8-9) on the last DDPM step (DUAL's keys
-    of Eq. 8-9, with DUAL's rules, and the weights of the fit).
+    """``algo/diffql_la.yaml``'s ``laplace``: Eq. (8-9) on the last DDPM step.
+
+    DUAL's keys of Eq. 8-9, with DUAL's rules, and the weights of the fit.
     """
 
     temperature: float = key(Real(0), "β of the Laplace fit's weights exp(β (Q - V))")
@@ -162,7 +166,9 @@ class DACERSettings:
 
 
 def check_dacer(cfg: DictConfig) -> None:
-    """``dacer.num_samples >= dacer.num_components`` (EM needs a sample per component) and
+    """Checks ``dacer.num_samples`` and ``dacer.num_states`` against their bounds.
+
+    ``dacer.num_samples >= dacer.num_components`` (EM needs a sample per component) and
     ``dacer.num_states <= online.batch_size`` (the states come from the update's batch).
     """
     d = cfg.dacer

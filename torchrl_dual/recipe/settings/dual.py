@@ -1,5 +1,6 @@
-"""DUAL's config sections (``algo/dual.yaml``), their checks across keys, and its
-:data:`~torchrl_dual.recipe.ALGORITHMS` entry; the learner is
+"""DUAL's config sections (``algo/dual.yaml``), their checks across keys, and its entry.
+
+Its :data:`~torchrl_dual.recipe.ALGORITHMS` entry; the learner is
 :class:`~torchrl_dual.recipe.algos.dual.DualLearner`.
 """
 
@@ -73,9 +74,10 @@ class ActorSettings:
 
 @dataclass
 class EnsembleSettings:
-    """The Laplace ensemble's keys of Eq. (8-9) that every algorithm acting with it has
-    (``dual``, ``iql_la``, ``diffql_la``): what :func:`~torchrl_dual.recipe.parts.networks.make_policy`
-    reads.
+    """The Laplace ensemble's keys of Eq. (8-9) that every algorithm acting with it has.
+
+    ``dual``, ``iql_la``, ``diffql_la``: what
+    :func:`~torchrl_dual.recipe.parts.networks.make_policy` reads.
     """
 
     num_samples: int = key(Integer(0), "M sub-policies; 0 = no epistemic UQ (MAP mean, σ̄)")
@@ -144,8 +146,10 @@ def check_dual(cfg: DictConfig) -> None:
 
 
 def check_critic(cfg: DictConfig) -> None:
-    """Eq. 7 on a critic without V (``critic=calql`` or ``so2``, the paper's Cal-QL and
-    SO2 rows) weighs by Q alone; Cal-QL labels whole episodes online.
+    """Checks ``critic`` against Eq. 7's weighting and the online data's labels.
+
+    Eq. 7 on a critic without V (``critic=calql`` or ``so2``, the paper's Cal-QL and SO2
+    rows) weighs by Q alone; Cal-QL labels whole episodes online.
     """
     name = cfg.critic.name
     if name != "iql" and cfg.actor.weighting == "advantage":
@@ -216,8 +220,10 @@ DUAL = AlgorithmSettings(
 
 @dataclass(frozen=True)
 class DualSections:
-    """DUAL's config sections, typed: what :class:`~torchrl_dual.recipe.algos.dual.DualLearner`
-    and its builders read (:meth:`of` a validated config).
+    """DUAL's config sections, typed: what its learner and builders read.
+
+    What :class:`~torchrl_dual.recipe.algos.dual.DualLearner` and its builders read
+    (:meth:`of` a validated config).
 
     Examples:
         >>> from torchrl_dual.recipe import compose_checked, CONFIG_DIR

@@ -1,5 +1,6 @@
-"""The table of environment kits, one entry per ``env.kind`` (Algorithm 1 line 1), and
-the schema of their ``env.*`` keys.
+"""The table of environment kits, one entry per ``env.kind``, and their ``env.*`` schema.
+
+Algorithm 1 line 1; the schema of their ``env.*`` keys.
 
 An :class:`EnvKit` holds everything the recipe needs from one kind of environment: the
 schema of its ``env.*`` keys, the offline data set ``D_offline``, the online env, the
@@ -58,6 +59,13 @@ class EnvKit:
         check (callable, optional): ``cfg -> None``, run by ``validate_config`` after
             the key checks; raises :class:`~torchrl_dual.recipe.settings.errors.ConfigError` for what
             the machine lacks (e.g. a Minari data set that is not on disk).
+
+    Examples:
+        >>> kit = ENV_KITS["frozenlake"]
+        >>> kit.settings.__name__, kit.action_projection  # Frozen-Lake executes a one-hot action
+        ('FrozenLakeSettings', Ref('torchrl_dual.recipe.kits.build:one_hot_argmax'))
+        >>> sorted(ENV_KITS)
+        ['adroit', 'antmaze', 'frozenlake', 'locomotion', 'pointmaze']
     """
 
     settings: type
@@ -230,8 +238,9 @@ class AntMazeSettings(MinariSettings):
 
 @dataclass
 class LocomotionSettings(MinariSettings):
-    """``env/hopper.yaml``, ``halfcheetah.yaml``, ``walker2d.yaml``: Minari
-    ``mujoco/<task>/<dataset>-<version>`` and the ODRL shifts.
+    """``env/hopper.yaml``, ``halfcheetah.yaml``, ``walker2d.yaml``: MuJoCo locomotion.
+
+    Minari ``mujoco/<task>/<dataset>-<version>`` and the ODRL shifts.
     """
 
     task: str = key(Choice(FAMILIES["locomotion"].tasks), "the robot")
@@ -255,8 +264,10 @@ MINARI_SETTINGS: dict[str, type] = {
 
 # ----------------------------------------------------------------------------- checks
 def check_minari_dataset(cfg: DictConfig) -> None:
-    """Stops before any work when minari is missing, ``MINARI_DATASETS_PATH`` is not a
-    directory, the data set is not on disk or its ``metadata.json`` does not parse.
+    """Stops before any work when the Minari data set cannot be read.
+
+    When minari is missing, ``MINARI_DATASETS_PATH`` is not a directory, the data set is
+    not on disk or its ``metadata.json`` does not parse.
     """
     dataset_id = FAMILIES[cfg.env.kind].dataset_id(cfg.env)
     try:

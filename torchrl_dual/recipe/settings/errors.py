@@ -39,7 +39,7 @@ def format_value(value: Any) -> str:
 
 
 class UserError(ValueError):
-    """A mistake the user can fix, reported as ``<key>=<value>: <problem>`` on one line.
+    r"""A mistake the user can fix, reported as ``<key>=<value>: <problem>`` on one line.
 
     Args:
         key (str, optional): the dotted config key at fault (``None`` when none is).
@@ -49,7 +49,7 @@ class UserError(ValueError):
     Examples:
         >>> str(UserError("budget.online_frames", -5, "must be an integer >= 0"))
         'budget.online_frames=-5: must be an integer >= 0'
-        >>> str(UserError(None, None, "two\\nlines"))
+        >>> str(UserError(None, None, "two\nlines"))
         'two lines'
     """
 
@@ -60,13 +60,23 @@ class UserError(ValueError):
 
 
 class ConfigError(UserError):
-    """A :class:`UserError` found in the composed config, before any data or network."""
+    """A :class:`UserError` found in the composed config, before any data or network.
+
+    Examples:
+        >>> from torchrl_dual.recipe import CONFIG_DIR, compose_checked
+        >>> try:
+        ...     compose_checked(CONFIG_DIR, ["budget.online_frames=-5"])
+        ... except ConfigError as error:
+        ...     print(error, "|", error.key, error.value)
+        budget.online_frames=-5: must be an integer >= 0 | budget.online_frames -5
+    """
 
 
 def unknown_key(key: str, known: Iterable[str], owners: Sequence[str] = ()) -> ConfigError:
-    """The error for a key no schema has: with ``owners`` (the ``group=option`` choices
-    that do have it), which choice brings it; else the closest known key of the same
-    depth as a hint.
+    """The error for a key no schema has, with a hint.
+
+    With ``owners`` (the ``group=option`` choices that do have it), which choice brings
+    it; else the closest known key of the same depth as a hint.
 
     Examples:
         >>> str(unknown_key("budget.onlin_frames", ["budget.online_frames", "seed"]))
@@ -102,8 +112,9 @@ def report(err: UserError, *, debug: bool = False) -> NoReturn:
 
 
 def warn(text: str) -> None:
-    """Prints ``warning: <text>`` on one line of stderr: something the run can do, but
-    probably not what the user meant (the run goes on).
+    """Prints ``warning: <text>`` on one line of stderr; the run goes on.
+
+    Something the run can do, but probably not what the user meant.
     """
     sys.stdout.flush()
     print("warning: " + " ".join(text.split()), file=sys.stderr, flush=True)

@@ -55,6 +55,7 @@ class Ref:
         return self._resolved
 
     def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        """Calls the target object (imported on first use) with the arguments given."""
         return self.resolve()(*args, **kwargs)
 
     def __getattr__(self, name: str) -> Any:

@@ -1,6 +1,7 @@
-"""The schema of the offline-to-online run's own parts: the online replay
-(:data:`REPLAYS`), the collector (:data:`COLLECTORS`), the metrics logger
-(:data:`LOGGERS`) and the output directory, with their checks.
+"""The schema of the offline-to-online run's own parts, with their checks.
+
+The online replay (:data:`REPLAYS`), the collector (:data:`COLLECTORS`), the metrics logger
+(:data:`LOGGERS`) and the output directory.
 
 Builders are :class:`~torchrl_dual.recipe.settings.lazy.Ref` s into
 :mod:`torchrl_dual.recipe.o2o`, imported when a run starts.
@@ -91,7 +92,9 @@ class RayCollectorSettings(CollectorSettings):
 
 
 def check_worker_count(cfg: DictConfig) -> None:
-    """``collector.num_workers`` with ``collector=single`` and ``collector.num_envs`` with
+    """Checks ``collector.num_workers`` and ``collector.num_envs`` against the collector.
+
+    ``collector.num_workers`` with ``collector=single`` and ``collector.num_envs`` with
     the others (run before the key checks, which would only call them unknown keys).
     """
     name = cfg.collector.name
@@ -132,9 +135,11 @@ def check_collector(cfg: DictConfig) -> None:
 def check_streams(
     cfg: DictConfig, split: str | None, parts: int, key: str, value: Any, one_stream: str
 ) -> None:
-    """Online batches from several streams (workers or envs, ``key=value``): an even
-    ``split`` into ``parts`` (``None``: not split) needs ``budget.frames_per_batch`` to be a
-    multiple of them, and Cal-QL's Monte-Carlo labels need ``one_stream``.
+    """Checks the online batches from several streams (workers or envs, ``key=value``).
+
+    An even ``split`` into ``parts`` (``None``: not split) needs
+    ``budget.frames_per_batch`` to be a multiple of them, and Cal-QL's Monte-Carlo
+    labels need ``one_stream``.
     """
     if split is not None and cfg.budget.frames_per_batch % parts:
         raise ConfigError(
@@ -196,8 +201,9 @@ def ray_installed() -> bool:
 
 
 def check_ray_collector(cfg: DictConfig) -> None:
-    """What ``collector=ray`` needs beyond the process collectors' checks
-    (:func:`check_collector`): Ray, and ``device=cpu``.
+    """What ``collector=ray`` needs beyond the process collectors' checks: Ray, and ``device=cpu``.
+
+    Beyond :func:`check_collector`.
     """
     if not ray_installed():
         raise ConfigError("collector", "ray", f"needs Ray, which is not installed: {INSTALL_RAY}")
@@ -237,8 +243,10 @@ class WandbSettings(LoggerSettings):
 
 @dataclass(frozen=True)
 class LoggerBackend:
-    """One ``logger.backend``: its config schema, the package it needs and how to install
-    it, and whether TorchRL can resume it from a checkpoint.
+    """One ``logger.backend``: its config schema, the package it needs and whether it resumes.
+
+    How to install the package, and whether TorchRL can resume the backend from a
+    checkpoint.
     """
 
     settings: type
@@ -261,8 +269,9 @@ LOGGERS: dict[str, LoggerBackend] = {
 
 
 def check_logger(cfg: DictConfig) -> None:
-    """What ``cfg.logger`` asks of the machine: the backend's package, and a backend that
-    resumes when ``resume=true``.
+    """What ``cfg.logger`` asks of the machine.
+
+    The backend's package, and a backend that resumes when ``resume=true``.
 
     Examples:
         >>> from omegaconf import OmegaConf
@@ -288,10 +297,13 @@ def check_logger(cfg: DictConfig) -> None:
 
 
 def check_output_dir(cfg: DictConfig) -> None:
-    """``output_dir`` must be a directory (or not exist yet) that this process can create
-    and write, and hold no checkpoint unless ``resume=true``: a fresh run never overwrites
-    another run's checkpoint. Writability is probed with a temporary folder in the nearest
-    existing ancestor (removed at once), so a failed check leaves nothing behind.
+    """Checks that ``output_dir`` is writable and holds no checkpoint a fresh run would overwrite.
+
+    ``output_dir`` must be a directory (or not exist yet) that this process can create
+    and write, and hold no checkpoint unless ``resume=true``: a fresh run never
+    overwrites another run's checkpoint. Writability is probed with a temporary folder
+    in the nearest existing ancestor (removed at once), so a failed check leaves nothing
+    behind.
     """
     output_dir = Path(cfg.output_dir)
     for path in (output_dir, *output_dir.parents):

@@ -1,5 +1,7 @@
-"""The schema of the parts several algorithms share: the critics (the ``critic`` group
-and :data:`CRITICS`), planner augmentation (``augment``) and the planner's window.
+"""The schema of the parts several algorithms share.
+
+The critics (the ``critic`` group and :data:`CRITICS`), planner augmentation (``augment``)
+and the planner's window.
 
 Builders are :class:`~torchrl_dual.recipe.settings.lazy.Ref` s into
 :mod:`torchrl_dual.recipe.parts`, imported when a run starts.
@@ -48,8 +50,9 @@ per transition."""
 
 @dataclass
 class CalQLCriticSettings(CriticSettings):
-    """``critic/calql.yaml``: Cal-QL's twin Q networks (TorchRL ``CQLLoss`` + MC bound;
-    ``discount`` is also the bound's).
+    """``critic/calql.yaml``: Cal-QL's twin Q networks (TorchRL ``CQLLoss`` + MC bound).
+
+    ``discount`` is also the bound's.
     """
 
     min_q_weight: float = key(Real(0), "weight of the conservative penalty")
@@ -162,8 +165,10 @@ def check_augment(cfg: DictConfig) -> None:
 
 
 def check_planner_window(cfg: DictConfig) -> None:
-    """The planner's window must fit in an episode (a null time limit is the data set's,
-    checked against its episodes when the windows are cut).
+    """Checks that the planner's window fits in an episode.
+
+    A null time limit is the data set's, checked against its episodes when the windows
+    are cut.
     """
     limit = cfg.env.max_episode_steps
     if limit is not None and cfg.planner.horizon >= limit:

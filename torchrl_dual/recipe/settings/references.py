@@ -101,9 +101,10 @@ RESOLVER = "reference"
 
 
 def reference_setting(key: str, default: Any, *, _root_: DictConfig) -> Any:
-    """The value of ``key`` for the run's ``budget.name`` and ``algo`` in
-    :data:`BUDGET_SETTINGS`, else for its ``env.kind`` and ``critic.name`` in
-    :data:`REFERENCE_SETTINGS`, else ``default`` (the ``reference`` resolver).
+    """The reference value of ``key`` for the run (the ``reference`` resolver).
+
+    For the run's ``budget.name`` and ``algo`` in :data:`BUDGET_SETTINGS`, else for its
+    ``env.kind`` and ``critic.name`` in :data:`REFERENCE_SETTINGS`, else ``default``.
 
     Examples:
         >>> from omegaconf import OmegaConf
@@ -134,16 +135,19 @@ def reference_setting(key: str, default: Any, *, _root_: DictConfig) -> Any:
 
 
 def register_reference_resolver() -> None:
-    """Registers :func:`reference_setting` as ``${reference:...}`` (idempotent; done when
-    :mod:`torchrl_dual.recipe.settings` is imported).
+    """Registers :func:`reference_setting` as ``${reference:...}``.
+
+    Idempotent; done when :mod:`torchrl_dual.recipe.settings` is imported.
     """
     if not OmegaConf.has_resolver(RESOLVER):
         OmegaConf.register_new_resolver(RESOLVER, reference_setting)
 
 
 def reward_transform(cfg: DictConfig) -> tuple[float | str, float]:
-    """``(reward_scale, reward_shift)`` of a Minari family's run: ``env.reward_scale`` /
-    ``env.reward_shift`` where set, else :data:`REWARD_TRANSFORMS` for ``critic.name``.
+    """``(reward_scale, reward_shift)`` of a Minari family's run.
+
+    ``env.reward_scale`` / ``env.reward_shift`` where set, else
+    :data:`REWARD_TRANSFORMS` for ``critic.name``.
 
     Examples:
         >>> from omegaconf import OmegaConf

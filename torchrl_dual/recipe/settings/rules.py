@@ -37,12 +37,15 @@ class Rule:
     """What one config key accepts; :meth:`complaint` is ``None`` for an allowed value."""
 
     def allows(self, value: Any) -> bool:
+        """Whether the key accepts ``value``."""
         raise NotImplementedError
 
     def describe(self) -> str:
+        """What the key accepts, as the end of an error line (``"must be ..."``)."""
         raise NotImplementedError
 
     def complaint(self, value: Any) -> str | None:
+        """``None`` if ``value`` is allowed, else :meth:`describe`'s text."""
         return None if self.allows(value) else self.describe()
 
 
@@ -70,6 +73,7 @@ class Integer(Rule):
     high: int | None = None
 
     def allows(self, value: Any) -> bool:
+        """Whether ``value`` is an integer (not a bool) in ``[low, high]``."""
         return (
             _is_int(value)
             and (self.low is None or value >= self.low)
@@ -77,6 +81,7 @@ class Integer(Rule):
         )
 
     def describe(self) -> str:
+        """``"must be an integer"``, with its bounds."""
         if self.low is None and self.high is None:
             return "must be an integer"
         if self.high is None:
@@ -89,9 +94,11 @@ class PowerOfTwo(Rule):
     """An integer ``2^k``, ``k >= 0`` (e.g. sampling steps that distillation halves to 1)."""
 
     def allows(self, value: Any) -> bool:
+        """Whether ``value`` is an integer power of 2."""
         return _is_int(value) and value >= 1 and value & (value - 1) == 0
 
     def describe(self) -> str:
+        """``"must be a power of 2 (1, 2, 4, 8, ...)"``."""
         return "must be a power of 2 (1, 2, 4, 8, ...)"
 
 
@@ -105,6 +112,7 @@ class Real(Rule):
     high_open: bool = False
 
     def allows(self, value: Any) -> bool:
+        """Whether ``value`` is a number within the bounds (each open or closed)."""
         if not _is_number(value):
             return False
         low_ok = self.low is None or (value > self.low if self.low_open else value >= self.low)
@@ -112,6 +120,7 @@ class Real(Rule):
         return low_ok and high_ok
 
     def describe(self) -> str:
+        """``"must lie in <bounds>"`` (or ``"must be a finite number"`` without bounds)."""
         if self.low is None and self.high is None:
             return "must be a finite number"
         bounds = _bounds(self.low, self.high, self.low_open, self.high_open)
@@ -127,27 +136,35 @@ class Choice(Rule):
     options: Sequence[str]
 
     def allows(self, value: Any) -> bool:
+        """Whether ``value`` is one of ``options``."""
         return isinstance(value, str) and value in self.options
 
     def describe(self) -> str:
+        """``"unknown option; choose one of <options>"``."""
         return "unknown option; choose one of " + ", ".join(self.options)
 
 
 @dataclasses.dataclass(frozen=True)
 class Flag(Rule):
+    """A boolean, ``true`` or ``false``."""
     def allows(self, value: Any) -> bool:
+        """Whether ``value`` is a bool."""
         return isinstance(value, bool)
 
     def describe(self) -> str:
+        """``"must be true or false"``."""
         return "must be true or false"
 
 
 @dataclasses.dataclass(frozen=True)
 class Text(Rule):
+    """A non-empty string."""
     def allows(self, value: Any) -> bool:
+        """Whether ``value`` is a non-empty string."""
         return isinstance(value, str) and value != ""
 
     def describe(self) -> str:
+        """``"must be a non-empty string"``."""
         return "must be a non-empty string"
 
 
@@ -158,6 +175,7 @@ class Maybe(Rule):
     rule: Rule
 
     def allows(self, value: Any) -> bool:
+        """Whether ``value`` is ``None`` or allowed by ``rule``."""
         return value is None or self.rule.allows(value)
 
     def describe(self) -> str:
@@ -182,9 +200,11 @@ class Either(Rule):
     text: str
 
     def allows(self, value: Any) -> bool:
+        """Whether any of ``rules`` allows ``value``."""
         return any(rule.allows(value) for rule in self.rules)
 
     def describe(self) -> str:
+        """``text``."""
         return self.text
 
 
@@ -195,25 +215,30 @@ class IntegerList(Rule):
     low: int = 0
 
     def allows(self, value: Any) -> bool:
+        """Whether ``value`` is a list of integers ``>= low``."""
         return isinstance(value, list) and all(Integer(self.low).allows(v) for v in value)
 
     def describe(self) -> str:
+        """``"must be a list of integers >= <low>"``."""
         return f"must be a list of integers >= {self.low}"
 
 
 @dataclasses.dataclass(frozen=True)
 class CellList(Rule):
-    """A list of grid cells ``[row, col]`` (integers ``>= 0``); whether each is open is a
-    cross-key check against the layout.
+    """A list of grid cells ``[row, col]`` (integers ``>= 0``).
+
+    Whether each is open is a cross-key check against the layout.
     """
 
     def allows(self, value: Any) -> bool:
+        """Whether ``value`` is a list of ``[row, col]`` pairs of integers ``>= 0``."""
         return isinstance(value, list) and all(
             isinstance(cell, list) and len(cell) == 2 and IntegerList(0).allows(cell)
             for cell in value
         )
 
     def describe(self) -> str:
+        """``"must be a list of [row, col] cells, e.g. [[3, 1]]"``."""
         return "must be a list of [row, col] cells, e.g. [[3, 1]]"
 
 
@@ -224,6 +249,7 @@ class RealList(Rule):
     length: int
 
     def allows(self, value: Any) -> bool:
+        """Whether ``value`` is a list of ``length`` numbers (not bools)."""
         return (
             isinstance(value, list)
             and len(value) == self.length
@@ -231,6 +257,7 @@ class RealList(Rule):
         )
 
     def describe(self) -> str:
+        """``"must be a list of <length> finite numbers"``."""
         return f"must be a list of {self.length} finite numbers"
 
 
@@ -245,9 +272,11 @@ def dotted_keys(schema: type, prefix: str) -> list[str]:
 
 
 def as_settings(schema: type[S], node: DictConfig) -> S:
-    """The config group ``node``, which has passed :func:`check_section` against ``schema``
-    (``validate_config``), as an instance of ``schema``: plain Python values, interpolations
-    resolved, sub-groups left out. Builders take these typed sections, not the config.
+    """The config group ``node`` as an instance of ``schema``.
+
+    ``node`` has passed :func:`check_section` against ``schema`` (``validate_config``);
+    the instance holds plain Python values, interpolations resolved, sub-groups left
+    out. Builders take these typed sections, not the config.
 
     Examples:
         >>> from omegaconf import OmegaConf
