@@ -54,6 +54,15 @@ def load_cached_dataset(path: str | Path, spec: dict[str, Any]) -> OfflineDatase
 
     The transitions are copied into memory, so editing them never alters the cache.
 
+    Args:
+        path (str or Path): the entry directory.
+        spec (dict): the identity the entry must have been made for (see
+            :func:`load_or_generate`).
+
+    Returns:
+        OfflineDataset or None: the data set, or ``None`` when the entry is missing,
+        incomplete, unreadable, of another format or made for another ``spec``.
+
     Examples:
         >>> import tempfile
         >>> load_cached_dataset(Path(tempfile.mkdtemp()) / "missing", {"seed": 0}) is None

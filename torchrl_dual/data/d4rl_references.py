@@ -49,6 +49,16 @@ D4RL_HORIZONS: dict[str, int] = {
 def d4rl_references(task: str) -> tuple[float, float]:
     """D4RL's ``(random, expert)`` returns of ``task``.
 
+    Args:
+        task (str): a key of :data:`D4RL_REFERENCE_RETURNS` (e.g. ``"hopper"``).
+
+    Returns:
+        tuple[float, float]: the random and the expert policy's returns, the 0 and 100 of
+        D4RL's normalized score.
+
+    Raises:
+        KeyError: D4RL has no references for ``task``; the message lists the known tasks.
+
     Examples:
         >>> d4rl_references("hopper")
         (-20.272305, 3234.3)

@@ -164,6 +164,22 @@ def load_or_generate_frozenlake_dataset(
 ) -> OfflineDataset:
     """Cached :func:`generate_frozenlake_dataset` (see :func:`torchrl_dual.data.load_or_generate`).
 
+    Args:
+        map_name (str): ``"4x4"`` or ``"8x8"``.
+        num_transitions (int): number of transitions.
+        seed (int): seeds the env and the behaviour policy.
+        cache_dir (str or Path, optional): the cache's root; defaults to
+            :func:`~torchrl_dual.data.default_cache_dir`.
+        **kwargs: the keyword arguments of :func:`generate_frozenlake_dataset`
+            (``success_rate``, ``epsilon``, ``eval_success_rate``, ``gamma``,
+            ``max_episode_steps``), part of the cache entry's identity.
+
+    Returns:
+        OfflineDataset: the cached data set, generated on a cache miss.
+
+    Raises:
+        ValueError: an unknown ``map_name``.
+
     Examples:
         >>> import tempfile
         >>> data = load_or_generate_frozenlake_dataset("4x4", 500, 0, tempfile.mkdtemp())

@@ -53,6 +53,19 @@ def make_transitions(
     ``reward``, ``terminated``, ``truncated`` may be ``[N]`` or ``[N, 1]``;
     ``done`` is computed as ``terminated | truncated``.
 
+    Args:
+        observation (array or Tensor): ``s``, ``[N, obs_dim]``.
+        action (array or Tensor): ``a``, ``[N, action_dim]``.
+        next_observation (array or Tensor): ``s'``, ``[N, obs_dim]``.
+        reward (array or Tensor): ``r``, ``[N]`` or ``[N, 1]``.
+        terminated (array or Tensor): bool, ``[N]`` or ``[N, 1]``.
+        truncated (array or Tensor): bool, ``[N]`` or ``[N, 1]``.
+        episode (array or Tensor): integer episode ids, ``[N]``.
+
+    Returns:
+        TensorDict: ``[N]`` transitions under :data:`TRANSITION_KEYS` (float32 observations,
+        actions and rewards, ``[N, 1]`` bool flags, ``done = terminated | truncated``).
+
     Examples:
         >>> n = 3
         >>> td = make_transitions(np.zeros((n, 2)), np.zeros((n, 1)), np.zeros((n, 2)),

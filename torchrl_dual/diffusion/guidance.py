@@ -111,6 +111,19 @@ def density_ratio_loss(
     ``offline`` and ``online`` are ``[B, L, D]`` normalized clean windows (give as many of
     each, so the optimal logit is the log density ratio with no prior-odds offset).
 
+    Args:
+        classifier (nn.Module): ``f(z_t, t) -> logit [B]`` on noisy windows, e.g. a
+            :class:`NoisyWindowClassifier`.
+        model (TrajectoryDiffusion): its forward process noises the windows
+            (:func:`noisy_windows`).
+        offline (Tensor): normalized clean offline windows, ``[B, L, D]``.
+        online (Tensor): normalized clean online windows, ``[B, L, D]``.
+        mask (Tensor): the known entries, kept clean, bool ``[L, D]`` (or broadcastable).
+
+    Returns:
+        tuple[Tensor, Tensor]: the mean binary cross-entropy (differentiable in the
+        classifier's weights) and the detached accuracy, scalars.
+
     Examples:
         >>> import torch
         >>> from torchrl_dual.diffusion import TrajectoryLayout
@@ -139,6 +152,13 @@ def classifier_guidance(classifier: nn.Module, scale: float) -> MeanShift:
     Pass it as ``mean_shift`` to :meth:`TrajectoryDiffusion.sample` (``sampler="ddpm"``).
     The gradient is taken with respect to the window only: the classifier's weights get
     no gradient, and sampling under ``torch.no_grad()`` works.
+
+    Args:
+        classifier (nn.Module): ``f(z_t, t) -> [B]``, differentiable in ``z_t``.
+        scale (float): the guidance scale.
+
+    Returns:
+        MeanShift: ``(z_t, t, Σ) -> Δμ``, shaped like ``z_t``.
 
     Examples:
         >>> import torch

@@ -23,6 +23,16 @@ import torch
 def flat_dim(space: gym.Space, keys: Sequence[str] | None = None) -> int:
     """Size of the flat vector of an observation space (dict entries ``keys`` only).
 
+    Args:
+        space (gym.Space): a ``Box``, or a ``Dict`` of ``Box`` spaces.
+        keys (sequence of str, optional): the dict entries counted (all if omitted).
+
+    Returns:
+        int: the number of entries of the flat vector.
+
+    Raises:
+        TypeError: a space other than ``Box`` or ``Dict``.
+
     Examples:
         >>> space = gym.spaces.Dict({"a": gym.spaces.Box(-1, 1, (2,)), "b": gym.spaces.Box(-1, 1, (3,))})
         >>> flat_dim(space), flat_dim(space, ["b"])

@@ -24,6 +24,15 @@ FROZENLAKE_NUM_ACTIONS = 4
 def frozenlake_num_states(map_name: str) -> int:
     """Number of grid cells of a Frozen-Lake map.
 
+    Args:
+        map_name (str): ``"4x4"`` or ``"8x8"``.
+
+    Returns:
+        int: the number of cells (states).
+
+    Raises:
+        ValueError: an unknown map.
+
     Examples:
         >>> frozenlake_num_states("4x4"), frozenlake_num_states("8x8")
         (16, 64)

@@ -108,6 +108,14 @@ def frozenlake_transition_matrix(
 ) -> np.ndarray:
     """Returns ``P[s, a, s']`` of slippery Frozen-Lake (holes and goal are absorbing).
 
+    Args:
+        map_name (str): ``"4x4"`` or ``"8x8"``.
+        success_rate (float): probability of the intended move.
+        shift (str): ``"none"`` or ``"biased_slip"``.
+
+    Returns:
+        np.ndarray: ``P[s, a, s']``, ``[S, 4, S]``, each row summing to 1.
+
     Examples:
         >>> P = frozenlake_transition_matrix("4x4", 2 / 3)
         >>> bool(np.allclose(P.sum(-1), 1.0))

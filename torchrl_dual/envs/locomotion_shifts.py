@@ -59,6 +59,16 @@ KINEMATIC_JOINTS = {
 def locomotion_robot(env: gym.Env) -> str:
     """The robot of a Gymnasium MuJoCo locomotion env: hopper, halfcheetah or walker2d.
 
+    Args:
+        env (gym.Env): a Gymnasium MuJoCo Hopper, HalfCheetah or Walker2d env (any wrapper
+            of it).
+
+    Returns:
+        str: ``"hopper"``, ``"halfcheetah"`` or ``"walker2d"``.
+
+    Raises:
+        ValueError: another env; the message lists the supported ones.
+
     Examples:
         >>> locomotion_robot(gym.make("HalfCheetah-v5"))
         'halfcheetah'

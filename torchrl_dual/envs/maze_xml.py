@@ -22,6 +22,12 @@ def release_maze_xml(env: EnvT) -> EnvT:
 
     ``env`` may be any wrapper of it; other envs are returned untouched.
 
+    Args:
+        env (gym.Env): any env.
+
+    Returns:
+        ``env`` itself.
+
     Examples:
         >>> import os
         >>> from torchrl_dual.envs import make_pointmaze_gym_env

@@ -74,6 +74,12 @@ def pointmaze_env_id(maze: str) -> str:
 def open_cells(maze: str) -> list[tuple[int, int]]:
     """The ``(row, col)`` cells of a layout that are not walls, in reading order.
 
+    Args:
+        maze (str): a layout of :data:`MAZES`.
+
+    Returns:
+        list[tuple[int, int]]: the open cells.
+
     Examples:
         >>> open_cells("umaze")
         [(1, 1), (1, 2), (1, 3), (2, 3), (3, 1), (3, 2), (3, 3)]
@@ -94,6 +100,13 @@ def goal_maze_map(maze: str, goal_cell: Sequence[int]) -> list[list[Any]]:
 
     The goal cell is marked ``"g"``: every episode's goal lies there, resets stay random
     among the other open cells.
+
+    Args:
+        maze (str): a layout of :data:`MAZES`.
+        goal_cell (sequence of int): the ``(row, col)`` goal cell.
+
+    Returns:
+        list[list]: the ``maze_map`` (1 wall, 0 open, ``"g"`` the goal).
 
     Raises:
         ValueError: ``goal_cell`` is not a ``(row, col)`` pair of an open cell; the message
@@ -135,6 +148,15 @@ def start_cells(
     quarter cell): the open cells but ``goal_cell`` and ``start_avoid_cells``. With a
     random goal per episode (``goal_cell=None``) an episode never starts in its own
     goal's cell either.
+
+    Args:
+        maze (str): a layout of :data:`MAZES`.
+        goal_cell (sequence of int, optional): the fixed goal cell; a random goal per
+            episode if omitted.
+        start_avoid_cells (sequence of cells, optional): cells no episode starts in.
+
+    Returns:
+        list[tuple[int, int]]: the start cells, equally likely.
 
     Raises:
         ValueError: a ``start_avoid_cells`` entry is not an open cell, or they leave no
@@ -219,6 +241,12 @@ def _gym_kwargs(
 def default_max_episode_steps(maze: str) -> int:
     """Evaluation episode length registered by Gymnasium-Robotics for a layout.
 
+    Args:
+        maze (str): a layout of :data:`MAZES`.
+
+    Returns:
+        int: the registered ``max_episode_steps``.
+
     Examples:
         >>> default_max_episode_steps("umaze"), default_max_episode_steps("large")
         (300, 800)
@@ -284,6 +312,12 @@ def flatten_pointmaze_obs(obs: dict[str, np.ndarray]) -> np.ndarray:
 
     Works on single observations and on batches (concatenation on the last axis); the
     result equals the ``"observation"`` written by :func:`make_pointmaze_env`.
+
+    Args:
+        obs (dict): a PointMaze observation, or a batch of them (arrays with leading dims).
+
+    Returns:
+        np.ndarray: float32 ``[..., 6]``.
 
     Examples:
         >>> obs = {"observation": np.zeros(4), "desired_goal": np.ones(2), "achieved_goal": np.zeros(2)}

@@ -151,6 +151,18 @@ def biased_slip_table(P: dict, success_rate: float, clockwise: bool = False) -> 
     up -> left) and ``(a - 1) % 4`` the clockwise one; the biased slip gives one of them
     the whole ``1 - p``. Terminal cells are unchanged.
 
+    Args:
+        P (dict): ``P[s][a]``, the ``(probability, next state, reward, terminated)`` outcomes
+            of slippery Frozen-Lake (``FrozenLakeEnv.P``).
+        success_rate (float): ``p``, the probability of the intended move.
+        clockwise (bool): send the slips clockwise instead of counter-clockwise.
+
+    Returns:
+        dict: a new table; ``P`` is left as it is.
+
+    Raises:
+        ValueError: ``P`` is not slippery (a move without three outcomes).
+
     Examples:
         >>> from gymnasium.envs.toy_text.frozen_lake import FrozenLakeEnv
         >>> P = FrozenLakeEnv(map_name="4x4", success_rate=0.75).P
@@ -271,6 +283,13 @@ DEFAULT_SHIFT_ANGLE = 60.0
 def shift_names(kind: str) -> tuple[str, ...]:
     """The shifts an env kind supports, ``"none"`` first.
 
+    Args:
+        kind (str): ``"pointmaze"``, ``"frozenlake"``, ``"antmaze"``, ``"locomotion"`` or
+            ``"adroit"``.
+
+    Returns:
+        tuple[str, ...]: the names of :data:`SHIFTS` that apply to ``kind``.
+
     Examples:
         >>> shift_names("pointmaze"), shift_names("frozenlake")
         (('none', 'rotation', 'damping', 'mass'), ('none', 'biased_slip', 'biased_slip_cw'))
@@ -281,7 +300,23 @@ def shift_names(kind: str) -> tuple[str, ...]:
 
 
 def check_shift(shift: str, kind: str | None = None) -> DynamicsShift:
-    """The :data:`SHIFTS` entry of ``shift``; ``ValueError`` listing the options otherwise."""
+    """The :data:`SHIFTS` entry of ``shift``; ``ValueError`` listing the options otherwise.
+
+    Args:
+        shift (str): a name of :data:`SHIFTS`.
+        kind (str, optional): the env kind ``shift`` must apply to (``"pointmaze"``, ...);
+            any kind if omitted.
+
+    Returns:
+        DynamicsShift: the entry.
+
+    Raises:
+        ValueError: an unknown name, or one that does not apply to ``kind``.
+
+    Examples:
+        >>> check_shift("mass", "pointmaze").default_scale
+        20.0
+    """
     names = tuple(SHIFTS) if kind is None else shift_names(kind)
     if shift not in names:
         where = "" if kind is None else f" for {kind}"

@@ -33,6 +33,20 @@ def exploration_signals(
       exploration noise the posterior makes;
     * ``exploration_std``: the mean executed std ``exploration_scale`` (Eq. 10).
 
+    Args:
+        batch (TensorDictBase): a collected batch, any batch shape.
+
+    Keyword Args:
+        shift_key (NestedKey): where the policy writes ``d_t``. Defaults to
+            ``"shift_distance"``.
+        epistemic_key (NestedKey): where it writes the epistemic variance. Defaults to
+            ``"epistemic_variance"``.
+        scale_key (NestedKey): where it writes the executed std. Defaults to
+            ``"exploration_scale"``.
+
+    Returns:
+        dict[str, float]: the signals above that ``batch`` holds, by name.
+
     Examples:
         >>> import torch
         >>> from tensordict import TensorDict

@@ -49,6 +49,20 @@ def make_density_ratio_network(
     An MLP on the concatenated ``(s, a)``, output bias 1, then a ReLU; writes
     ``out_key`` ``[*B, 1]``.
 
+    Args:
+        observation_dim (int): ``dim(s)``.
+        action_dim (int): ``dim(a)``.
+
+    Keyword Args:
+        num_cells (sequence of int): the hidden layers' widths. Defaults to ``(256, 256)``
+            (OFF2ON's).
+        in_keys (sequence of NestedKey): the state and action keys. Defaults to
+            ``("observation", "action")``.
+        out_key (NestedKey): the output key. Defaults to ``"density_ratio"``.
+
+    Returns:
+        TensorDictModule: the network, its last bias initialised to 1 (``w ≈ 1`` at first).
+
     Examples:
         >>> import torch
         >>> from tensordict import TensorDict

@@ -73,6 +73,15 @@ def run(cfg: DictConfig) -> Any:
     Runs Algorithm 1's loop (``o2o/loop.py``) with the ``algo`` entry's learner
     (``settings/algos.py``; DUAL's is ``algos/dual.py``) and returns the finished
     :class:`~torchrl_dual.recipe.O2ORun`.
+
+    Args:
+        cfg (DictConfig): the composed config.
+
+    Returns:
+        O2ORun: the finished run.
+
+    Raises:
+        ConfigError: ``cfg`` is not valid (the first problem found).
     """
     validate_config(cfg)
     from torchrl_dual.recipe.o2o.loop import run_o2o  # torch: only once the config is valid
@@ -132,12 +141,24 @@ def _dotted_keys(tree: Any, prefix: str = "") -> list[str]:
 def compose_checked(config_dir: str | Path, overrides: Sequence[str], config_name: str = "config"):
     """Composes ``config_name`` with ``overrides`` as Hydra would and validates it.
 
+    Args:
+        config_dir (str or Path): the Hydra config tree (:data:`CONFIG_DIR`).
+        overrides (sequence of str): ``key=value`` and ``group=option`` overrides, as on
+            the command line.
+        config_name (str): the primary config. Defaults to ``"config"``.
+
+    Returns:
+        the composed and validated ``DictConfig`` (without the ``hydra`` node).
+
     Raises:
         ConfigError: a malformed override, an unknown group option or key, anything
             Hydra cannot compose, or any :func:`validate_config` error.
 
-    Returns:
-        the composed and validated ``DictConfig`` (without the ``hydra`` node).
+    Examples:
+        >>> from torchrl_dual.recipe import CONFIG_DIR
+        >>> cfg = compose_checked(CONFIG_DIR, ["algo=iql", "env=frozenlake", "seed=3"])
+        >>> cfg.algo, cfg.env.kind, cfg.seed
+        ('iql', 'frozenlake', 3)
     """
     config_dir = Path(config_dir).resolve()
     parsed = [_parse(line) for line in overrides]
@@ -230,6 +251,12 @@ def check_command_line(
 
     Leaves ``--help``, ``--cfg``, ``--info``, ``--multirun`` and the options that pick
     another config to Hydra; a multirun checks each job's config when it starts.
+
+    Args:
+        config_dir (str or Path): the Hydra config tree (:data:`CONFIG_DIR`).
+        config_name (str): the primary config. Defaults to ``"config"``.
+        argv (sequence of str, optional): the command line's arguments; ``sys.argv[1:]``
+            if omitted.
     """
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
@@ -253,6 +280,13 @@ def hydra_task(cfg: DictConfig) -> Any:
     Ctrl-C or SIGTERM in the offline or online phase ends the run with a checkpoint and
     one line (:func:`~torchrl_dual.recipe.run_o2o`); anywhere else (while the data and
     networks are built, at the very end) with one line too, its last checkpoint kept.
+
+    Args:
+        cfg (DictConfig): the config Hydra composed.
+
+    Returns:
+        The finished :class:`~torchrl_dual.recipe.O2ORun`, or ``None`` after an interrupt
+        outside the run's phases.
     """
     with user_errors(debug=bool(cfg.get("debug", False))):
         try:

@@ -36,6 +36,18 @@ def dual_collector(env: Any, policy: Any, **kwargs: Any) -> Collector:
 
     The probe needs no posterior. ``kwargs`` go to
     :class:`~torchrl.collectors.Collector`.
+
+    Args:
+        env (EnvBase): the online env (with :class:`~torchrl_dual.transforms.PreviousTransition`
+            for DUAL's shift signal).
+        policy (TensorDictModuleBase): the acting policy, e.g. ``make_dual_policy(...)``.
+        **kwargs: TorchRL's collector arguments (``frames_per_batch``, ``total_frames``,
+            ...). ``auto_register_policy_transforms`` defaults to ``False``: DUAL's policy
+            has no recurrent module, so the collector appends no ``InitTracker`` or
+            ``TensorDictPrimer`` to the env (and TorchRL 0.14 warns of none).
+
+    Returns:
+        Collector: the collector.
     """
     kwargs.setdefault("auto_register_policy_transforms", False)
     with set_exploration_type(ExplorationType.DETERMINISTIC):

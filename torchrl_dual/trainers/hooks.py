@@ -34,6 +34,10 @@ def register_before_weight_update(trainer: Trainer, op: Callable[[], None]) -> N
     ``UpdateWeights`` (the push of the policy to the collector) is a ``post_steps`` op
     too, often registered first. This is the one place that reorders the trainer's
     private list; ``tests/trainers/test_hooks.py`` fails if TorchRL changes it.
+
+    Args:
+        trainer (Trainer): the TorchRL trainer.
+        op (callable): ``() -> None``, e.g. a :class:`LaplaceRefitHook`.
     """
     trainer.register_op("post_steps", op)
     ops = trainer._post_steps_ops

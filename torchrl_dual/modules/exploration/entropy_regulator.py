@@ -44,6 +44,12 @@ __all__ = ["EntropyRegulatedNoise", "dacer_target_entropy", "sampled_entropy"]
 def dacer_target_entropy(action_dim: int) -> float:
     """DACER's entropy target ``H̄ = −0.9 · dim(A)`` (``relax/network/dacer.py``).
 
+    Args:
+        action_dim (int): ``dim(A)``.
+
+    Returns:
+        float: ``H̄``.
+
     Examples:
         >>> dacer_target_entropy(2)
         -1.8

@@ -382,5 +382,12 @@ class DualLearner(Learner):
 
 
 def run_dual(cfg: DictConfig) -> O2ORun:
-    """Runs (or resumes) Algorithm 1 for a validated ``cfg``; returns the run's state."""
+    """Runs (or resumes) Algorithm 1 for a validated ``cfg``; returns the run's state.
+
+    Args:
+        cfg (DictConfig): a config validated with ``algo=dual``.
+
+    Returns:
+        O2ORun: the finished (or interrupted) run.
+    """
     return run_o2o(cfg, DualLearner)

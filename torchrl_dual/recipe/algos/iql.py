@@ -182,5 +182,12 @@ class IQLLearner(Learner):
 
 
 def run_iql(cfg: DictConfig) -> O2ORun:
-    """Runs (or resumes) the IQL baseline for a validated ``cfg``."""
+    """Runs (or resumes) the IQL baseline for a validated ``cfg``.
+
+    Args:
+        cfg (DictConfig): a config validated with ``algo=iql``.
+
+    Returns:
+        O2ORun: the finished (or interrupted) run.
+    """
     return run_o2o(cfg, IQLLearner)

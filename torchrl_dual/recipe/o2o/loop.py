@@ -57,6 +57,15 @@ def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORu
     Ctrl-C or SIGTERM (``interrupt_at_frames``, ``interrupt_at_offline_updates``) ends it
     early with a checkpoint and one line; before the run is built (data, networks), the
     ``KeyboardInterrupt`` propagates: there is nothing of it to save.
+
+    Args:
+        cfg (DictConfig): a config that passed :func:`~torchrl_dual.recipe.validate_config`.
+        make_learner (callable): ``O2ORun -> Learner``, usually the learner class (e.g.
+            ``ALGORITHMS[cfg.algo].learner``).
+
+    Returns:
+        O2ORun: the run, finished or interrupted (its ``frames``, ``history`` and
+        ``stages_done`` say how far it got).
     """
     # SIGTERM stops a run as Ctrl-C does; the run directory is this run's until it returns
     with signals_as_interrupts(), run_directory_lock(cfg.output_dir):

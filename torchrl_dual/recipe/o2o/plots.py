@@ -57,6 +57,19 @@ def plot_learning_curve(
     and, below it on the same frame axis, each :data:`ONLINE_SIGNALS` series found in
     ``signals`` (records of :func:`online_signals`).
 
+    Args:
+        history (list of dict): the evaluations, each with ``frames`` and
+            ``normalized_score`` (``O2ORun.history``).
+        path (Path): the image file to write (a ``.png``).
+
+    Keyword Args:
+        title (str): the figure's title.
+        signals (list of dict, optional): :func:`online_signals` records, one per
+            collected batch.
+
+    Returns:
+        Path: ``path``.
+
     Examples:
         >>> import tempfile
         >>> history = [{"frames": 0, "normalized_score": 10.0}, {"frames": 100, "normalized_score": 30.0}]

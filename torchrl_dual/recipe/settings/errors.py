@@ -122,7 +122,16 @@ def warn(text: str) -> None:
 
 @contextmanager
 def user_errors(*, debug: bool = False) -> Iterator[None]:
-    """Turns a :class:`UserError` raised inside the block into :func:`report`."""
+    """Turns a :class:`UserError` raised inside the block into :func:`report`.
+
+    Args:
+        debug (bool): print the traceback before the ``error:`` line (also with
+            ``HYDRA_FULL_ERROR=1``).
+
+    Examples:
+        >>> with user_errors():
+        ...     pass  # no UserError: the block runs as it is
+    """
     try:
         yield
     except UserError as err:

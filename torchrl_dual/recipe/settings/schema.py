@@ -120,6 +120,16 @@ def validate_config(cfg: DictConfig) -> DictConfig:
     """Checks a composed recipe config; raises :class:`ConfigError` on the first problem.
 
     Returns ``cfg`` itself, for chaining.
+
+    Args:
+        cfg (DictConfig): the composed config.
+
+    Returns:
+        DictConfig: ``cfg`` itself.
+
+    Raises:
+        ConfigError: an unknown choice or key, a value its rule refuses, a failed cross-key
+            check, or what the machine lacks for it (a package, a data set, a device).
     """
     entry = _choice(cfg, "algo", ALGORITHMS, "the algorithm")
     algorithm = entry.settings
