@@ -27,7 +27,7 @@ T = TypeVar("T")
 def mark_fused_steps(optimizer: Optimizer, args: Any = (), kwargs: Any = None) -> None:
     """Moves the version counter of every parameter of ``optimizer``'s fused groups.
 
-    As any other in-place update does; this is the step hook this module registers for
+    As any other in-place update does. This is the step hook this module registers for
     every optimizer.
 
     Examples:

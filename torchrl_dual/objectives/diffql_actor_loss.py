@@ -172,8 +172,8 @@ class DiffQLActorLoss(LossModule):
     ) -> DiffQLActorLoss:
         """Builds the loss on the twin Q networks of a TorchRL ``IQLLoss``.
 
-        Their current, not their target, weights (:func:`min_q`); they read the
-        state under this loss's ``tensor_keys.observation`` and the action under
+        It reads their current, not their target, weights (:func:`min_q`); they read
+        the state under this loss's ``tensor_keys.observation`` and the action under
         ``iql_loss.tensor_keys.action``.
         """
 

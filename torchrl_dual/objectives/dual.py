@@ -161,10 +161,10 @@ class DUALLoss(LossModule):
     def _adopt(self) -> None:
         """Registers the parts' submodules, parameters and buffers as this loss's own.
 
-        Under their names: TorchRL's target updaters look for ``target_*_params``
-        among a loss's direct children. The critic's copy of the actor (Cal-QL's and
-        SO2's policy, which holds the actor's own parameters) is left out: the actor
-        is the actor's.
+        They keep their names: TorchRL's target updaters look for
+        ``target_*_params`` among a loss's direct children. The critic's copy of the
+        actor (Cal-QL's and SO2's policy, which holds the actor's own parameters) is
+        left out: the actor is the actor's.
         """
         actor_tensors = {id(p) for p in self.actor_objective.parameters()}
         for part in self._parts():

@@ -176,9 +176,9 @@ class WeightedMAPActorLoss(LossModule):
     def from_iql(cls, actor: LastLayerActor, iql_loss, **kwargs) -> WeightedMAPActorLoss:
         """Builds the loss on the critics of a TorchRL ``IQLLoss`` (the target twin Q and V).
 
-        Or of any critic loss with ``qvalue_network`` and target Q parameters, e.g.
-        :class:`~torchrl_dual.objectives.CalQLLoss` (no V: ``weighting="sac"`` or
-        ``"uniform"`` only).
+        Any critic loss with ``qvalue_network`` and target Q parameters works too,
+        e.g. :class:`~torchrl_dual.objectives.CalQLLoss` (no V: ``weighting="sac"``
+        or ``"uniform"`` only).
         """
         value_network = getattr(iql_loss, "value_network", None)
         with warnings.catch_warnings():  # TorchRL's warning is for a forward pass without

@@ -222,7 +222,7 @@ class LastLayerActor(nn.Module):
     def readout(self, head_rows: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
         """Maps the selected head outputs ``[..., A]`` to actions (affine).
 
-        Given the ``context`` returned by :meth:`encode`.
+        ``context`` is what :meth:`encode` returned with the trunk output.
         """
         raise NotImplementedError
 

@@ -163,8 +163,9 @@ class PlannerActor(LastLayerActor):
     def sample_actions(self, observation: torch.Tensor, num_samples: int) -> torch.Tensor:
         """``M`` actions through the ``N``-step chain, ``[M, *B, A]``.
 
-        From ``M`` latents ``τ^N ~ N(0, I)``, with the current (MAP) weights: the
-        paper's "τ^N sampling" ablation of the Laplace ensemble (Eq. 9).
+        The actions come from ``M`` latents ``τ^N ~ N(0, I)`` through the current
+        (MAP) weights: the paper's "τ^N sampling" ablation of the Laplace ensemble
+        (Eq. 9).
         """
         self._check_observation(observation)
         observations = observation.expand(num_samples, *observation.shape)

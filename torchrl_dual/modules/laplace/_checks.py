@@ -15,8 +15,8 @@ def checked_features_and_weights(
 ) -> tuple[Tensor, Tensor | None]:
     """Checked features ``φ [N, d]`` and weights ``w [N]`` (float64) for a Laplace fit.
 
-    From a batch of head inputs and per-sample loss weights (``w`` may be ``None``), or
-    an error that says what is wrong and how to fix it.
+    They come from a batch of head inputs and per-sample loss weights (``w`` may be
+    ``None``); anything wrong raises an error that says what it is and how to fix it.
 
     Examples:
         >>> import torch

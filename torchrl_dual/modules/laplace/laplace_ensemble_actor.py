@@ -300,9 +300,9 @@ class LaplaceEnsembleActor(ActionBounds, TensorDictModuleBase):
     def get_dist(self, tensordict: TensorDictBase) -> IndependentNormal:
         """Eq. 9's policy as a TorchRL distribution, ``IndependentNormal(μ(s), σ(s))``.
 
-        With the ensemble's mean and std (under ``DETERMINISTIC``: the MAP mean and
-        ``σ̄``), as ``ProbabilisticActor.get_dist``; ``tensordict`` is not written
-        to.
+        It has the ensemble's mean and std (under ``DETERMINISTIC``: the MAP mean
+        and ``σ̄``), as ``ProbabilisticActor.get_dist``; ``tensordict`` is not
+        written to.
 
         Examples:
             >>> import torch

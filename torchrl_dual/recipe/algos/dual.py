@@ -371,8 +371,8 @@ class DualLearner(Learner):
     def offline_shift_distances(self, samples: int, seed: int) -> torch.Tensor:
         """Eq. 10's ``d = ‖ŝ' − s'‖`` of the transition model on ``samples`` offline transitions.
 
-        Drawn from D_offline without replacement with ``seed``: ``d`` on the fitted
-        data.
+        The transitions are drawn from D_offline without replacement with ``seed``:
+        ``d`` on the data the model was fitted on.
         """
         data = self.run.data.transitions
         gen = torch.Generator().manual_seed(seed)

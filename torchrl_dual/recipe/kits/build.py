@@ -110,8 +110,9 @@ def _pointmaze_starts_avoided(env: DictConfig) -> list[list[int]] | None:
 def pointmaze_data(cfg: DictConfig) -> OfflineDataset:
     """The PointMaze kit's ``D_offline``: controller episodes of ``env.maze``, cached on disk.
 
-    Generated (or loaded from ``cfg.data_cache_dir``) with ``budget.dataset_transitions``
-    transitions; rewards scaled and shifted as the online env's.
+    The data are generated (or loaded from ``cfg.data_cache_dir``) with
+    ``budget.dataset_transitions`` transitions; the rewards are scaled and shifted as
+    the online env's are.
     """
     env = cfg.env
     data = load_or_generate_maze_dataset(

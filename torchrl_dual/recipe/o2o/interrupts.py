@@ -1,6 +1,6 @@
 """Ctrl-C and SIGTERM in a recipe run: both stop it as a ``KeyboardInterrupt``.
 
-At a point where its state is whole.
+Either stops the run at a point where its state is whole.
 
 :func:`signals_as_interrupts` (entered by :func:`~torchrl_dual.recipe.run_o2o` for the
 whole run) makes SIGTERM, what a cluster scheduler or ``kill`` sends before it kills a

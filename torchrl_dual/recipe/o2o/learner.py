@@ -21,8 +21,8 @@ from torch import nn
 class RunContext(Protocol):
     """What a learner and the parts it builds may use of the run.
 
-    Of an :class:`~torchrl_dual.recipe.O2ORun`: the config, the data and env, the
-    counters, the buffers, logging and the two helpers below.
+    The run is an :class:`~torchrl_dual.recipe.O2ORun`; they may use its config, data
+    and env, counters, buffers, logging and the two helpers below.
     ``tests/test_import_layering.py`` checks that ``recipe/algos`` and ``recipe/parts``
     read nothing else of it.
 

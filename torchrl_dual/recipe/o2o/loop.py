@@ -51,8 +51,9 @@ def online_batch(replay: Replay, k: int, device: torch.device) -> TensorDictBase
 def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORun:
     """Runs (or resumes) one offline-to-online run of ``make_learner``'s algorithm; returns it.
 
-    For a validated ``cfg``: its offline stages, the offline evaluation, then the online
-    phase (collect, store, update, the learner's hook, evaluate, checkpoint).
+    ``cfg`` must have been validated. The run goes through its offline stages, the
+    offline evaluation, then the online phase (collect, store, update, the learner's
+    hook, evaluate, checkpoint).
 
     Ctrl-C or SIGTERM (``interrupt_at_frames``, ``interrupt_at_offline_updates``) ends it
     early with a checkpoint and one line; before the run is built (data, networks), the

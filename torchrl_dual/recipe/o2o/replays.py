@@ -100,7 +100,7 @@ class JointReplay(Replay):
 def make_mixed_replay(run: O2ORun) -> Replay:
     """TorchRL's ``OfflineToOnlineReplayBuffer`` with ``online.offline_fraction``.
 
-    (``joint``: :class:`JointReplay`.)
+    ``replay=joint`` gets a :class:`JointReplay` instead.
 
     Its offline share is drawn from a buffer over the same storage as
     ``run.offline_buffer`` but without a default batch size: TorchRL 0.14 samples it with

@@ -8,8 +8,9 @@ import time
 class StageClock:
     """Adds the wall-clock and CPU seconds since its creation to a stage's totals.
 
-    To ``seconds[name]`` and ``cpu_seconds[name]``, on top of what a resumed run had
-    already spent: the run's ``stage_seconds`` and ``stage_cpu_seconds``.
+    It adds them to ``seconds[name]`` and ``cpu_seconds[name]``, on top of what a
+    resumed run had already spent: the run's ``stage_seconds`` and
+    ``stage_cpu_seconds``.
 
     CPU seconds are this process's (``time.process_time``, all its threads). Other jobs
     on the same cores inflate them far less than wall time (measured on a 2-core machine

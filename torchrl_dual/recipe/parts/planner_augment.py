@@ -238,8 +238,9 @@ class PlannerAugmenter:
     def windows_to_transitions(self, windows: torch.Tensor, first: int) -> TensorDictBase:
         """Raw ``[W, H + 1, D]`` windows -> flat transitions ``(s_i, a_i, s_{i+1})``, ``i < H``.
 
-        With the reward model's labels; window ``w`` gets ``episode = −(first + w +
-        1)``, and its transitions after the first predicted terminal are dropped.
+        The transitions carry the reward model's labels; window ``w`` gets ``episode
+        = −(first + w + 1)``, and its transitions after the first predicted terminal
+        are dropped.
         """
         layout = self.layout
         states, actions = layout.observations(windows), layout.actions(windows)

@@ -42,7 +42,8 @@ class AlgorithmSettings:
 class Algorithm:
     """One entry of :data:`~torchrl_dual.recipe.settings.algos.ALGORITHMS`.
 
-    Its settings and the learner :func:`~torchrl_dual.recipe.run_o2o` runs.
+    It holds the algorithm's settings and the learner
+    :func:`~torchrl_dual.recipe.run_o2o` runs.
 
     Args:
         settings (AlgorithmSettings): its config sections, critics and checks.

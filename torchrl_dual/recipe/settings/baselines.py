@@ -1,7 +1,7 @@
 """The baselines' config sections (``algo/<name>.yaml``), their checks and their entries.
 
-Their checks across keys and their :data:`~torchrl_dual.recipe.ALGORITHMS` entries; each
-learner is in its own module of :mod:`torchrl_dual.recipe.algos`.
+The entries are in :data:`~torchrl_dual.recipe.ALGORITHMS`; each learner is in its own
+module of :mod:`torchrl_dual.recipe.algos`.
 
 Sections another algorithm defines are reused, not copied: ``edis`` and ``diffuser``
 read DUAL's ``planner``, ``iql_la`` DUAL's ``laplace`` keys, ``dacer`` Diff-QL's

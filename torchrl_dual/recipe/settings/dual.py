@@ -1,6 +1,6 @@
 """DUAL's config sections (``algo/dual.yaml``), their checks across keys, and its entry.
 
-Its :data:`~torchrl_dual.recipe.ALGORITHMS` entry; the learner is
+The entry is in :data:`~torchrl_dual.recipe.ALGORITHMS`; the learner is
 :class:`~torchrl_dual.recipe.algos.dual.DualLearner`.
 """
 

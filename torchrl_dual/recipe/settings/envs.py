@@ -1,6 +1,6 @@
 """The table of environment kits, one entry per ``env.kind``, and their ``env.*`` schema.
 
-Algorithm 1 line 1; the schema of their ``env.*`` keys.
+A kit builds the data and the envs of Algorithm 1 line 1.
 
 An :class:`EnvKit` holds everything the recipe needs from one kind of environment: the
 schema of its ``env.*`` keys, the offline data set ``D_offline``, the online env, the
@@ -266,8 +266,8 @@ MINARI_SETTINGS: dict[str, type] = {
 def check_minari_dataset(cfg: DictConfig) -> None:
     """Stops before any work when the Minari data set cannot be read.
 
-    When minari is missing, ``MINARI_DATASETS_PATH`` is not a directory, the data set is
-    not on disk or its ``metadata.json`` does not parse.
+    It stops when minari is missing, ``MINARI_DATASETS_PATH`` is not a directory, the
+    data set is not on disk or its ``metadata.json`` does not parse.
     """
     dataset_id = FAMILIES[cfg.env.kind].dataset_id(cfg.env)
     try:

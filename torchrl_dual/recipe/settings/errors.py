@@ -75,8 +75,8 @@ class ConfigError(UserError):
 def unknown_key(key: str, known: Iterable[str], owners: Sequence[str] = ()) -> ConfigError:
     """The error for a key no schema has, with a hint.
 
-    With ``owners`` (the ``group=option`` choices that do have it), which choice brings
-    it; else the closest known key of the same depth as a hint.
+    With ``owners`` (the ``group=option`` choices that do have it) the hint says which
+    choice brings the key; else it names the closest known key of the same depth.
 
     Examples:
         >>> str(unknown_key("budget.onlin_frames", ["budget.online_frames", "seed"]))

@@ -103,8 +103,9 @@ RESOLVER = "reference"
 def reference_setting(key: str, default: Any, *, _root_: DictConfig) -> Any:
     """The reference value of ``key`` for the run (the ``reference`` resolver).
 
-    For the run's ``budget.name`` and ``algo`` in :data:`BUDGET_SETTINGS`, else for its
-    ``env.kind`` and ``critic.name`` in :data:`REFERENCE_SETTINGS`, else ``default``.
+    The value for the run's ``budget.name`` and ``algo`` in :data:`BUDGET_SETTINGS`,
+    else for its ``env.kind`` and ``critic.name`` in :data:`REFERENCE_SETTINGS`, else
+    ``default``.
 
     Examples:
         >>> from omegaconf import OmegaConf
