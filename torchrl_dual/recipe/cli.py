@@ -38,9 +38,12 @@ CONFIG_DIR = Path(__file__).resolve().parent / "config"
 
 
 def hydra_flags() -> argparse.ArgumentParser:
-    """The command line ``@hydra.main`` accepts (hydra-core 1.3's flags, public options
-    only; ``tests/recipe/test_entry_points.py`` checks them against Hydra's own parser):
-    the overrides, and the flags this check lets Hydra handle unchecked."""
+    """The command line ``@hydra.main`` accepts, as an ``argparse`` parser.
+
+    Hydra-core 1.3's flags, public options only (``tests/recipe/test_entry_points.py``
+    checks them against Hydra's own parser): the overrides, and the flags this check
+    lets Hydra handle unchecked.
+    """
     parser = argparse.ArgumentParser(add_help=False)
     parser.add_argument("overrides", nargs="*")
     for flags, dest in (
