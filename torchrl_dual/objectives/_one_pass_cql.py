@@ -39,17 +39,23 @@ PARAMS = (
 
 
 class OnePassCQLLoss(CQLLoss):
-    """:class:`~torchrl.objectives.CQLLoss` whose :meth:`forward` and :meth:`critic_terms`
+    """TorchRL's ``CQLLoss`` with the actor evaluated once per state.
+
+    :class:`~torchrl.objectives.CQLLoss` whose :meth:`forward` and :meth:`critic_terms`
     evaluate the actor once per state (the module docstring); the subclass supplies the
     penalty, ``_cql_loss(tensordict, curr_params, next_params) -> (loss, metadata)``,
     which draws the penalty's policy actions with :meth:`_get_policy_actions` from the
     given distribution parameters. ``q_loss``, ``actor_loss``, ``actor_bc_loss`` and
     ``alpha_loss`` remain TorchRL's for callers that need one term (their Q calls are
-    :class:`~torchrl_dual.objectives.ensemble_q.EnsembleMLP`'s)."""
+    :class:`~torchrl_dual.objectives.ensemble_q.EnsembleMLP`'s).
+    """
 
     def _make_vmap(self) -> None:
-        """TorchRL's vmapped Q calls, the ``(None, 0)`` one as :class:`EnsembleMLP` (the
-        same numbers, a faster backward) when the Q network is a plain MLP."""
+        """TorchRL's vmapped Q calls, with :class:`EnsembleMLP` for a plain MLP.
+
+        TorchRL's vmapped Q calls, the ``(None, 0)`` one as :class:`EnsembleMLP` (the
+        same numbers, a faster backward) when the Q network is a plain MLP.
+        """
         super()._make_vmap()
         if not self.deactivate_vmap:
             self._vmap_qvalue_networkN0 = EnsembleMLP.of(
@@ -58,10 +64,13 @@ class OnePassCQLLoss(CQLLoss):
 
     @dispatch
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        """``CQLLoss.forward`` in one pass: :meth:`critic_terms`, then the BC, actor and
+        """``CQLLoss.forward`` in one pass.
+
+        ``CQLLoss.forward`` in one pass: :meth:`critic_terms`, then the BC, actor and
         entropy losses on the actor's parameters at ``s`` computed once (two
         distributions built from them, as ``CQLLoss``'s two evaluations of the actor
-        give). The same draws, in ``CQLLoss.forward``'s order; the same outputs."""
+        give). The same draws, in ``CQLLoss.forward``'s order; the same outputs.
+        """
         keys = self.tensor_keys
         curr_params = self._dist_params(tensordict, grad=True)
         critic, td_error = self._critic_terms(tensordict, curr_params.detach())
@@ -106,7 +115,9 @@ class OnePassCQLLoss(CQLLoss):
         return td_out
 
     def critic_terms(self, tensordict: TensorDictBase) -> dict[str, Tensor]:
-        """The critic's losses in one pass: ``loss_qvalue``, ``loss_cql`` and, with
+        """The critic's losses in one pass.
+
+        The critic's losses in one pass: ``loss_qvalue``, ``loss_cql`` and, with
         ``with_lagrange``, ``loss_alpha_prime``; the values (and gradients) of
         :meth:`q_loss`, :meth:`cql_loss` and :meth:`alpha_prime_loss` called in that order
         with the same seed, computed with the actor evaluated once on ``s`` and once on
@@ -115,14 +126,18 @@ class OnePassCQLLoss(CQLLoss):
         ``num_random`` copies of the batch). Writes what those methods write into
         ``tensordict``. The penalty is the subclass's ``_cql_loss(tensordict,
         curr_params, next_params)`` (its ``cql_loss`` on the actor's distribution
-        parameters at ``s`` and ``s'``, detached)."""
+        parameters at ``s`` and ``s'``, detached).
+        """
         return self._critic_terms(tensordict)[0]
 
     def _critic_terms(
         self, tensordict: TensorDictBase, curr_params: TensorDictBase | None = None
     ) -> tuple[dict[str, Tensor], Tensor]:
-        """:meth:`critic_terms` and the TD errors ``[2, *B]``; ``curr_params``: the actor's
-        distribution parameters at ``s``, detached (computed here if ``None``)."""
+        """:meth:`critic_terms` and the TD errors ``[2, *B]``.
+
+        :meth:`critic_terms` and the TD errors ``[2, *B]``; ``curr_params``: the actor's
+        distribution parameters at ``s``, detached (computed here if ``None``).
+        """
         next_params = self._dist_params(tensordict.get("next"), grad=False)
         if self.max_q_backup:  # CQLLoss's own target (num_random draws at s')
             loss_qvalue, metadata = self.q_loss(tensordict)
@@ -136,10 +151,13 @@ class OnePassCQLLoss(CQLLoss):
         return terms, td_error
 
     def _dist_params(self, tensordict: TensorDictBase, grad: bool) -> TensorDictBase:
-        """The actor's distribution parameters at ``tensordict``'s actor inputs (``[*B]``),
+        """The actor's distribution parameters at the batch's actor inputs.
+
+        The actor's distribution parameters at ``tensordict``'s actor inputs (``[*B]``),
         with the gradient to its parameters or, as ``CQLLoss`` samples the penalty's and
         the target's actions, with its parameters' ``.data`` (autograd mode unchanged: an
-        actor may take another path without it)."""
+        actor may take another path without it).
+        """
         data = tensordict.select(*self.actor_network.in_keys, strict=False)
         params = self.actor_network_params if grad else self.actor_network_params.data
         with (
@@ -152,8 +170,11 @@ class OnePassCQLLoss(CQLLoss):
     def _q_loss(
         self, tensordict: TensorDictBase, next_params: TensorDictBase
     ) -> tuple[Tensor, Tensor]:
-        """``CQLLoss.q_loss`` (deterministic or soft backup) with the target action drawn
-        from ``next_params``, the actor's parameters at ``s'``: the loss and the TD errors."""
+        """``CQLLoss.q_loss`` with the target action drawn from ``next_params``.
+
+        ``CQLLoss.q_loss`` (deterministic or soft backup) with the target action drawn
+        from ``next_params``, the actor's parameters at ``s'``: the loss and the TD errors.
+        """
         keys = self.tensor_keys
         with set_exploration_type(ExplorationType.RANDOM):
             dist = self.actor_network.build_dist_from_params(next_params)
@@ -188,12 +209,15 @@ class OnePassCQLLoss(CQLLoss):
         num_actions: int = 10,
         dist_params: TensorDictBase | None = None,
     ) -> tuple[TensorDictBase, Tensor]:
-        """``CQLLoss._get_policy_actions``: ``num_actions`` draws of ``π(·|s)`` per state of
+        """``num_actions`` draws of ``π(·|s)`` per state, as ``CQLLoss`` draws them.
+
+        ``CQLLoss._get_policy_actions``: ``num_actions`` draws of ``π(·|s)`` per state of
         ``data``, the actor inputs repeated (``[*B[:-1], B[-1]·num_actions]``) with the
         actions and their log-probs (no gradient to the actor). The actor runs once on
         ``data`` (or its ``dist_params`` are given) and its distribution parameters are
         repeated, where ``CQLLoss`` runs it on the repeated inputs: the same numbers where
-        the matrix products give each row the same result whatever the number of rows."""
+        the matrix products give each row the same result whatever the number of rows.
+        """
         if actor_params is not self.actor_network_params:
             return super()._get_policy_actions(data, actor_params, num_actions=num_actions)
         if dist_params is None:
@@ -206,10 +230,13 @@ class OnePassCQLLoss(CQLLoss):
 
 
 def _repeat(data: TensorDictBase, num: int) -> TensorDictBase:
-    """Each transition of ``data`` ``num`` times in a row along its last batch dimension,
+    """Each transition of ``data`` repeated ``num`` times along its last batch dimension.
+
+    Each transition of ``data`` ``num`` times in a row along its last batch dimension,
     ``CQLLoss._get_policy_actions``'s ``repeat_interleave``; an entry broadcast over the
     batch (a state-independent scale) stays a broadcast view, as the actor run on
-    repeated inputs gives it, so the kernels reading it take the same path."""
+    repeated inputs gives it, so the kernels reading it take the same path.
+    """
     dim = data.ndim - 1
     shape = [*data.batch_size[:-1], data.batch_size[-1] * num]
 

@@ -180,7 +180,8 @@ class CalQLLoss(OnePassCQLLoss):
 
         Computed eagerly (here and in :meth:`set_keys`) and read back as a plain list, so
         that ``@dispatch`` reading them inside ``torch.compile(fullgraph=True)`` never
-        traces a ``super()`` property, which Dynamo cannot."""
+        traces a ``super()`` property, which Dynamo cannot.
+        """
         if self._calql_in_keys is None:
             keys = CQLLoss.in_keys.fget(self)
             bound = self.tensor_keys.mc_return
@@ -189,6 +190,7 @@ class CalQLLoss(OnePassCQLLoss):
 
     @property
     def out_keys(self) -> list[str]:
+        """``CQLLoss``'s outputs, then ``bound_rate`` (the share of bounded policy Q)."""
         if self._out_keys is None:
             self._out_keys = [*CQLLoss.out_keys.fget(self), "bound_rate"]
         return self._out_keys
@@ -203,8 +205,11 @@ class CalQLLoss(OnePassCQLLoss):
 
     @dispatch
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        """``CQLLoss.forward``'s outputs (computed in one pass: :class:`OnePassCQLLoss`)
-        plus ``bound_rate``."""
+        """``CQLLoss.forward``'s outputs plus ``bound_rate``.
+
+        ``CQLLoss.forward``'s outputs (computed in one pass: :class:`OnePassCQLLoss`)
+        plus ``bound_rate``.
+        """
         out = super().forward(tensordict)
         rate = tensordict.get(self.tensor_keys.bound_rate).detach()
         out.set("bound_rate", rate if self.reduction == "none" else rate.mean())
@@ -217,10 +222,13 @@ class CalQLLoss(OnePassCQLLoss):
         curr_params: TensorDictBase | None,
         next_params: TensorDictBase | None,
     ) -> tuple[Tensor, ...]:
-        """Q of the uniform, current-policy and next-policy actions: ``[2, B·num]`` each,
+        """Q of the penalty's uniform, current-policy and next-policy actions.
+
+        Q of the uniform, current-policy and next-policy actions: ``[2, B·num]`` each,
         plus the two ``[B·num]`` log-probs. Draws in ``CQLLoss.cql_loss``'s order;
         ``curr_params`` / ``next_params``: the actor's distribution parameters at ``s`` /
-        ``s'`` if the caller has them."""
+        ``s'`` if the caller has them.
+        """
         action_key = self.tensor_keys.action
         random_actions = tensordict.get(action_key).new_empty(
             (*tensordict.shape[:-1], tensordict.shape[-1] * num, tensordict[action_key].shape[-1])
@@ -305,9 +313,12 @@ class CalQLLoss(OnePassCQLLoss):
         return ("loss_qvalue", "loss_cql", *(("loss_alpha_prime",) if self.with_lagrange else ()))
 
     def critic_parameters(self) -> list[Tensor]:
-        """What the critic's optimizer steps: the Q networks and, in the Lagrange form,
+        """What the critic's optimizer steps (the critic protocol of ``DUALLoss``).
+
+        What the critic's optimizer steps: the Q networks and, in the Lagrange form,
         ``log α'`` (as Cal-QL's code, at the critic's learning rate); not the actor nor
-        the entropy's ``log α``."""
+        the entropy's ``log α``.
+        """
         params = list(self.qvalue_network_params.values(True, True))
         return [*params, self.log_alpha_prime] if self.with_lagrange else params
 
@@ -316,8 +327,11 @@ class CalQLLoss(OnePassCQLLoss):
         return self.log_alpha_prime.exp().clamp_max(1e6)
 
     def alpha_prime_loss(self, tensordict: TensorDictBase) -> tuple[Tensor, dict]:
-        """The Lagrange multiplier's loss ``−½·α'·Σ_i (mean loss_cql_i − w·τ)`` on the
-        penalties :meth:`cql_loss` wrote (detached: only ``log α'`` gets a gradient)."""
+        """The Lagrange multiplier's loss (its gradient reaches ``log α'`` only).
+
+        The Lagrange multiplier's loss ``−½·α'·Σ_i (mean loss_cql_i − w·τ)`` on the
+        penalties :meth:`cql_loss` wrote (detached: only ``log α'`` gets a gradient).
+        """
         penalties = [tensordict.get(key, None) for key in self._cql_keys()]
         if any(penalty is None for penalty in penalties):
             raise KeyError(

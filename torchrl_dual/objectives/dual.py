@@ -175,7 +175,11 @@ class DUALLoss(LossModule):
                         continue
                     leaves = value.parameters() if isinstance(value, nn.Module) else [value]
                     leaves = list(leaves)
-                    if part is self.critic and leaves and all(id(p) in actor_tensors for p in leaves):
+                    if (
+                        part is self.critic
+                        and leaves
+                        and all(id(p) in actor_tensors for p in leaves)
+                    ):
                         continue
                     if name in mine and mine[name] is not value:
                         raise RuntimeError(f"DUALLoss: both parts hold a {name!r}.")

@@ -1,4 +1,6 @@
-"""TorchRL's vmapped ensemble of MLP Q networks, evaluated with vmap's own kernels but a
+"""An ensemble of MLP Q networks without vmap's per-call overhead.
+
+TorchRL's vmapped ensemble of MLP Q networks, evaluated with vmap's own kernels but a
 faster backward of the one-output last layer.
 
 TorchRL's losses evaluate their ``E`` stacked Q networks with ``torch.func.vmap`` over a
@@ -34,8 +36,11 @@ ELEMENTWISE = (nn.ReLU, nn.Tanh, nn.SiLU, nn.ELU, nn.GELU, nn.LeakyReLU)
 
 
 class _OneOutputLayer(torch.autograd.Function):
-    """``bmm(h, Wᵀ)`` for ``h`` ``[E, M, K]`` and ``W`` ``[E, 1, K]`` with the fast backward
-    of the module docstring."""
+    """The one-output last layer ``bmm(h, Wᵀ)`` with the fast backward.
+
+    ``bmm(h, Wᵀ)`` for ``h`` ``[E, M, K]`` and ``W`` ``[E, 1, K]`` with the fast backward
+    of the module docstring.
+    """
 
     @staticmethod
     def forward(ctx, h: Tensor, weight: Tensor) -> Tensor:
@@ -51,7 +56,9 @@ class _OneOutputLayer(torch.autograd.Function):
 
 
 class EnsembleMLP:
-    """``(tensordict, params) -> tensordict``: the ``E`` Q networks of stacked ``params``
+    """The ``E`` Q networks of stacked parameters in one call, as TorchRL's vmap gives them.
+
+    ``(tensordict, params) -> tensordict``: the ``E`` Q networks of stacked ``params``
     (``[E]``, the layout of ``LossModule.convert_to_functional``) on a ``[M]`` batch,
     as TorchRL's ``_vmap_qvalue_networkN0`` gives them (``[E, M]``, the Q-values under the
     network's out key); other batch shapes go to ``fallback``, the vmapped call.
@@ -108,6 +115,11 @@ class EnsembleMLP:
         return cls(list(qvalue_network.in_keys), qvalue_network.out_keys[0], layers, fallback)
 
     def __call__(self, tensordict: TensorDictBase, params: TensorDictBase) -> TensorDictBase:
+        """``Q_k(s, a)`` of every member ``k`` of ``params`` on a ``[M]`` batch.
+
+        Returns a ``[E, M]`` tensordict holding the Q-values (TorchRL's vmapped call for
+        other batch shapes).
+        """
         if tensordict.ndim != 1:
             return self.fallback(tensordict, params)
         inputs = [tensordict.get(key) for key in self.in_keys]

@@ -73,6 +73,7 @@ ONLINE_KEYS: tuple[str, ...] = (
 """Dotted keys that no algorithm's offline stages read (the online phase, the offline
 evaluation, which runs after the snapshot on the possibly shifted env, and bookkeeping)."""
 
+
 def offline_key_config(cfg: DictConfig, extra_online_keys: tuple[str, ...] = ()) -> dict:
     """The resolved config without the online-only keys: what a shared offline phase comes from.
 

@@ -147,6 +147,7 @@ class Choice(Rule):
 @dataclasses.dataclass(frozen=True)
 class Flag(Rule):
     """A boolean, ``true`` or ``false``."""
+
     def allows(self, value: Any) -> bool:
         """Whether ``value`` is a bool."""
         return isinstance(value, bool)
@@ -159,6 +160,7 @@ class Flag(Rule):
 @dataclasses.dataclass(frozen=True)
 class Text(Rule):
     """A non-empty string."""
+
     def allows(self, value: Any) -> bool:
         """Whether ``value`` is a non-empty string."""
         return isinstance(value, str) and value != ""
