@@ -70,10 +70,10 @@ def require_finite(value: Tensor, what: str, tensordict: TensorDictBase) -> None
         >>> require_finite(td["observation"].sum(), "the loss", td)
         Traceback (most recent call last):
         ...
-        ValueError: the loss is not finite; the batch's 'observation' is not finite at batch index 1: clean the data.
+        ValueError: the loss holds a NaN or inf; the batch's 'observation' is not finite at batch index 1: clean the data.
     """
     if host_reads_allowed() and not bool(torch.isfinite(value).all()):
-        raise ValueError(f"{what} is not finite; {first_non_finite(tensordict)}")
+        raise ValueError(f"{what} holds a NaN or inf; {first_non_finite(tensordict)}")
 
 
 def first_non_finite(tensordict: TensorDictBase) -> str:

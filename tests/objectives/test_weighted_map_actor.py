@@ -498,3 +498,41 @@ def test_a_dropout_critic_ensemble_is_read_in_training_mode_and_its_eval_min_by_
         with member.to_module(qvalue):
             expected.append(qvalue(batch.clone())["state_action_value"].squeeze(-1))
     torch.testing.assert_close(loss_fn.q_value(batch), torch.stack(expected).min(0).values)
+
+
+def test_a_torchrl_probabilistic_actor_is_refused_at_construction_with_the_fix():
+    from torchrl.modules import MLP, ProbabilisticActor
+
+    actor = ProbabilisticActor(
+        TensorDictModule(MLP(in_features=3, out_features=4), ["observation"], ["loc", "scale"]),
+        in_keys=["loc", "scale"],
+        distribution_class=torch.distributions.Normal,
+    )
+    with pytest.raises(TypeError, match="LastLayerActor.*ProbabilisticActor.*from_actor"):
+        WeightedMAPActorLoss(actor, weighting="uniform")
+
+
+def test_a_batch_in_another_dtype_names_both_dtypes():
+    batch = observation_action_batch().apply(lambda t: t.double())
+    with pytest.raises(TypeError, match="torch.float64.*torch.float32"):
+        WeightedMAPActorLoss(linear_head_actor(), weighting="uniform")(batch)
+    out = WeightedMAPActorLoss(linear_head_actor(), weighting="uniform").double()(batch)
+    assert out["loss_actor"].dtype == torch.float64
+
+
+def test_non_finite_advantage_weights_are_refused_with_where_they_come_from():
+    """A NaN observation is named with its index; a critic whose weights diverged is said
+    to have diverged. ``check_finite=False`` turns the check off."""
+    iql = tiny_iql_loss()
+    batch = observation_action_batch()
+    loss_fn = WeightedMAPActorLoss.from_iql(linear_head_actor(), iql)
+    bad = batch.clone()
+    bad["observation"][3, 0] = float("nan")
+    with pytest.raises(ValueError, match=r"advantage weights holds a NaN or inf.*'observation'.*index 3"):
+        loss_fn.advantage_weights(bad)
+    with torch.no_grad():
+        iql.value_network_params.apply_(lambda p: p.fill_(float("nan")))
+    with pytest.raises(ValueError, match="the weights diverged"):
+        loss_fn(batch)
+    loss_fn.check_finite = False
+    assert torch.isnan(loss_fn(batch)["loss_actor"])

@@ -286,7 +286,7 @@ class WeightedMAPActorLoss(LossModule):
         ).squeeze(-1)
         weights = torch.exp(self.temperature * (q - v)).clamp_max(self.max_weight)
         if self.check_finite:
-            require_finite(weights, "WeightedMAPActorLoss's advantage weights", tensordict)
+            require_finite(weights, "one of WeightedMAPActorLoss's advantage weights", tensordict)
         return weights
 
     # ------------------------------------------------------------------ loss
