@@ -169,7 +169,8 @@ def test_dual_on_the_calql_critic_runs_resumes_and_saves_each_weight_once(tmp_pa
     actor_ptrs = {t.data_ptr() for t in TensorDict.from_module(learner.actor).values(True, True)}
     loss_params = learner.critic.loss.actor_network_params.values(True, True)
     assert actor_ptrs == {t.data_ptr() for t in loss_params}  # weights and buffers
-    assert learner.actor_loss.weighting == "sac" and learner.actor_loss.value_network is None
+    eq7 = learner.loss.actor_objective
+    assert eq7.weighting == "sac" and eq7.value_network is None
     online = finished.replay.online_buffer[:]
     assert (finished.frames, len(online)) == (100, 90)
     expected = monte_carlo_returns(online, finished.cfg.critic.discount)

@@ -32,9 +32,8 @@ def test_data_and_online_env_carry_the_transform_and_the_score_does_not(tmp_path
         assert torch.all(env.rollout(5)["next", "reward"] == expected)  # far from the goal
 
 
-def test_the_identity_keeps_the_offline_cache_key_of_before(tmp_path):
-    cfg = compose(tmp_path)
-    key = offline_key_config(cfg)
-    assert "reward_scale" not in key["env"] and "reward_shift" not in key["env"]
+def test_the_reward_transform_is_part_of_the_offline_cache_key(tmp_path):
+    key = offline_key_config(compose(tmp_path))
+    assert (key["env"]["reward_scale"], key["env"]["reward_shift"]) == (1.0, 0.0)
     other = offline_key_config(compose(tmp_path, "env.reward_shift=-1"))
-    assert other["env"]["reward_shift"] == -1.0
+    assert other["env"]["reward_shift"] == -1.0 and other != key

@@ -95,10 +95,11 @@ def test_dual_on_so2_critic_with_balanced_replay(tmp_path):
     assert _adam_steps(state["critic_optimizer"]) == 10 + 20 * 3
     assert _adam_steps(state["actor_optimizer"]) == 10 + 20
     assert result.cfg.actor.weighting == "sac"  # the critic's preset
-    assert result.learner.actor_loss.weighting == "sac"
+    eq7 = result.learner.loss.actor_objective
+    assert eq7.weighting == "sac"
     # one α for the targets and the actor, and the actor's Q read inside the action box
-    assert result.learner.actor_loss.entropy_coef == result.cfg.critic.entropy_coef
-    assert result.learner.actor_loss.action_box.high.tolist() == [1.0, 1.0]
+    assert eq7.entropy_coef == result.cfg.critic.entropy_coef
+    assert eq7.action_box.high.tolist() == [1.0, 1.0]
     # the critic's targets sample DUAL's own actor (N(mu, sigma-bar^2)), saved once
     assert not any(k.startswith("actor_network") for k in state["critic"])
 
