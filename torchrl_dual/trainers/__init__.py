@@ -3,7 +3,7 @@
 Hooks any TorchRL trainer accepts (:class:`OfflineStagesHook`, :class:`LaplaceRefitHook`,
 the logging hooks :class:`DUALSignalsLogHook` and :class:`NormalizedScoreLogHook`)
 and the critic-then-actor optimization step DUAL's two optimizers need
-(:class:`CriticActorStepper`), and :class:`DUALTrainer`, which wires them into one
+(:class:`CriticActorStepper`, for any :class:`CriticActorLoss`), and :class:`DUALTrainer`, which wires them into one
 TorchRL trainer. TorchRL marks its trainer APIs experimental; the one
 work-arounds they need are :func:`register_before_weight_update` and
 :func:`dual_collector`.
@@ -18,9 +18,10 @@ from torchrl_dual.trainers.hooks import (
     register_before_weight_update,
 )
 from torchrl_dual.trainers.logging_hooks import DUALSignalsLogHook, NormalizedScoreLogHook
-from torchrl_dual.trainers.stepper import CriticActorStepper
+from torchrl_dual.trainers.stepper import CriticActorLoss, CriticActorStepper
 
 __all__ = [
+    "CriticActorLoss",
     "CriticActorStepper",
     "DUALSignalsLogHook",
     "DUALTrainer",

@@ -5,7 +5,8 @@ target-network update, then one actor step on the same batch, which reads the cr
 just updated (Algorithm 1, lines 7-8 offline and 15-16 online). TorchRL's
 :class:`~torchrl.trainers.DefaultOptimizationStepper` steps one optimizer on the sum of a
 loss's ``loss_*`` entries; an :class:`~torchrl.trainers.OptimizationStepper` owns its
-optimizers and can keep Alg. 1's order. This is the one place the package writes it.
+optimizers and can keep Alg. 1's order. This is the one place the package writes it: the
+recipe's DUAL, Diff-QL (and DACER) and SO2 learners step their updates with it.
 
 Nothing here reads a device value back to the host: the returned losses are detached
 tensors (the trainer averages and logs them), so on a GPU the update queues without a
@@ -14,30 +15,46 @@ synchronisation.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Protocol
 
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.trainers import OptimizationStepper
 
-from torchrl_dual.objectives import DUALLoss
+__all__ = ["CriticActorLoss", "CriticActorStepper"]
 
-__all__ = ["CriticActorStepper"]
+
+class CriticActorLoss(Protocol):
+    """What :class:`CriticActorStepper` steps: a critic's terms and an actor's loss.
+
+    :class:`~torchrl_dual.objectives.DUALLoss` is one; the recipe's Diff-QL and SO2
+    learners are others (their actor losses are Diff-QL's and SAC's).
+    """
+
+    def critic_loss(self, tensordict: TensorDictBase) -> tuple[dict[str, Any], dict[str, Any]]:
+        """The critic's terms (summed into one backward pass) and metrics of a ``[B]`` batch."""
+
+    def actor_loss(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, dict[str, Any]]:
+        """The actor's loss and metrics of a ``[B]`` batch, on the critic just stepped."""
 
 
 class CriticActorStepper(OptimizationStepper):
     """One critic step, the target update, then one actor step on the same batch.
 
     Args:
-        loss (DUALLoss): the update's terms (:meth:`~torchrl_dual.objectives.DUALLoss.critic_loss`,
+        loss (CriticActorLoss): the update's terms, e.g. a
+            :class:`~torchrl_dual.objectives.DUALLoss`
+            (:meth:`~torchrl_dual.objectives.DUALLoss.critic_loss`,
             :meth:`~torchrl_dual.objectives.DUALLoss.actor_loss`).
-        critic_optimizer: steps ``loss.critic_parameters()``.
-        actor_optimizer: steps ``loss.actor_parameters()``.
+        critic_optimizer: steps the critic's parameters (``loss.critic_parameters()``).
+        actor_optimizer: steps the actor's parameters (``loss.actor_parameters()``).
 
     Keyword Args:
         target_update: a TorchRL target updater (``SoftUpdate(loss, tau=...)``), stepped
             after each critic step; none by default.
-        max_grad_norm (float, optional): a gradient-norm clip applied to both steps.
+        critic_max_grad_norm (float, optional): a gradient-norm clip of the critic step.
+        actor_max_grad_norm (float, optional): a gradient-norm clip of the actor step
+            (Diff-QL's).
 
     A batch stacked ``[k, B]`` (SO2's online phase) gets one critic step per ``[B]``
     batch, then the actor step on the last. Both optimizers and the target updater are in
@@ -75,25 +92,30 @@ class CriticActorStepper(OptimizationStepper):
 
     def __init__(
         self,
-        loss: DUALLoss,
+        loss: CriticActorLoss,
         critic_optimizer: torch.optim.Optimizer,
         actor_optimizer: torch.optim.Optimizer,
         *,
         target_update: Any | None = None,
-        max_grad_norm: float | None = None,
+        critic_max_grad_norm: float | None = None,
+        actor_max_grad_norm: float | None = None,
     ) -> None:
         self.loss = loss
         self.critic_optimizer = critic_optimizer
         self.actor_optimizer = actor_optimizer
         self.target_update = target_update
-        self.max_grad_norm = max_grad_norm
+        self.critic_max_grad_norm = critic_max_grad_norm
+        self.actor_max_grad_norm = actor_max_grad_norm
 
-    def _apply(self, optimizer: torch.optim.Optimizer, loss: torch.Tensor) -> None:
+    @staticmethod
+    def _apply(
+        optimizer: torch.optim.Optimizer, loss: torch.Tensor, max_grad_norm: float | None
+    ) -> None:
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
-        if self.max_grad_norm is not None:
+        if max_grad_norm is not None:
             params = [p for group in optimizer.param_groups for p in group["params"]]
-            torch.nn.utils.clip_grad_norm_(params, self.max_grad_norm)
+            torch.nn.utils.clip_grad_norm_(params, max_grad_norm)
         optimizer.step()
 
     def update(self, batch: TensorDictBase) -> TensorDictBase:
@@ -103,13 +125,13 @@ class CriticActorStepper(OptimizationStepper):
         stacked batch).
         """
         for one in batch.unbind(0) if batch.ndim > 1 else (batch,):
-            critic, _ = self.loss.critic_loss(one)
-            self._apply(self.critic_optimizer, sum(critic.values()))
+            critic, critic_metrics = self.loss.critic_loss(one)
+            self._apply(self.critic_optimizer, sum(critic.values()), self.critic_max_grad_norm)
             if self.target_update is not None:
                 self.target_update.step()
         actor, metrics = self.loss.actor_loss(one)
-        self._apply(self.actor_optimizer, actor)
-        return TensorDict({**critic, "loss_actor": actor, **metrics}).detach()
+        self._apply(self.actor_optimizer, actor, self.actor_max_grad_norm)
+        return TensorDict({**critic, **critic_metrics, "loss_actor": actor, **metrics}).detach()
 
     def step(self, trainer: Any, sub_batch: TensorDictBase) -> TensorDictBase:
         """The :class:`~torchrl.trainers.OptimizationStepper` entry point."""

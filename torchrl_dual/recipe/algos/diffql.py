@@ -62,6 +62,7 @@ from torchrl_dual.recipe.parts.critics import make_critic
 from torchrl_dual.recipe.parts.laplace_refits import LaplaceRefits
 from torchrl_dual.recipe.settings.baselines import DiffQLActorSettings
 from torchrl_dual.recipe.settings.rules import as_settings
+from torchrl_dual.trainers.stepper import CriticActorStepper
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {"silu": nn.SiLU, "mish": nn.Mish}
 """``actor.activation`` -> its module (the names are
@@ -138,10 +139,17 @@ class DiffQLLearner(Learner):
         self.actor = make_diffusion_actor(s, obs_dim, action_dim, cfg.device)
         self.critic = make_critic(cfg, obs_dim, action_dim)
         self.box = ActionBox(spec.space.low, spec.space.high).to(cfg.device)
-        self.actor_loss = DiffQLActorLoss.from_iql(
+        self.actor_objective = DiffQLActorLoss.from_iql(
             self.actor, self.critic.loss, self.box, eta=s.eta
         )
         self.actor_optimizer = adam(self.actor.parameters(), lr=s.lr)
+        self.stepper = CriticActorStepper(
+            self,
+            self.critic.optimizer,
+            self.actor_optimizer,
+            target_update=self.critic.target_updater,
+            actor_max_grad_norm=s.max_grad_norm,
+        )
         self.clamp = TensorDictModule(self.box, in_keys=["action"], out_keys=["action"])
         self.evaluation_policy = TensorDictSequential(self.actor, self.clamp)
         self.exploration_policy = self.projected(self.evaluation_policy)
@@ -162,18 +170,20 @@ class DiffQLLearner(Learner):
         """One offline stage: ``budget.offline_updates`` actor-critic updates on D_offline."""
         return [("actor_critic", self.run.pretrain_updates)]
 
+    def critic_loss(self, batch: TensorDictBase) -> tuple[dict, dict]:
+        """The IQL critic's terms (TD to ``r + γ V(s')`` and the expectile V loss)."""
+        return self.critic.loss.critic_terms(batch), {}
+
+    def actor_loss(self, batch: TensorDictBase) -> tuple[torch.Tensor, dict]:
+        """``L_bc + η · loss_q`` and its two terms (logged as ``loss_bc``, ``loss_q``)."""
+        out = self.actor_objective(batch)
+        return out["loss_actor"], {
+            "q_pi": out["q_pi"], "loss_bc": out["bc_term"], "loss_q": out["q_term"]
+        }  # fmt: skip
+
     def update(self, batch: TensorDictBase) -> dict:
-        """One IQL critic step, then one actor step on ``L_bc + η · loss_q``."""
-        critic = self.critic.step(batch)
-        losses = self.actor_loss(batch)
-        self.actor_optimizer.zero_grad(set_to_none=True)
-        losses["loss_actor"].backward()
-        nn.utils.clip_grad_norm_(self.actor.parameters(), self.settings.max_grad_norm)
-        self.actor_optimizer.step()
-        metrics = {**critic, **losses}
-        # logged under the names the recipe's logs have always had
-        metrics["loss_bc"], metrics["loss_q"] = metrics.pop("bc_term"), metrics.pop("q_term")
-        return {k: v.detach() for k, v in metrics.items()}
+        """One IQL critic step, then one actor step on ``L_bc + η · loss_q`` (clipped)."""
+        return dict(self.stepper.update(batch).items())
 
 
 class DiffQLLALearner(LaplaceRefits, DiffQLLearner):

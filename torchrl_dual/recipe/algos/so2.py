@@ -31,6 +31,7 @@ from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.parts.critics import make_critic
 from torchrl_dual.recipe.settings.baselines import MLPActorSettings
 from torchrl_dual.recipe.settings.rules import as_settings
+from torchrl_dual.trainers.stepper import CriticActorStepper
 
 
 class SO2Learner(Learner):
@@ -53,6 +54,10 @@ class SO2Learner(Learner):
         self.online_batches_per_update = self.critic.online_steps_per_update
         self.actor_optimizer = adam(self.actor.parameters(), lr=s.lr)
         self.alpha = cfg.critic.entropy_coef
+        self.stepper = CriticActorStepper(
+            self, self.critic.optimizer, self.actor_optimizer,
+            target_update=self.critic.target_updater,
+        )  # fmt: skip
         self.evaluation_policy = self.actor
         self.exploration_policy = projected_policy(cfg, self.actor)
 
@@ -68,31 +73,27 @@ class SO2Learner(Learner):
         """One offline stage: ``budget.offline_updates`` SAC-N updates on D_offline."""
         return [("actor_critic", self.run.pretrain_updates)]
 
-    def actor_loss(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
+    def critic_loss(self, batch: TensorDictBase) -> tuple[dict, dict]:
+        """The ensemble's TD terms (SAC-N offline, SO2's smoothed targets online)."""
+        return self.critic.loss.critic_terms(batch), {}
+
+    def actor_loss(self, batch: TensorDictBase) -> tuple[torch.Tensor, dict]:
         """SAC's actor loss and the policy's entropy estimate.
 
-        ``(E[α·log π(ã|s) − min_k Q_k(s, ã)], E[−log π(ã|s)])``; ``ã`` is a
-        reparameterised sample; the ensemble's weights are read detached.
+        ``E[α·log π(ã|s) − min_k Q_k(s, ã)]`` and ``{"entropy": E[−log π(ã|s)]}``;
+        ``ã`` is a reparameterised sample; the ensemble's weights are read detached.
         """
         observation = batch["observation"]
         dist = self.actor.get_dist(batch.select("observation"))
         action = dist.rsample()
         log_prob = dist.log_prob(action)
         q = self.critic.loss.q_value(observation, action)
-        return (self.alpha * log_prob - q).mean(), -log_prob.mean().detach()
+        return (self.alpha * log_prob - q).mean(), {"entropy": -log_prob.mean().detach()}
 
     def update(self, batch: TensorDictBase) -> dict:
         """Critic steps, one per batch of a stacked ``[k, B]``, then an actor step on the last."""
-        critic = self.critic.step(batch, online=self.run.frames > 0)
-        actor_loss, entropy = self.actor_loss(batch[-1] if batch.ndim > 1 else batch)
-        self.actor_optimizer.zero_grad(set_to_none=True)
-        actor_loss.backward()
-        self.actor_optimizer.step()
-        return {
-            **{k: v.detach() for k, v in critic.items()},
-            "loss_actor": actor_loss.detach(),
-            "entropy": entropy.detach(),
-        }
+        self.critic.set_phase(online=self.run.frames > 0)
+        return dict(self.stepper.update(batch).items())
 
 
 def run_so2(cfg: DictConfig) -> O2ORun:

@@ -16,7 +16,6 @@ from typing import Any
 
 import torch
 from omegaconf import DictConfig
-from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.data import TensorSpec
@@ -93,30 +92,6 @@ class Critic:
             "critic": _CriticState(self.loss, keep_actor=self.saves_actor),
             "critic_optimizer": self.optimizer,
         }
-
-    def step(self, batch: TensorDictBase, *, online: bool = False) -> dict[str, torch.Tensor]:
-        """The critic updates of the Diff-QL and SO2 baselines; returns the last step's terms.
-
-        Per batch (``[B]``, or each of a stacked ``[k, B]``), one gradient step on
-        the sum of the loss's ``critic_terms`` (IQL: TD to ``r + γ V(s')`` plus the
-        expectile V loss; SO2: the ensemble's TD), then the soft update of the
-        target Q networks. ``online`` selects the critic's online settings (SO2's
-        smoothed, per-member targets). The terms are returned detached.
-
-        DUAL's update is :class:`~torchrl_dual.trainers.CriticActorStepper` on a
-        :class:`~torchrl_dual.objectives.DUALLoss`; the IQL and Cal-QL baselines sum the
-        actor loss into the critic's backward pass (e.g.
-        :meth:`~torchrl_dual.recipe.IQLLearner.update`).
-        """
-        self.set_phase(online)
-        terms: dict[str, torch.Tensor] = {}
-        for one in batch.unbind(0) if batch.ndim > 1 else (batch,):
-            terms = self.loss.critic_terms(one)
-            self.optimizer.zero_grad(set_to_none=True)
-            sum(terms.values()).backward()
-            self.optimizer.step()
-            self.target_updater.step()
-        return {name: term.detach() for name, term in terms.items()}
 
     def set_phase(self, online: bool) -> None:
         """The critic's offline or online settings (SO2's; the other critics have one)."""
