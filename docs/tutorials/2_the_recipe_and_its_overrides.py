@@ -13,7 +13,8 @@ is a Hydra program::
 and a library: :func:`~torchrl_dual.recipe.compose_checked` composes and validates the
 same config from the same overrides, :func:`~torchrl_dual.recipe.run` runs it. This
 tutorial runs DUAL on slippery Frozen-Lake at the ``smoke`` budget, shrunk further by
-overrides, and plots its learning curve. The :doc:`../recipe` guide lists every key.
+overrides, and plots its learning curve. The :doc:`../recipe` guide explains the run;
+:doc:`../config` lists every key.
 """
 
 # %%

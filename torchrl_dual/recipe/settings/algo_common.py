@@ -77,11 +77,28 @@ class OnlineSettings:
             (Real(0, 1, low_open=True, high_open=True), Choice(("joint",))),
             "must be a number in (0, 1) or 'joint'",
         ),
-        "share of each batch from D_offline; joint: D_offline and D_online as one buffer, "
-        "every transition equally likely (CORL's replay; replay=mixed only)",
+        "share of each update batch drawn from the offline data (TorchRL's "
+        "`OfflineToOnlineReplayBuffer` needs both parts; Cal-QL's is 0.5), or `joint`: "
+        "`D_offline` and `D_online` as one buffer, every transition equally likely, so the "
+        "offline share falls as `D_online` grows (CORL's fine-tuning replay; not "
+        "`algo=diffuser`, which draws its own windows). Read by `replay=mixed` only "
+        "(`replay=balanced` ignores it). `budget=paper` gives `algo=iql` and `dual` `joint`, "
+        "CORL's (`torchrl_dual.recipe.settings.references.BUDGET_SETTINGS`; a value on the "
+        "command line wins); the other budgets and algorithms keep 0.5",
     )
-    utd_ratio: float = key(Real(0), "gradient updates per collected frame")
-    batch_size: int = key(Integer(1), "transitions per update")
+    utd_ratio: float = key(
+        Real(0),
+        "gradient updates per collected frame (fractions carry over between batches). "
+        "`budget=paper` gives `algo=iql` and `dual` CORL's 1, one update per environment step "
+        "(`settings/references.py`); the other budgets are sized for 0.5. With `critic=so2` each "
+        "update is `critic.online_steps_per_update` critic steps, each on its own batch, and one "
+        "actor step (`algo=so2`: 1, SO2's 1 × 10); `algo=diffuser`: `L_VLB` steps on windows",
+    )
+    batch_size: int = key(
+        Integer(1),
+        "transitions per actor-critic update, offline and online (`algo=diffuser` does not read "
+        "it: its planner learns from windows of `planner.batch_size`)",
+    )
 
 
 def check_nothing(cfg: DictConfig) -> None:
@@ -95,7 +112,11 @@ class NoShiftExplorationSettings:
     ``iql_la``, ``diffql_la``.
     """
 
-    shift_weight: float = key(Real(0), "λ of Eq. 10; must be 0 (no transition model)")
+    shift_weight: float = key(
+        Real(0),
+        "`λ` of Eq. 10; must be 0: the actor has no transition model for `ŝ_t` (IQL's actor, "
+        "Diff-QL); shift-aware exploration is DUAL's",
+    )
 
 
 def check_no_shift_weight(cfg: DictConfig) -> None:

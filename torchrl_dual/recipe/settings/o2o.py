@@ -28,18 +28,31 @@ from torchrl_dual.recipe.settings.rules import Choice, Flag, Integer, Maybe, Rea
 class ReplaySettings:
     """``replay/mixed.yaml``: the name only (the offline share is ``online.offline_fraction``)."""
 
-    name: str = key(Text(), "the REPLAYS entry")
+    name: str = key(
+        Text(),
+        "the `REPLAYS` entry, chosen with `replay=<name>` (default `mixed`): where the online "
+        "updates' batches come from (the offline phase samples `D_offline` uniformly). `mixed`: "
+        "TorchRL's `OfflineToOnlineReplayBuffer`, a fixed share `online.offline_fraction` of "
+        "each batch from `D_offline`, the rest from `D_online`; `balanced`: OFF2ON's "
+        "density-ratio priorities over `D_offline ∪ D_online` (`online.offline_fraction` is not "
+        "read); it works with every algorithm, `algo=so2` selects it",
+    )
 
 
 @dataclass
 class BalancedReplaySettings(ReplaySettings):
     """``replay/balanced.yaml``: OFF2ON's density-ratio network and priorities."""
 
-    temperature: float = key(Real(0, low_open=True), "T of the priorities w^(1/T) (OFF2ON: 5)")
-    hidden: int = key(Integer(1), "MLP width of the density-ratio network")
-    depth: int = key(Integer(1), "hidden layers of the density-ratio network")
-    lr: float = key(Real(0, low_open=True), "Adam learning rate of the density-ratio network")
-    ratio_batch_size: int = key(Integer(1), "offline and online transitions (each) per ratio step")
+    temperature: float = key(Real(0, low_open=True), "`T` of the priorities `w^(1/T)` (OFF2ON: 5)")
+    hidden: int = key(Integer(1), "MLP width of the density-ratio network (OFF2ON's)")
+    depth: int = key(Integer(1), "hidden layers of the density-ratio network (OFF2ON's)")
+    lr: float = key(
+        Real(0, low_open=True), "Adam learning rate of the density-ratio network (OFF2ON's)"
+    )
+    ratio_batch_size: int = key(
+        Integer(1),
+        "offline and online transitions (each) per density-ratio network step (OFF2ON: 256)",
+    )
 
 
 class ReplayKind(NamedTuple):
@@ -64,31 +77,77 @@ REPLAYS: dict[str, ReplayKind] = {
 class CollectorSettings:
     """``collector/single.yaml`` (one process, the run's own env); every collector's keys."""
 
-    name: str = key(Text(), "the COLLECTORS entry")
-    device: Any = key(Maybe(Text()), "device of the acting policy (null: the run's device)")
+    name: str = key(
+        Text(),
+        "the `COLLECTORS` entry, chosen with `collector=<name>` (default `single`), who steps "
+        "the online env (the offline phase does not read it): `single`: TorchRL's `Collector` "
+        "in this process; `multi_sync`: `MultiSyncCollector`, `collector.num_workers` "
+        "processes, batches stacked; `multi_async`: `MultiAsyncCollector`, first-come batches; "
+        "`ray`: `RayCollector`, `collector.num_workers` Ray actors (needs "
+        '`pip install "torchrl-dual[ray]"` and `device=cpu`). `critic=calql` takes `single` '
+        "with `collector.num_envs=1` only (its Monte-Carlo labels hold one stream of "
+        "transitions until its episode ends) "
+        "([Parallel collection](recipe.md#parallel-collection-collector))",
+    )
+    device: Any = key(
+        Maybe(Text()),
+        "torch device (`cpu`, `cuda[:N]`) of the acting policy and the collected batches; "
+        "`null`: the run's `device`. `device=cuda collector.device=cpu` updates on the GPU and "
+        "acts on the CPU, the collector acting with its own copy of the policy, refreshed after "
+        "every block of updates "
+        "([Parallel collection](recipe.md#parallel-collection-collector)); `collector=ray` "
+        "takes `null` or `cpu` only (its actors act on the CPUs of the Ray nodes). May change "
+        "on resume",
+    )
 
 
 @dataclass
 class SingleCollectorSettings(CollectorSettings):
     """``collector/single.yaml``: the run's own process, ``num_envs`` envs as one batch."""
 
-    num_envs: int = key(Integer(1), "envs stepped as one batch, one policy call for all")
+    num_envs: int = key(
+        Integer(1),
+        "envs stepped as one batch in this process, the exploration policy acting for all of "
+        "them in one call ([Batched envs](recipe.md#parallel-collection-collector)); "
+        "`budget.frames_per_batch` counts env steps over all envs and must be a multiple of it; "
+        "`1`: the run's env itself (the only value `critic=calql` takes)",
+    )
 
 
 @dataclass
 class MultiCollectorSettings(CollectorSettings):
     """``collector/multi_sync.yaml`` and ``collector/multi_async.yaml``."""
 
-    num_workers: int = key(Integer(1), "worker processes, each stepping its own env")
+    num_workers: int = key(
+        Integer(1),
+        "worker processes, each stepping its own env; `multi_sync` needs "
+        "`budget.frames_per_batch` to be a multiple of it",
+    )
 
 
 @dataclass
 class RayCollectorSettings(CollectorSettings):
     """``collector/ray.yaml`` (:mod:`torchrl_dual.recipe.o2o.ray_collector`)."""
 
-    num_workers: int = key(Integer(1), "remote collectors (Ray actors), each stepping an env")
-    sync: bool = key(Flag(), "true: batches stacked as multi_sync; false: first come")
-    address: Any = key(Maybe(Text()), "the Ray cluster (null: a running one, else local)")
+    num_workers: int = key(
+        Integer(1),
+        "remote collectors (Ray actors of one CPU, on any node of the cluster), each stepping "
+        "its own env with its own copy of the exploration policy; with `sync: true`, "
+        "`budget.frames_per_batch` must be a multiple of it",
+    )
+    sync: bool = key(
+        Flag(),
+        "`true`: each actor collects `budget.frames_per_batch / num_workers` frames and the run "
+        "gets them stacked (as `multi_sync`); `false`: whichever actor's "
+        "`budget.frames_per_batch` frames are ready first (as `multi_async`)",
+    )
+    address: Any = key(
+        Maybe(Text()),
+        "`null`: the cluster in `RAY_ADDRESS`, else the one `ray start` runs on this machine, "
+        "else a new local Ray runtime on this machine's cores; a string: that cluster (`auto`: "
+        "a running one or an error, `<head-ip>:6379`, `ray://<head-ip>:10001`; `local`: always "
+        "a new local runtime)",
+    )
 
 
 def check_worker_count(cfg: DictConfig) -> None:
@@ -229,16 +288,33 @@ WANDB_MODES = ("offline", "online", "disabled")
 class LoggerSettings:
     """``logger/*.yaml``: the keys every backend has."""
 
-    backend: str = key(Text(), "the LOGGERS entry (torchrl.record.loggers.get_logger type)")
+    backend: str = key(
+        Text(),
+        "the TorchRL logger backend (the `LOGGERS` entry, `torchrl.record.loggers.get_logger`'s "
+        "type), chosen with `logger=csv` (default), `logger=tensorboard`, `logger=wandb`, or "
+        "`logger.backend=mlflow` or `trackio`; every backend gets the same scalars under "
+        "`<output_dir>/logs`: `csv` one CSV file per scalar under `logs/<algo>/scalars`, "
+        "`tensorboard` event files under `logs/<algo>` (`tensorboard --logdir "
+        "<output_dir>/logs`), `wandb` the run's files under `logs/wandb`, with the resolved "
+        "config as the W&B run's config. All but `csv` need their package "
+        "(`pip install 'torchrl-dual[tensorboard]'`, `'torchrl-dual[wandb]'`, `mlflow`, "
+        "`trackio`); `resume=true` needs `csv`, `tensorboard` or `wandb` "
+        "([Loggers](recipe.md#loggers))",
+    )
 
 
 @dataclass
 class WandbSettings(LoggerSettings):
     """``logger/wandb.yaml``: where the Weights & Biases run goes (``wandb.init``)."""
 
-    project: str = key(Text(), "W&B project")
-    entity: Any = key(Maybe(Text()), "W&B user or team; null: the account's default")
-    mode: str = key(Choice(WANDB_MODES), "offline: local files only, no account (wandb sync)")
+    project: str = key(Text(), "the W&B project")
+    entity: Any = key(Maybe(Text()), "the W&B user or team; `null`: your account's default entity")
+    mode: str = key(
+        Choice(WANDB_MODES),
+        "`offline`: local files only, no account or network needed, uploaded later by "
+        "`wandb sync <output_dir>/logs/wandb/offline-run-*`; `online`: logs live (needs "
+        "`wandb login`); `disabled`",
+    )
 
 
 @dataclass(frozen=True)

@@ -26,20 +26,53 @@ from torchrl_dual.recipe.settings.rules import Choice, Integer, Maybe, Real, Tex
 class CriticSettings:
     """The ``critic.*`` keys every critic has (its networks, optimizer and targets)."""
 
-    name: str = key(Text(), "the CRITICS entry")
-    hidden: int = key(Integer(1), "MLP width of the critic networks")
-    depth: int = key(Integer(1), "hidden layers of the critic networks")
-    lr: float = key(Real(0, low_open=True), "Adam learning rate of the critic networks")
-    discount: float = key(Real(0, 1, low_open=True), "γ")
-    target_update_tau: float = key(Real(0, 1, low_open=True), "soft target update rate")
-    actor_weighting: str = key(Choice(WEIGHTINGS), "preset of DUAL's actor.weighting")
+    name: str = key(
+        Text(),
+        "the `CRITICS` entry the recipe builds, chosen with `critic=<name>` (default `iql`): "
+        "`iql` (TorchRL `IQLLoss`'s expectile value network and twin Q networks; every "
+        "algorithm but `calql` and `so2` uses it), `calql` (Cal-QL's twin Q networks), `so2` "
+        "(SO2's Q ensemble); `algo=calql` and `algo=so2` select theirs, and DUAL takes each "
+        "(`algo=dual critic=calql`, `algo=dual critic=so2`)",
+    )
+    hidden: int = key(
+        Integer(1),
+        "MLP width of the critic networks: `V` and `Q` (`iql`), `Q` (`calql`), each ensemble "
+        "member (`so2`)",
+    )
+    depth: int = key(
+        Integer(1),
+        "hidden layers of each critic network; `calql`: Cal-QL's 256 × 2, its reference's 4 "
+        "on AntMaze and 3 on Adroit (the [reference presets](recipe.md#env), "
+        "`settings/references.py`); `so2`: SO2's 256 × 2",
+    )
+    lr: float = key(
+        Real(0, low_open=True),
+        "Adam learning rate of the critic networks (`so2`: of the whole ensemble)",
+    )
+    discount: float = key(
+        Real(0, 1, low_open=True), "`γ` of the TD target (`calql`: also of the Monte-Carlo bound)"
+    )
+    target_update_tau: float = key(
+        Real(0, 1, low_open=True),
+        "soft update rate of the target Q networks (`so2`: of the target ensemble)",
+    )
+    actor_weighting: str = key(
+        Choice(WEIGHTINGS),
+        "preset of DUAL's `actor.weighting` on this critic: `advantage` for `iql` (Eq. 7's "
+        "`exp(β (Q − V))`), `sac` for `calql` and `so2` (`Q − α log π`: they have no V, so "
+        "`advantage` is refused with them)",
+    )
 
 
 @dataclass
 class IQLCriticSettings(CriticSettings):
     """``critic/iql.yaml``: TorchRL ``IQLLoss`` expectile value network and twin Q networks."""
 
-    expectile: float = key(Real(0, 1, low_open=True, high_open=True), "IQL expectile τ")
+    expectile: float = key(
+        Real(0, 1, low_open=True, high_open=True),
+        "IQL expectile `τ`: the env family's preset `env.critic_expectile` (CORL's IQL: 0.7 on "
+        "maze2d and locomotion, 0.9 on AntMaze, 0.8 on Adroit)",
+    )
 
 
 BELLMAN_LOSSES = ("l2", "smooth_l1")
@@ -55,20 +88,42 @@ class CalQLCriticSettings(CriticSettings):
     ``discount`` is also the bound's.
     """
 
-    min_q_weight: float = key(Real(0), "weight of the conservative penalty")
-    num_random: int = key(Integer(1), "uniform and policy actions per state in the penalty")
+    min_q_weight: float = key(
+        Real(0),
+        "weight of the conservative penalty (Cal-QL's `cql_min_q_weight`: 5, 1 on Adroit, the "
+        "[reference presets](recipe.md#env)); with `lagrange_gap` the multiplier's initial "
+        "value is `exp(1)` instead and this key is unused",
+    )
+    num_random: int = key(
+        Integer(1), "uniform and policy actions per state in the penalty (Cal-QL: 10)"
+    )
     temperature: float = key(Real(0, low_open=True), "temperature of the penalty's logsumexp")
-    penalty_layout: str = key(Choice(PENALTY_LAYOUTS), "logsumexp grouping (CalQLLoss)")
+    penalty_layout: str = key(
+        Choice(PENALTY_LAYOUTS),
+        "grouping of the penalty's logsumexp: `calql`, the reference code's; `torchrl`, "
+        "`CQLLoss`'s",
+    )
     sparse_failure_reward: Any = key(
-        Maybe(Real()), "r_fail of Cal-QL's sparse-reward bound r_fail / (1 - γ); null: off"
+        Maybe(Real()),
+        "`r_fail` of Cal-QL's sparse-reward bound: an episode that never left it is worth "
+        "`r_fail / (1 − γ)` (AntMaze with rewards `10 r − 5`: `-5`, the "
+        "[reference preset](recipe.md#env)); `null`: off",
     )
     lagrange_gap: Any = key(
         Maybe(Real()),
-        "target gap τ of the penalty's Lagrange multiplier (Cal-QL AntMaze: 0.8); null: a fixed weight",
+        "`τ` of Cal-QL's Lagrange form (`cql_lagrange`, `cql_target_action_gap`; AntMaze: 0.8, "
+        "the [reference preset](recipe.md#env)): the penalty weight becomes a learned "
+        "`α' = exp(log α')` (clamped to [0, 10⁶]) that rises while the policy-minus-data Q gap "
+        "exceeds `τ` and falls below it; `log α'` joins the critic's optimizer and "
+        "`loss_alpha_prime` the update (`CalQLLoss(with_lagrange=True, lagrange_thresh=τ)`). "
+        "`null`: the fixed weight `min_q_weight`",
     )
     bellman_loss: str = key(
         Choice(BELLMAN_LOSSES),
-        "loss of each Q network's TD error: l2 (the references') or smooth_l1 (CQLLoss's default)",
+        "the loss of each Q network's TD error: `l2`, the squared error of the Cal-QL, CQL, "
+        "CORL and d3rlpy code, or `smooth_l1`, TorchRL `CQLLoss`'s default, whose gradient is "
+        "capped at 1 per transition (with AntMaze's rewards `10 r − 5` the Q-values reach 500 "
+        "in magnitude and the Q networks then learn far slower)",
     )
 
 
@@ -81,13 +136,31 @@ class SO2CriticSettings(CriticSettings):
     noise-smoothed next action, ``online_steps_per_update`` critic steps per update.
     """
 
-    num_qvalue_nets: int = key(Integer(1), "ensemble size E (SO2: 10)")
-    policy_noise: float = key(Real(0), "σ of the target action's smoothing noise (online)")
-    noise_clip: float = key(Real(0), "c: the smoothing noise is clipped to [-c, c]")
-    target_reduction: str = key(Choice(TARGET_REDUCTIONS), "online targets per member or reduced")
-    offline_target_reduction: str = key(Choice(TARGET_REDUCTIONS), "offline (SAC-N: min)")
-    entropy_coef: float = key(Real(0), "α of the targets' and the SAC actor's entropy term")
-    online_steps_per_update: int = key(Integer(1), "critic steps per update online (SO2: 10)")
+    num_qvalue_nets: int = key(Integer(1), "ensemble size `E` (SO2: 10; 50 on Hopper)")
+    policy_noise: float = key(
+        Real(0), "`σ` of the Gaussian smoothing noise on the online target action (SO2: 0.3)"
+    )
+    noise_clip: float = key(Real(0), "`c`: the smoothing noise is clipped to `[-c, c]` (SO2: 0.6)")
+    target_reduction: str = key(
+        Choice(TARGET_REDUCTIONS),
+        "online targets: `independent` (each member regresses on its own, SO2's code), or the "
+        "ensemble's `min` or `mean`",
+    )
+    offline_target_reduction: str = key(
+        Choice(TARGET_REDUCTIONS),
+        "offline targets, as `target_reduction` (SAC-N: `min`, the ensemble's minimum at the "
+        "actor's unperturbed next action)",
+    )
+    entropy_coef: float = key(
+        Real(0),
+        "`α` of the targets' entropy term `− α log π` at the next action, of the SO2 baseline's "
+        "SAC actor loss and of DUAL's `sac` weighting on this critic (SO2: a fixed 0.2)",
+    )
+    online_steps_per_update: int = key(
+        Integer(1),
+        "critic steps (each on its own batch) per actor step online; × `online.utd_ratio` = "
+        "critic updates per frame (SO2: 10 × 1)",
+    )
 
 
 POLICY_CRITICS = ("calql", "so2")
@@ -125,15 +198,45 @@ AUGMENT_KINDS = ("none", "planner")
 class AugmentSettings:
     """``augment``: planner data augmentation (EDIS, Algorithm 1 line 14)."""
 
-    kind: str = key(Choice(AUGMENT_KINDS), "none | planner (guided planner transitions)")
-    every: int = key(Integer(1), "online updates between augmentation rounds")
-    num_windows: int = key(Integer(1), "windows generated per round (H transitions each)")
-    guidance_scale: float = key(Real(0), "scale of the classifier guidance; 0 = unguided")
-    guider_updates: int = key(Integer(0), "classifier updates per round")
-    reward_updates: int = key(Integer(0), "reward-model updates per round")
-    hidden: int = key(Integer(1), "width of the classifier and the reward model")
-    lr: float = key(Real(0, low_open=True), "Adam learning rate of both")
-    batch_size: int = key(Integer(1), "offline and online windows (transitions) per update")
+    kind: str = key(
+        Choice(AUGMENT_KINDS),
+        "`none`, or `planner`: guided planner transitions are added to the online replay "
+        "buffer every `every` online updates (needs `planner.num_steps` ≥ 2). With `algo=dual`, "
+        "`planner` is DUAL + EDIS (guiding DUAL's trained teacher); `algo=edis` requires "
+        "`planner` (IQL alone is `algo=iql`); `critic=calql` refuses `planner`. What a round "
+        "does: "
+        "[EDIS](recipe.md#edis-baseline-and-planner-augmentation-algoedis-augmentkindplanner)",
+    )
+    every: int = key(
+        Integer(1),
+        "online updates between augmentation rounds (Algorithm 1's update frequency, which also "
+        "paces the Laplace refits); must not exceed the online phase's "
+        "`online.utd_ratio × budget.online_frames` updates",
+    )
+    num_windows: int = key(
+        Integer(1),
+        "guided windows generated per round, `H` transitions each (250 × 8 = the 2000 frames "
+        "collected between two rounds at the default budget)",
+    )
+    guidance_scale: float = key(
+        Real(0),
+        "`s` of the classifier guidance's mean shift `s·Σ·∇ log-ratio` at each DDPM step; `0` "
+        "samples the unguided planner",
+    )
+    guider_updates: int = key(
+        Integer(0),
+        "updates of the energy guider (a classifier of noisy offline vs online windows) per round",
+    )
+    reward_updates: int = key(
+        Integer(0), "updates of the reward model that labels the generated transitions, per round"
+    )
+    hidden: int = key(Integer(1), "width of the energy guider and the reward model")
+    lr: float = key(Real(0, low_open=True), "Adam learning rate of the guider and reward model")
+    batch_size: int = key(
+        Integer(1),
+        "offline windows and as many online windows per guider update; transitions per "
+        "reward-model update, as many from each",
+    )
 
 
 def online_updates(cfg: DictConfig) -> int:

@@ -50,20 +50,61 @@ from torchrl_dual.recipe.settings.rules import (
 class RunSettings:
     """``config.yaml``'s own keys (the groups are checked by their own schemas)."""
 
-    algo: str = key(Text(), "the ALGORITHMS entry (looked up when validate_config runs)")
-    seed: int = key(Integer(0, 2**32 - 1), "seeds torch, numpy, python, data and envs")
-    device: str = key(Text(), "torch device of networks and updates")
-    num_threads: int = key(Integer(1), "torch.set_num_threads")
-    output_dir: str = key(Text(), "metrics, plot, checkpoint")
-    resume: bool = key(Flag(), "continue the run in output_dir")
-    interrupt_at_frames: Any = key(Maybe(Integer(0)), "test aid: stop after this many frames")
-    interrupt_at_offline_updates: Any = key(
-        Maybe(Integer(1)), "test aid: stop after this many offline updates"
+    algo: str = key(
+        Text(),
+        "the algorithm (the `ALGORITHMS` entry, looked up when `validate_config` runs), chosen "
+        "with `algo=<name>` (default `dual`), and its settings, from `algo/<name>.yaml`: `dual` "
+        "or a baseline, `iql`, `iql_la`, `diffql`, `diffql_la`, `diffuser`, `dacer`, `edis`, "
+        "`calql`, `so2` ([Algorithms](recipe.md#algorithms-critics-and-env-kits))",
     )
-    progress: bool = key(Flag(), "tqdm progress bars")
-    data_cache_dir: Any = key(Maybe(Text()), "where generated offline data is cached")
-    offline_cache: Any = key(Maybe(Text()), "where shared offline phases are stored")
-    debug: bool = key(Flag(), "print tracebacks of user errors")
+    seed: int = key(
+        Integer(0, 2**32 - 1), "seeds torch, NumPy, Python, data generation and the envs"
+    )
+    device: str = key(
+        Text(),
+        "torch device of the networks and updates (`cuda` on a GPU), and of the acting policy "
+        "unless `collector.device` says otherwise; data generation and envs run on the CPU",
+    )
+    num_threads: int = key(Integer(1), "`torch.set_num_threads` for the CPU")
+    output_dir: str = key(
+        Text(), "where the run writes its metrics, plot, checkpoint and Hydra's `.hydra/`"
+    )
+    resume: bool = key(
+        Flag(),
+        "continue the run in `output_dir` from its checkpoint "
+        "([Checkpoint and resume](recipe.md#checkpoint-and-resume))",
+    )
+    interrupt_at_frames: Any = key(
+        Maybe(Integer(0)),
+        "test aid: after this many online frames, save and stop as Ctrl-C would (`null`: never)",
+    )
+    interrupt_at_offline_updates: Any = key(
+        Maybe(Integer(1)),
+        "test aid: after this many offline updates (the planner's, distillation's and "
+        "actor-critic updates, all stages' loops counted together), save within the stage and "
+        "stop as Ctrl-C would (`null`: never)",
+    )
+    progress: bool = key(
+        Flag(),
+        "tqdm progress bars; with `false` (the learning suite's runs, a log file) the run prints "
+        "a line when each stage starts and ends and every 10 % of the actor-critic updates",
+    )
+    data_cache_dir: Any = key(
+        Maybe(Text()),
+        "where generated offline data sets are cached; `null`: `$TORCHRL_DUAL_CACHE`, else "
+        "`~/.cache/torchrl_dual`",
+    )
+    offline_cache: Any = key(
+        Maybe(Text()),
+        "a directory where runs differing only in online keys share their offline phase (the "
+        "first saves it, the later ones load it); `null`: never shared "
+        "([Shared offline phases](recipe.md#shared-offline-phases-offline_cache))",
+    )
+    debug: bool = key(
+        Flag(),
+        "print the traceback of a user error before its `error:` line (as `HYDRA_FULL_ERROR=1` "
+        "does)",
+    )
 
 
 COMPILE_MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
@@ -74,30 +115,92 @@ COMPILE_MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-
 class CompileSettings:
     """``config.yaml``'s ``compile``: TorchRL sota-implementations' keys."""
 
-    compile: bool = key(Flag(), "torch.compile each gradient update of the learner")
-    compile_mode: Any = key(Maybe(Choice(COMPILE_MODES)), "torch.compile mode (null: default)")
-    cudagraphs: bool = key(Flag(), "capture each update as a CUDA graph (CudaGraphModule)")
+    compile: bool = key(
+        Flag(),
+        "`torch.compile` each gradient update of the learner (TorchRL sota-implementations' "
+        "key), on any device: the losses trace whole, the backward passes and optimizer steps "
+        "are their own graphs; the same losses and weights as eager to float tolerance "
+        "(`tests/recipe/test_compile_recipe.py`). Worth it on a GPU "
+        "([benchmarks](benchmarks.md#dual-on-a-gpu): 2x on an H200); not on the CPU (0.85x "
+        "eager). May change on resume",
+    )
+    compile_mode: Any = key(
+        Maybe(Choice(COMPILE_MODES)), "`torch.compile`'s mode; `null`: `default`"
+    )
+    cudagraphs: bool = key(
+        Flag(),
+        "`device=cuda` only: each update captured once per phase (offline, online) and batch "
+        "shape by tensordict's `CudaGraphModule` and replayed with each new batch (the "
+        "library's update composition: 32x eager on an H200, "
+        "[benchmarks](benchmarks.md#dual-on-a-gpu)); the optimizers are made `capturable`. "
+        "Refused for `diffuser` and `dacer`, whose updates do what a replay cannot (sample "
+        "their own windows; a Python schedule); `tests/recipe/test_graph_safe_updates.py` "
+        "checks on the CPU that every other update is graph-safe (the same kernels every call, "
+        "no Python state, reads its batch). The acting policy is not captured. Not yet run on "
+        "a GPU in the recipe (`benchmarks/speed/gpu_check.sh` is the prepared check). May "
+        "change on resume",
+    )
 
 
 @dataclass
 class BudgetSettings:
     """``budget/*.yaml``: how much data, computation and evaluation a run gets."""
 
-    name: str = key(Text(), "used in output_dir")
-    dataset_transitions: int = key(Integer(1), "offline transitions generated")
-    network_width: int = key(Integer(1), "hidden width of the planner and critic networks")
-    batch_size: int = key(Integer(1), "windows or transitions per gradient update")
+    name: str = key(
+        Text(),
+        "the budget, chosen with `budget=<name>` (default `default`): `smoke` runs every step "
+        "in well under a minute with small networks to check the plumbing (the tests use it; "
+        "its numbers mean nothing), `default` is sized for about 10 minutes of one CPU core for "
+        "DUAL on PointMaze U-maze (measured times in [results.md](results.md)), its split (few "
+        "planner and distillation updates, many actor-critic updates) chosen by measurement, "
+        "`paper` is the paper's scale (Appendix A, CORL settings: 1M offline and 1M online "
+        "steps; use a GPU). Used in `output_dir` and the learning suite's results",
+    )
+    dataset_transitions: int = key(
+        Integer(1), "offline transitions generated (cached after the first run: `data_cache_dir`)"
+    )
+    network_width: int = key(
+        Integer(1),
+        "hidden width of the planner's denoiser and of the critics (`planner.hidden` and "
+        "`critic.hidden` read it)",
+    )
+    batch_size: int = key(
+        Integer(1),
+        "windows per planner update and transitions per actor-critic update "
+        "(`planner.batch_size`, `online.batch_size`, `augment.batch_size` and "
+        "`replay.ratio_batch_size` read it)",
+    )
     planner_updates: int = key(Integer(0), "diffusion planner updates")
-    distill_updates: list = key(IntegerList(1), "updates of each halving round")
+    distill_updates: list = key(
+        IntegerList(1),
+        "updates of each halving round of progressive distillation (32→16→8→4→2→1): one entry "
+        "per round, `log2(planner.num_steps / distillation.final_steps)` entries",
+    )
     offline_updates: int = key(Integer(0), "actor + critic updates in the offline phase")
     online_frames: int = key(Integer(0), "environment steps in the online phase")
-    frames_per_batch: int = key(Integer(1), "collector batch between update blocks")
-    laplace_refit_every: int = key(Integer(1), "gradient updates between Laplace refits")
+    frames_per_batch: int = key(
+        Integer(1),
+        "the collector's batch between update blocks, in env steps over all envs: a multiple "
+        "of `collector.num_envs`, and of `collector.num_workers` with `collector=multi_sync` or "
+        "`collector=ray collector.sync=true`",
+    )
+    laplace_refit_every: int = key(
+        Integer(1), "gradient updates between Laplace refits (and `augment.every`'s default)"
+    )
     eval_every: int = key(Integer(1), "online frames between evaluations")
-    eval_episodes: int = key(Integer(1), "episodes per evaluation")
-    checkpoint_every: int = key(Integer(1), "online frames between checkpoints")
+    eval_episodes: int = key(
+        Integer(1),
+        "episodes per evaluation (Frozen-Lake does not read it: it is evaluated exactly)",
+    )
+    checkpoint_every: int = key(
+        Integer(1),
+        "online frames between checkpoints "
+        "([Checkpoint and resume](recipe.md#checkpoint-and-resume))",
+    )
     offline_checkpoint_every: int = key(
-        Integer(1), "offline updates (all stages' loops) between checkpoints within a stage"
+        Integer(1),
+        "offline updates (the planner's, distillation's and actor-critic loops counted together) "
+        "between checkpoints within a stage. May change on resume",
     )
 
 
