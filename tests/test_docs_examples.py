@@ -44,6 +44,23 @@ def test_python_blocks_of_the_page_run(name):
         exec(compile(padded, str(page), "exec"), namespace)  # noqa: S102 - the docs' own code
 
 
+def test_the_other_critics_tutorial_runs(capsys):
+    """The Cal-QL, SO2 and balanced-replay examples (once ``python`` blocks of
+    pipeline.md, now ``docs/tutorials/5_other_critics.py``) run in the test suite too,
+    not only in the docs build, and end with DUALLoss's terms on SO2's ensemble."""
+    import runpy
+
+    import torch
+
+    threads = torch.get_num_threads()
+    try:
+        runpy.run_path(str(DOCS / "tutorials" / "5_other_critics.py"), run_name="tutorial_5")
+    finally:
+        torch.set_num_threads(threads)  # the tutorial pins one thread
+    out = capsys.readouterr().out
+    assert "loss_cql=" in out and "['loss_actor', 'loss_qvalue']" in out
+
+
 def test_the_pipeline_example_is_a_short_script_of_public_names():
     """DUAL on Pendulum end to end (planner, distillation, DUALLoss, ensemble, shift-aware
     noise, collector, replay buffer, refit) in at most 80 lines, importing only names of
