@@ -4,7 +4,7 @@ Most cases compose the config in-process exactly as the command line does
 (:func:`torchrl_dual.recipe.compose_checked`: Hydra composition, then
 :func:`~torchrl_dual.recipe.validate_config`) and check the message; a handful run the
 real command line to check the exit code, stderr and the absence of a traceback.
-docs/recipe.md lists these inputs with their messages.
+docs/recipe.md shows one example of each kind.
 """
 
 from __future__ import annotations
