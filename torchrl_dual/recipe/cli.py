@@ -188,24 +188,37 @@ def compose_checked(config_dir: str | Path, overrides: Sequence[str], config_nam
         initialize_config_dir(str(config_dir), version_base="1.3"),
     ):
         try:
-            base = compose(config_name, [o.input_line for o in groups])
-            known = _dotted_keys(OmegaConf.to_container(base, resolve=False))
-            for override in keys:
-                name = override.key_or_group
-                if override.type == OverrideType.CHANGE and name not in known:
-                    raise unknown_key(name, known, owners=_options_with_key(config_dir, name))
-                if override.type == OverrideType.ADD and name in known:
-                    value = override.get_value_element_as_str()
-                    raise ConfigError(
-                        f"+{name}",
-                        value,
-                        f"{name} exists already; write {name}={value} to change it",
-                    )
             cfg = compose(config_name, [o.input_line for o in parsed])
-        except HydraException as err:
+        except HydraException as err:  # say why in our words, else in Hydra's first line
+            _explain_keys(config_dir, config_name, groups, keys)
             raise ConfigError(None, None, str(err).splitlines()[0]) from err
     OmegaConf.set_struct(cfg, True)
     return validate_config(cfg)
+
+
+def _explain_keys(
+    config_dir: Path, config_name: str, groups: list[Override], keys: list[Override]
+) -> None:
+    """Raises the :class:`ConfigError` of the first key override that Hydra refused.
+
+    An unknown key (with the options of the groups that have it) or a ``+key`` that exists
+    already; returns if the keys are not what failed. Runs only once a composition failed:
+    it composes the groups alone to learn the keys they give.
+    """
+    try:
+        base = compose(config_name, [o.input_line for o in groups])
+    except HydraException:
+        return
+    known = _dotted_keys(OmegaConf.to_container(base, resolve=False))
+    for override in keys:
+        name = override.key_or_group
+        if override.type == OverrideType.CHANGE and name not in known:
+            raise unknown_key(name, known, owners=_options_with_key(config_dir, name))
+        if override.type == OverrideType.ADD and name in known:
+            value = override.get_value_element_as_str()
+            raise ConfigError(
+                f"+{name}", value, f"{name} exists already; write {name}={value} to change it"
+            )
 
 
 @contextlib.contextmanager
