@@ -293,7 +293,8 @@ def _run_attributes(path: Path) -> set[str]:
 
 def test_learners_and_parts_use_the_run_through_its_narrow_context():
     """``recipe/algos`` and ``recipe/parts`` read of the run only what ``RunContext``
-    declares (issue 28: a narrow context instead of the whole run)."""
+    declares (a narrow context instead of the whole run), and its config only typed
+    (``run.settings``, never the raw ``DictConfig``)."""
     from torchrl_dual.recipe.o2o.learner import RunContext
 
     declared = set(RunContext.__annotations__) | {
@@ -304,5 +305,6 @@ def test_learners_and_parts_use_the_run_through_its_narrow_context():
         *(PACKAGE / "recipe" / "parts").glob("*.py"),
     ]
     used = {(path.name, attr) for path in sources for attr in _run_attributes(path)}
-    assert {attr for _, attr in used} >= {"cfg", "data", "env"}  # the reader finds them
+    assert {attr for _, attr in used} >= {"settings", "data", "env"}  # the reader finds them
+    assert "cfg" not in declared
     assert sorted((name, attr) for name, attr in used if attr not in declared) == []

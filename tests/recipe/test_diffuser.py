@@ -88,4 +88,4 @@ def test_updates_lower_l_vlb_and_mix_in_online_windows(tmp_path, cache_dir):
     windows = diffuser.windows()
     assert windows.shape[0] == 32 and diffuser.online_windows is not None
     from_online = (windows["observation"] == 100.0).all(-1).all(-1)
-    assert int(from_online.sum()) == 32 - round(diffuser.cfg.online.offline_fraction * 32)
+    assert int(from_online.sum()) == 32 - round(diffuser.settings.online.offline_fraction * 32)

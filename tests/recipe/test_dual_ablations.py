@@ -135,7 +135,7 @@ def test_latent_uq_builds_the_latent_ensemble_and_fits_no_posterior(tmp_path, ca
         smoke_cfg(tmp_path / "run", cache_dir, "laplace.uq=latent"), DualLearner
     ).learner
     assert isinstance(learner.ensemble, LatentEnsembleActor)
-    assert learner.ensemble.num_samples == learner.cfg.laplace.num_samples
+    assert learner.ensemble.num_samples == learner.settings.laplace.num_samples
     assert not learner.uses_posterior
     learner.fit_laplace()  # a no-op: nothing to fit
     assert "laplace.uq" in DualLearner.online_keys  # the offline phase does not read it

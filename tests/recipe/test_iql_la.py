@@ -132,12 +132,12 @@ def test_sigma_bar_is_the_rms_of_the_iql_actor_s_std_on_the_fit_data(frozenlake)
         scale = learner.actor.module[0](TensorDict(observation=obs, batch_size=[len(obs)]))
     rms = scale["scale"].square().mean(0).sqrt().clamp(1e-3, 2.0)
     torch.testing.assert_close(learner.head_actor.std, rms)
-    frozenlake.cfg.laplace.noise_std = 0.25  # a fixed σ̄ instead
+    frozenlake.settings.laplace.noise_std = 0.25  # a fixed σ̄ instead
     try:
         learner.fit_laplace()
         torch.testing.assert_close(learner.head_actor.std, torch.full((4,), 0.25))
     finally:
-        frozenlake.cfg.laplace.noise_std = "iql"
+        frozenlake.settings.laplace.noise_std = "iql"
         learner.fit_laplace()
 
 

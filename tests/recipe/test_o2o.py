@@ -30,7 +30,7 @@ from torchrl_dual.recipe import (
 from torchrl_dual.recipe.algos.dual import make_actor, make_transition_model
 from torchrl_dual.recipe.kits import build as env_kits
 from torchrl_dual.recipe.parts import networks
-from torchrl_dual.recipe.settings.dual import DualSections
+from torchrl_dual.recipe.settings.schema import RecipeSettings
 
 pytestmark = pytest.mark.long_running(seconds=140)  # starts first under xdist
 ONLINE_FRAMES = 400  # budget/smoke.yaml
@@ -362,7 +362,7 @@ def test_both_transition_models_give_the_policy_a_shift_distance(source, smoke_c
     torch.manual_seed(0)
     teacher = TrajectoryDiffusion(layout, num_steps=1, hidden=32, depth=1)
     teacher.normalizer.fit(torch.randn(64, obs_dim), torch.rand(64, layout.action_dim) * 2 - 1)
-    sections = DualSections.of(cfg)
+    sections = RecipeSettings.of(cfg)
     actor = make_actor(sections.actor, 1, teacher)
     transition = make_transition_model(source, 1, teacher, actor)
     assert transition.frozen == (source == "frozen")

@@ -24,8 +24,6 @@ from torchrl_dual.recipe.o2o.loop import run_o2o
 from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.parts.critics import make_critic
 from torchrl_dual.recipe.parts.mc_labels import MonteCarloLabels
-from torchrl_dual.recipe.settings.baselines import MLPActorSettings
-from torchrl_dual.recipe.settings.rules import as_settings
 
 
 class CalQLLearner(Learner):
@@ -36,17 +34,19 @@ class CalQLLearner(Learner):
 
     def __init__(self, run: RunContext) -> None:
         self.run = run
-        cfg = run.cfg
-        s = as_settings(MLPActorSettings, cfg.actor)
-        self.actor = make_iql_actor(s, run.data.obs_dim, run.env.action_spec, device=cfg.device)
-        self.critic = make_critic(cfg, run.data.obs_dim, run.data.action_dim, actor=self.actor)
+        settings = run.settings
+        s = settings.actor
+        self.actor = make_iql_actor(
+            s, run.data.obs_dim, run.env.action_spec, device=settings.device
+        )
+        self.critic = make_critic(settings, run.data.obs_dim, run.data.action_dim, actor=self.actor)
         self.labels = MonteCarloLabels(run)  # D_offline's bound; D_online's per episode
         loss = self.critic.loss
         self.actor_optimizer = adam(
             [*loss.actor_network_params.values(True, True), loss.log_alpha], lr=s.lr
         )
         self.evaluation_policy = self.actor
-        self.exploration_policy = projected_policy(cfg, self.actor)
+        self.exploration_policy = projected_policy(settings, self.actor)
 
     def modules(self) -> dict:
         """The Cal-QL loss holds the actor, both Q, the target Q networks and ``log α``."""

@@ -69,12 +69,12 @@ class DACERLearner(DiffQLLearner):
 
     def __init__(self, run: RunContext) -> None:
         super().__init__(run)
-        d = self.cfg.dacer
+        d = self.settings.dacer
         target = d.target_entropy
         if target is None:
             target = dacer_target_entropy(run.data.action_dim)
         self.noise = EntropyRegulatedNoise(
-            target, d.noise_scale, d.init_alpha, device=self.cfg.device
+            target, d.noise_scale, d.init_alpha, device=self.settings.device
         )
         self.alpha_optimizer = adam([self.noise.log_alpha], lr=d.alpha_lr)
         # what Ĥ is estimated of: the executed action before the env kit's projection
@@ -103,7 +103,7 @@ class DACERLearner(DiffQLLearner):
         clamped actor, averaged over the states), then one Adam step on ``−log α ·
         (H̄ − Ĥ)``.
         """
-        d = self.cfg.dacer
+        d = self.settings.dacer
         entropy = sampled_entropy(self.noisy_actor, observation, d.num_samples, d.num_components)
         self.alpha_optimizer.zero_grad(set_to_none=True)
         self.noise.alpha_loss(entropy).backward()
@@ -120,7 +120,7 @@ class DACERLearner(DiffQLLearner):
         metrics = super().update(batch)
         if self.run.frames == 0:  # the offline phase: Diff-QL alone
             return metrics
-        d = self.cfg.dacer
+        d = self.settings.dacer
         if self.online_updates % d.entropy_every == 0:
             self.regulate(batch["observation"][: d.num_states])
         self.online_updates += 1

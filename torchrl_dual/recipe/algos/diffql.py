@@ -61,7 +61,6 @@ from torchrl_dual.recipe.o2o.learner import Learner, RunContext
 from torchrl_dual.recipe.parts.critics import make_critic
 from torchrl_dual.recipe.parts.laplace_refits import LaplaceRefits
 from torchrl_dual.recipe.settings.baselines import DiffQLActorSettings
-from torchrl_dual.recipe.settings.rules import as_settings
 from torchrl_dual.trainers.stepper import CriticActorStepper
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {"silu": nn.SiLU, "mish": nn.Mish}
@@ -132,13 +131,13 @@ class DiffQLLearner(Learner):
 
     def __init__(self, run: RunContext) -> None:
         self.run = run
-        cfg = self.cfg = run.cfg
+        settings = self.settings = run.settings
         spec = run.env.action_spec
         obs_dim, action_dim = run.data.obs_dim, run.data.action_dim
-        s = self.settings = as_settings(DiffQLActorSettings, cfg.actor)
-        self.actor = make_diffusion_actor(s, obs_dim, action_dim, cfg.device)
-        self.critic = make_critic(cfg, obs_dim, action_dim)
-        self.box = ActionBox(spec.space.low, spec.space.high).to(cfg.device)
+        s = settings.actor
+        self.actor = make_diffusion_actor(s, obs_dim, action_dim, settings.device)
+        self.critic = make_critic(settings, obs_dim, action_dim)
+        self.box = ActionBox(spec.space.low, spec.space.high).to(settings.device)
         self.actor_objective = DiffQLActorLoss.from_iql(
             self.actor, self.critic.loss, self.box, eta=s.eta
         )
@@ -156,7 +155,7 @@ class DiffQLLearner(Learner):
 
     def projected(self, policy: nn.Module) -> nn.Module:
         """``policy`` followed by the env kit's ``action_projection``, if it has one."""
-        return projected_policy(self.cfg, policy)
+        return projected_policy(self.settings, policy)
 
     def modules(self) -> dict:
         """The actor, the critic's modules and the actor's optimizer."""
@@ -207,7 +206,7 @@ class DiffQLLALearner(LaplaceRefits, DiffQLLearner):
 
     def __init__(self, run: RunContext) -> None:
         super().__init__(run)
-        la = run.cfg.laplace
+        la = run.settings.laplace
         self.last_step = DDPMLastStepActor(self.actor, latent="zero")
         # only its advantage weights are used (σ̄ and Eq. 8's Hessian); Diff-QL trains the actor
         self.laplace_weight_fn = WeightedMAPActorLoss.from_iql(

@@ -32,8 +32,6 @@ from torchrl_dual.recipe.kits.build import projected_policy
 from torchrl_dual.recipe.o2o.learner import Learner, RunContext
 from torchrl_dual.recipe.parts import networks
 from torchrl_dual.recipe.parts.planner_stage import offline_windows
-from torchrl_dual.recipe.settings.dual import PlannerSettings
-from torchrl_dual.recipe.settings.rules import as_settings
 
 
 class DiffuserLearner(Learner):
@@ -45,14 +43,12 @@ class DiffuserLearner(Learner):
 
     def __init__(self, run: RunContext) -> None:
         self.run = run
-        cfg = self.cfg = run.cfg
-        p = cfg.planner
-        self.offline_windows = offline_windows(cfg, run.data, p.batch_size)
+        settings = self.settings = run.settings
+        p = settings.planner
+        self.offline_windows = offline_windows(settings, run.data, p.batch_size)
         self.online_windows: WindowReplayBuffer | None = None
         self.online_length = 0
-        self.planner = networks.make_planner(
-            as_settings(PlannerSettings, cfg.planner), run.data, cfg.device
-        )
+        self.planner = networks.make_planner(p, run.data, settings.device)
         self.loss = DiffusionPlannerLoss(
             self.planner, action_condition_prob=p.action_condition_prob
         )
@@ -60,12 +56,12 @@ class DiffuserLearner(Learner):
         space = run.env.action_spec.space
         policy = PlannerPolicy(
             self.planner,
-            sampler=cfg.diffuser.sampler,
-            action_low=space.low.to(cfg.device),
-            action_high=space.high.to(cfg.device),
+            sampler=settings.diffuser.sampler,
+            action_low=space.low.to(settings.device),
+            action_high=space.high.to(settings.device),
         )
         self.evaluation_policy = policy  # the zero-latent DDIM plan under DETERMINISTIC
-        self.exploration_policy = projected_policy(cfg, policy)
+        self.exploration_policy = projected_policy(settings, policy)
 
     def modules(self) -> dict:
         """The planner and its optimizer."""
@@ -84,12 +80,12 @@ class DiffuserLearner(Learner):
             run_updates(
                 self.loss,
                 self.offline_windows.sample,
-                self.cfg.budget.planner_updates,
+                self.settings.budget.planner_updates,
                 self.optimizer,
                 desc="planner",
                 logger=self.run.logger,
                 log_prefix="planner/",
-                progress=self.cfg.progress,
+                progress=self.settings.progress,
                 checkpoints=checkpoints,
             )
 
@@ -99,7 +95,7 @@ class DiffuserLearner(Learner):
         batch = self.offline_windows.sample()
         if self.online_windows is None:
             return batch
-        offline = round(self.cfg.online.offline_fraction * batch.shape[0])
+        offline = round(self.settings.online.offline_fraction * batch.shape[0])
         online = self.online_windows.sample()[: batch.shape[0] - offline]
         keys = ("observation", "action")
         return torch.cat([batch[:offline].select(*keys), online.select(*keys)], 0)
@@ -110,10 +106,10 @@ class DiffuserLearner(Learner):
         if len(online) == self.online_length:
             return
         self.online_length = len(online)
-        p = self.cfg.planner
+        p = self.settings.planner
         try:
             self.online_windows = WindowReplayBuffer(
-                online[: len(online)], p.horizon, p.batch_size, device=self.cfg.device
+                online[: len(online)], p.horizon, p.batch_size, device=self.settings.device
             )
         except ValueError:  # no online episode holds H + 1 steps yet
             self.online_windows = None

@@ -1,9 +1,9 @@
 """DUAL (Algorithm 1 of the paper) as the recipe's learner: builders, then the learner.
 
 Read top to bottom: the builders of DUAL's own networks (Alg. 1 line 1), each from its
-typed config section (:class:`~torchrl_dual.recipe.settings.dual.DualSections`, whose
-schemas and checks live in ``settings/dual.py`` so that a bad value is reported before
-torch is imported), then :class:`DualLearner`: its networks, its offline stages (lines
+typed config section (the run's
+:class:`~torchrl_dual.recipe.settings.schema.RecipeSettings`; DUAL's schemas and checks
+live in ``settings/dual.py`` so that a bad value is reported before torch is imported), then :class:`DualLearner`: its networks, its offline stages (lines
 2-9), its update (lines 7-8 and 15-16) and its Laplace refits (line 17). The online loop
 that calls them (lines 10-18) is :func:`~torchrl_dual.recipe.run_o2o` (``o2o/loop.py``);
 the critics are ``parts/critics.py``. The offline phase pre-trains the diffusion planner,
@@ -34,7 +34,7 @@ from torchrl_dual.recipe.parts.mc_labels import MonteCarloLabels
 from torchrl_dual.recipe.parts.networks import make_planner, make_policy, student_like
 from torchrl_dual.recipe.parts.planner_augment import augment_capacity, make_augmenter
 from torchrl_dual.recipe.parts.planner_stage import offline_windows, pretrain_planner
-from torchrl_dual.recipe.settings.dual import ActorSettings, DualSections
+from torchrl_dual.recipe.settings.dual import ActorSettings
 from torchrl_dual.recipe.settings.parts import POLICY_CRITICS
 from torchrl_dual.trainers.stepper import CriticActorStepper
 
@@ -141,24 +141,23 @@ class DualLearner(Learner):
 
     def __init__(self, run: RunContext) -> None:
         self.run = run
-        cfg = self.cfg = run.cfg
-        s = self.settings = DualSections.of(cfg)
+        s = self.settings = run.settings
         data, spec = run.data, run.env.action_spec
-        self.windows = offline_windows(cfg, data, s.planner.batch_size)
+        self.windows = offline_windows(s, data, s.planner.batch_size)
         # ---- networks: teacher g_θ', actor π_θ and its transition model, critics
-        self.teacher = make_planner(s.planner, data, cfg.device)
+        self.teacher = make_planner(s.planner, data, s.device)
         final_steps = s.distillation.final_steps
         self.actor = make_actor(s.actor, final_steps, self.teacher)
         self.transition = make_transition_model(
             s.exploration.transition_model, final_steps, self.teacher, self.actor
         )
-        samples_policy = cfg.critic.name in POLICY_CRITICS  # Cal-QL: N(μ(s), σ̄²) of π_θ
+        samples_policy = s.critic.name in POLICY_CRITICS  # Cal-QL: N(μ(s), σ̄²) of π_θ
         view = policy_view(self.actor, spec) if samples_policy else None
-        self.critic = make_critic(cfg, data.obs_dim, data.action_dim, actor=view)
+        self.critic = make_critic(s, data.obs_dim, data.action_dim, actor=view)
         self.online_batches_per_update = self.critic.online_steps_per_update  # SO2: 10
         # critic=calql: the Monte-Carlo bound on D_offline now, on D_online per episode
-        self.labels = MonteCarloLabels(run) if cfg.critic.name == "calql" else None
-        entropy_coef = cfg.critic.get("entropy_coef")  # SO2's α
+        self.labels = MonteCarloLabels(run) if s.critic.name == "calql" else None
+        entropy_coef = getattr(s.critic, "entropy_coef", None)  # SO2's α
         self.loss = make_loss(s.actor, self.actor, self.critic, spec, entropy_coef)
         self.actor_optimizer = adam(self.loss.actor_parameters(), lr=s.actor.lr)
         self.stepper = CriticActorStepper(  # Alg. 1's order: critic, target, then actor
@@ -173,8 +172,8 @@ class DualLearner(Learner):
             spec,
             transition=self.transition,
             shift_weight=s.exploration.shift_weight,
-            action_projection=env_kit(cfg).action_projection,
-            device=cfg.device,
+            action_projection=env_kit(s).action_projection,
+            device=s.device,
         )
         self.ensemble = self.policy[0]  # Eq. 9's ensemble: acts and holds ŝ_t's model
         # the one decision point of the no-UQ and latent-UQ ablations: no posterior to fit
@@ -183,11 +182,11 @@ class DualLearner(Learner):
         self.noise = next(m for m in self.policy.modules() if isinstance(m, ShiftAwareNoise))
         self.noise.extra_variance = float(s.exploration.extra_variance)  # v_c, beyond Eq. 10
         self.evaluation_policy = self.ensemble  # the MAP mean under DETERMINISTIC
-        self.refits = RefitSchedule(cfg.budget.laplace_refit_every)  # Alg. 1 l. 17
+        self.refits = RefitSchedule(s.budget.laplace_refit_every)  # Alg. 1 l. 17
         # augment.kind=planner: guided teacher windows added to D_online (Alg. 1 l. 14);
         # built last, so the networks above get the same weights either way
         self.augmenter = make_augmenter(run, self.teacher)
-        self.extra_online_capacity = augment_capacity(cfg)
+        self.extra_online_capacity = augment_capacity(s)
 
     # ------------------------------------------------------------------ the protocol
     def modules(self) -> dict:
@@ -322,12 +321,12 @@ class DualLearner(Learner):
             student = progressive_distillation(
                 self.teacher,
                 self.windows.sample,
-                list(self.cfg.budget.distill_updates),
+                list(self.settings.budget.distill_updates),
                 final_steps=self.settings.distillation.final_steps,
                 lr=self.settings.distillation.lr,
                 action_condition_prob=self.settings.planner.action_condition_prob,
                 logger=self.run.logger,
-                progress=self.cfg.progress,
+                progress=self.settings.progress,
                 checkpoints=checkpoints,
             )
         if self.settings.actor.init == "distilled":
@@ -363,7 +362,7 @@ class DualLearner(Learner):
         """
         floor = self.settings.exploration.shift_floor
         if floor == "offline":
-            floor = self.offline_shift_distances(20000, int(self.cfg.seed)).mean()
+            floor = self.offline_shift_distances(20000, int(self.settings.seed)).mean()
         self.noise.shift_floor.fill_(float(floor))
         self.run.log({"shift_floor": float(floor)}, self.run.updates, "exploration/")
 
@@ -376,7 +375,7 @@ class DualLearner(Learner):
         """
         data = self.run.data.transitions
         gen = torch.Generator().manual_seed(seed)
-        batch = data[torch.randperm(len(data), generator=gen)[:samples]].to(self.cfg.device)
+        batch = data[torch.randperm(len(data), generator=gen)[:samples]].to(self.settings.device)
         predicted = self.transition.predict(batch["observation"], batch["action"])
         return (predicted - batch["next", "observation"]).norm(dim=-1).cpu()
 

@@ -35,8 +35,6 @@ from torchrl_dual.recipe.parts.planner_stage import (
     offline_windows,
     pretrain_planner,
 )
-from torchrl_dual.recipe.settings.dual import PlannerSettings
-from torchrl_dual.recipe.settings.rules import as_settings
 
 
 class EDISLearner(IQLLearner):
@@ -48,13 +46,11 @@ class EDISLearner(IQLLearner):
 
     def __init__(self, run: RunContext) -> None:
         super().__init__(run)
-        cfg = run.cfg
-        self.planner = networks.make_planner(
-            as_settings(PlannerSettings, cfg.planner), run.data, cfg.device
-        )
-        self.planner_windows = offline_windows(cfg, run.data, cfg.planner.batch_size)
+        settings = run.settings
+        self.planner = networks.make_planner(settings.planner, run.data, settings.device)
+        self.planner_windows = offline_windows(settings, run.data, settings.planner.batch_size)
         self.augmenter = PlannerAugmenter(run, self.planner)
-        self.extra_online_capacity = augment_capacity(cfg)
+        self.extra_online_capacity = augment_capacity(settings)
 
     def shared_modules(self) -> dict[str, Any]:
         """IQL's modules and the planner: what the shared offline phase hands over."""

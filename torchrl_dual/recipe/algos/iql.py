@@ -39,10 +39,8 @@ from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.parts.critics import make_critic
 from torchrl_dual.recipe.settings.baselines import (
     ACTOR_DISTRIBUTIONS,
-    IQLActorSettings,
     MLPActorSettings,
 )
-from torchrl_dual.recipe.settings.rules import as_settings
 
 
 def make_iql_actor(
@@ -129,14 +127,15 @@ class IQLLearner(Learner):
 
     def __init__(self, run: RunContext) -> None:
         self.run = run
-        cfg = run.cfg
+        settings = run.settings
         spec = run.env.action_spec
-        self.settings = s = as_settings(IQLActorSettings, cfg.actor)
+        self.settings = settings
+        s = settings.actor
         self.actor = make_iql_actor(
-            s, run.data.obs_dim, spec, distribution=s.distribution, device=cfg.device
+            s, run.data.obs_dim, spec, distribution=s.distribution, device=settings.device
         )
         self.critic = make_critic(
-            cfg,
+            settings,
             run.data.obs_dim,
             run.data.action_dim,
             actor=self.actor,
@@ -144,7 +143,7 @@ class IQLLearner(Learner):
         )
         self.actor_optimizer = adam(self.actor.parameters(), lr=s.lr)
         self.evaluation_policy = self.actor
-        self.exploration_policy = projected_policy(cfg, self.actor)
+        self.exploration_policy = projected_policy(settings, self.actor)
 
     def modules(self) -> dict:
         """The IQL loss holds the actor, V, both Q and the target Q networks."""

@@ -81,7 +81,7 @@ class IQLLALearner(LaplaceRefits, IQLLearner):
             self.head_actor,
             self.critic.loss,
             weighting="advantage",
-            temperature=self.settings.temperature,
+            temperature=self.settings.actor.temperature,
             max_weight=IQL_MAX_WEIGHT,
         ).advantage_weights
         self.act_with_ensemble(self.head_actor)  # Eq. 9 + Eq. 10 with λ = 0
@@ -96,7 +96,7 @@ class IQLLALearner(LaplaceRefits, IQLLearner):
         scale_a(s)²)``, the IQL actor's std (pre-tanh for ``tanh_normal``), root
         mean square over ``D_offline ∪ D_online``.
         """
-        fixed = self.run.cfg.laplace.noise_std
+        fixed = self.run.settings.laplace.noise_std
         if fixed != "iql":
             return torch.full_like(self.head_actor.log_std, float(fixed))
         loc_scale = self.actor.module[0]  # observation -> loc, scale

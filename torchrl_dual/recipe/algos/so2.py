@@ -29,8 +29,6 @@ from torchrl_dual.recipe.o2o.learner import Learner, RunContext
 from torchrl_dual.recipe.o2o.loop import run_o2o
 from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.parts.critics import make_critic
-from torchrl_dual.recipe.settings.baselines import MLPActorSettings
-from torchrl_dual.recipe.settings.rules import as_settings
 from torchrl_dual.trainers.stepper import CriticActorStepper
 
 
@@ -45,21 +43,21 @@ class SO2Learner(Learner):
 
     def __init__(self, run: RunContext) -> None:
         self.run = run
-        cfg = run.cfg
-        s = as_settings(MLPActorSettings, cfg.actor)
+        settings = run.settings
+        s = settings.actor
         self.actor = make_iql_actor(
-            s, run.data.obs_dim, run.env.action_spec, return_log_prob=True, device=cfg.device
+            s, run.data.obs_dim, run.env.action_spec, return_log_prob=True, device=settings.device
         )
-        self.critic = make_critic(cfg, run.data.obs_dim, run.data.action_dim, actor=self.actor)
+        self.critic = make_critic(settings, run.data.obs_dim, run.data.action_dim, actor=self.actor)
         self.online_batches_per_update = self.critic.online_steps_per_update
         self.actor_optimizer = adam(self.actor.parameters(), lr=s.lr)
-        self.alpha = cfg.critic.entropy_coef
+        self.alpha = settings.critic.entropy_coef
         self.stepper = CriticActorStepper(
             self, self.critic.optimizer, self.actor_optimizer,
             target_update=self.critic.target_updater,
         )  # fmt: skip
         self.evaluation_policy = self.actor
-        self.exploration_policy = projected_policy(cfg, self.actor)
+        self.exploration_policy = projected_policy(settings, self.actor)
 
     def modules(self) -> dict:
         """The actor (the critic loss does not hold it), the Q ensemble and its targets."""

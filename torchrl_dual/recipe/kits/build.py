@@ -50,6 +50,7 @@ from torchrl_dual.envs import (
 from torchrl_dual.evaluation import evaluate_episodes, frozenlake_policy_actions
 from torchrl_dual.recipe.settings.envs import ENV_KITS, EnvKit
 from torchrl_dual.recipe.settings.errors import ConfigError, UserError, warn
+from torchrl_dual.recipe.settings.schema import RecipeSettings
 from torchrl_dual.transforms import PreviousTransition
 
 Evaluator = Callable[[nn.Module], dict[str, float]]
@@ -284,8 +285,8 @@ def one_hot_argmax(action: torch.Tensor) -> torch.Tensor:
     return one_hot_at(action.argmax(-1, keepdim=True), action, -1)
 
 
-def env_kit(cfg: DictConfig) -> EnvKit:
-    """The :class:`EnvKit` of ``cfg.env.kind``."""
+def env_kit(cfg: DictConfig | RecipeSettings) -> EnvKit:
+    """The :class:`EnvKit` of ``cfg.env.kind`` (the config, or the run's typed settings)."""
     return ENV_KITS[cfg.env.kind]
 
 
@@ -329,7 +330,7 @@ def warn_if_batches_exceed_data(cfg: DictConfig, transitions: int) -> None:
         return
 
 
-def projected_policy(cfg: DictConfig, policy: nn.Module) -> nn.Module:
+def projected_policy(cfg: DictConfig | RecipeSettings, policy: nn.Module) -> nn.Module:
     """``policy`` followed by the env kit's ``action_projection``, or ``policy`` itself.
 
     The projection gives the executed action the replay buffer stores, e.g.

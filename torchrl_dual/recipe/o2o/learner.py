@@ -21,13 +21,15 @@ from torch import nn
 class RunContext(Protocol):
     """What a learner and the parts it builds may use of the run.
 
-    The run is an :class:`~torchrl_dual.recipe.O2ORun`; they may use its config, data
+    The run is an :class:`~torchrl_dual.recipe.O2ORun`; they may use its typed config, data
     and env, counters, buffers, logging and the two helpers below.
     ``tests/test_import_layering.py`` checks that ``recipe/algos`` and ``recipe/parts``
     read nothing else of it.
 
     Attributes:
-        cfg (DictConfig): the validated config.
+        settings (RecipeSettings): the validated config, typed: what learners read
+            (``settings.actor``, ``settings.budget``, ``settings.device``, ...), never
+            the raw ``DictConfig``.
         data (OfflineDataset): ``D_offline``.
         env (EnvBase): the online env (its ``action_spec``).
         frames (int): online frames collected so far (0 in the offline phase).
@@ -37,7 +39,7 @@ class RunContext(Protocol):
         offline_buffer: uniform transitions of ``D_offline``.
     """
 
-    cfg: Any
+    settings: Any
     data: Any
     env: Any
     frames: int
@@ -72,7 +74,7 @@ class Learner(ABC):
     A learner is built by the run (``Learner(run)``) once the run's data, env and
     offline buffer exist, and before its replay buffer, counters and logger; it builds
     its networks, losses and optimizers in ``__init__`` and may keep ``run`` to read
-    ``run.cfg``, ``run.data``, ``run.logger`` or ``run.updates`` later.
+    ``run.settings``, ``run.data``, ``run.logger`` or ``run.updates`` later.
 
     Attributes:
         title (str): the algorithm's name in the plot title.

@@ -42,6 +42,7 @@ from torchrl_dual.recipe.o2o.summary import score_text, write_summary
 from torchrl_dual.recipe.o2o.update_step import make_update_step
 from torchrl_dual.recipe.settings.errors import UserError
 from torchrl_dual.recipe.settings.o2o import COLLECTORS, REPLAYS, check_output_dir
+from torchrl_dual.recipe.settings.schema import RecipeSettings
 
 # Settings that may change when a run is resumed; everything else must match.
 RESUMABLE_KEYS = (
@@ -100,6 +101,7 @@ class O2ORun:
 
     def __init__(self, cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> None:
         self.cfg = cfg
+        self.settings = RecipeSettings.of(cfg)  # what the learners read, typed
         self.name = str(cfg.algo)
         torch.set_num_threads(cfg.num_threads)
         install_tensordict_patch()  # TensorDictModule outputs without a sys.path scan each

@@ -15,7 +15,6 @@ from functools import partial
 from typing import Any
 
 import torch
-from omegaconf import DictConfig
 from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.data import TensorSpec
@@ -38,7 +37,7 @@ from torchrl_dual.recipe.settings.parts import (
     IQLCriticSettings,
     SO2CriticSettings,
 )
-from torchrl_dual.recipe.settings.rules import as_settings
+from torchrl_dual.recipe.settings.schema import RecipeSettings
 
 CriticLoss = IQLCriticLoss | OnePassIQLLoss | CalQLLoss | SO2QLoss
 
@@ -136,7 +135,7 @@ def _is_actor(name: str) -> bool:
 
 
 def make_critic(
-    cfg: DictConfig,
+    settings: RecipeSettings,
     obs_dim: int,
     action_dim: int,
     actor: ProbabilisticActor | None = None,
@@ -144,12 +143,13 @@ def make_critic(
 ) -> Critic:
     """The ``critic.name`` entry of :data:`~torchrl_dual.recipe.settings.parts.CRITICS`, built.
 
-    Built from its typed ``critic`` section on ``cfg.device`` (``actor`` and
+    Built from the run's typed ``critic`` section on ``settings.device`` (``actor`` and
     ``temperature`` as its builder takes them).
     """
-    kind = CRITICS[cfg.critic.name]
-    settings = as_settings(kind.settings, cfg.critic)
-    return kind.make(settings, obs_dim, action_dim, cfg.device, actor, temperature)
+    critic = settings.critic
+    return CRITICS[critic.name].make(
+        critic, obs_dim, action_dim, settings.device, actor, temperature
+    )
 
 
 def make_iql_critic(

@@ -26,8 +26,6 @@ from torchrl_dual.modules import LaplaceEnsembleActor, LastLayerActor, explorati
 from torchrl_dual.recipe.kits.build import env_kit
 from torchrl_dual.recipe.o2o.learner import RunContext
 from torchrl_dual.recipe.parts.networks import make_policy
-from torchrl_dual.recipe.settings.dual import EnsembleSettings
-from torchrl_dual.recipe.settings.rules import as_settings
 
 
 class RefitSchedule:
@@ -90,7 +88,7 @@ class LaplaceRefits:
     def refits(self) -> RefitSchedule:
         """The :class:`RefitSchedule` (made on first use from ``budget.laplace_refit_every``)."""
         if "_refits" not in self.__dict__:
-            self._refits = RefitSchedule(self.run.cfg.budget.laplace_refit_every)
+            self._refits = RefitSchedule(self.run.settings.budget.laplace_refit_every)
         return self._refits
 
     def act_with_ensemble(self, actor: LastLayerActor) -> None:
@@ -103,14 +101,14 @@ class LaplaceRefits:
         followed by the env kit's ``action_projection``. Sets ``policy``,
         ``ensemble`` and ``exploration_policy``.
         """
-        cfg = self.run.cfg
+        settings = self.run.settings
         self.policy = make_policy(
-            as_settings(EnsembleSettings, cfg.laplace),
+            settings.laplace,
             actor,
             self.run.env.action_spec,
-            shift_weight=cfg.exploration.shift_weight,
-            action_projection=env_kit(cfg).action_projection,
-            device=cfg.device,
+            shift_weight=settings.exploration.shift_weight,
+            action_projection=env_kit(settings).action_projection,
+            device=settings.device,
         )
         self.ensemble = self.policy[0]
         self.exploration_policy = self.policy  # Eq. 9 + Eq. 10

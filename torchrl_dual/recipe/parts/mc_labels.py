@@ -19,10 +19,10 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 import torch
-from omegaconf import DictConfig
 from tensordict import TensorDictBase
 
 from torchrl_dual.data import monte_carlo_returns
+from torchrl_dual.recipe.settings.schema import RecipeSettings
 
 if TYPE_CHECKING:
     from torchrl_dual.recipe.o2o.learner import RunContext
@@ -31,14 +31,14 @@ MC_RETURN = "mc_return"
 """The key of the Monte-Carlo bound in D_offline and D_online (``CalQLLoss``'s default)."""
 
 
-def label_transitions(transitions: TensorDictBase, cfg: DictConfig) -> TensorDictBase:
+def label_transitions(transitions: TensorDictBase, settings: RecipeSettings) -> TensorDictBase:
     """``transitions`` with their Monte-Carlo returns-to-go under :data:`MC_RETURN`."""
     transitions.set(
         MC_RETURN,
         monte_carlo_returns(
             transitions,
-            cfg.critic.discount,
-            sparse_failure_reward=cfg.critic.sparse_failure_reward,
+            settings.critic.discount,
+            sparse_failure_reward=settings.critic.sparse_failure_reward,
         ).to(transitions["next", "reward"].dtype),
     )
     return transitions
@@ -54,8 +54,8 @@ class MonteCarloLabels:
     """
 
     def __init__(self, run: RunContext) -> None:
-        self.cfg = run.cfg
-        label_transitions(run.data.transitions, run.cfg)
+        self.settings = run.settings
+        label_transitions(run.data.transitions, run.settings)
         run.refresh_offline_buffer()
         self.pending: TensorDictBase | None = None  # the online episode in progress
 
@@ -72,7 +72,7 @@ class MonteCarloLabels:
             return transitions[:0]
         end = int(done.nonzero().max()) + 1
         self.pending = transitions[end:] if end < len(transitions) else None
-        return label_transitions(transitions[:end].clone(), self.cfg)
+        return label_transitions(transitions[:end].clone(), self.settings)
 
     def state_dict(self) -> dict[str, Any]:
         """The held (unfinished) episode, ``{"pending": TensorDict or None}``."""

@@ -35,7 +35,6 @@ from __future__ import annotations
 from typing import Any
 
 import torch
-from omegaconf import DictConfig
 from tensordict import TensorDict, TensorDictBase
 
 from torchrl_dual.diffusion import (
@@ -51,6 +50,7 @@ from torchrl_dual.recipe.kits.build import env_kit
 from torchrl_dual.recipe.o2o.learner import RunContext
 from torchrl_dual.recipe.parts.planner_stage import offline_windows
 from torchrl_dual.recipe.settings.parts import online_updates
+from torchrl_dual.recipe.settings.schema import RecipeSettings
 
 _REWARD_KEYS = (
     "observation",
@@ -61,16 +61,16 @@ _REWARD_KEYS = (
 )
 
 
-def augment_capacity(cfg: DictConfig) -> int:
+def augment_capacity(settings: RecipeSettings) -> int:
     """Room the online buffer needs beyond the collected frames for the generated transitions.
 
     At most one round per ``augment.every`` online updates, ``num_windows × H``
     transitions each.
     """
-    a = cfg.get("augment")
+    a = settings.get("augment")
     if a is None or a.kind == "none":
         return 0
-    return online_updates(cfg) // a.every * a.num_windows * cfg.planner.horizon
+    return online_updates(settings) // a.every * a.num_windows * settings.planner.horizon
 
 
 def is_generated(transitions: TensorDictBase) -> torch.Tensor:
@@ -101,26 +101,26 @@ class PlannerAugmenter:
 
     def __init__(self, run: RunContext, planner: TrajectoryDiffusion) -> None:
         self.run = run
-        cfg = run.cfg
-        a = self.settings = cfg.augment
+        settings = run.settings
+        a = self.settings = settings.augment
         self.planner = planner
         self.layout = planner.layout
-        self.offline_windows = offline_windows(cfg, run.data, a.batch_size)
+        self.offline_windows = offline_windows(settings, run.data, a.batch_size)
         # initialised from their own stream: the run's random stream, hence its offline
         # phase, is the same as without augmentation (and may be shared with such runs)
         with torch.random.fork_rng(devices=[]):
-            torch.manual_seed(cfg.seed)
+            torch.manual_seed(settings.seed)
             self.guider = NoisyWindowClassifier(self.layout.window_shape, hidden=a.hidden)
             self.reward_model = RewardModel(planner.normalizer, hidden=a.hidden)
-        self.guider.to(cfg.device)
-        self.reward_model.to(cfg.device)
+        self.guider.to(settings.device)
+        self.reward_model.to(settings.device)
         self.guider_optimizer = adam(self.guider.parameters(), lr=a.lr)
         self.reward_optimizer = adam(self.reward_model.parameters(), lr=a.lr)
         self.sampler = PlannerSampler(planner, sampler="ddpm")
         space = run.env.action_spec.space
-        self.action_low = space.low.to(cfg.device)
-        self.action_high = space.high.to(cfg.device)
-        self.projection = env_kit(cfg).action_projection
+        self.action_low = space.low.to(settings.device)
+        self.action_high = space.high.to(settings.device)
+        self.projection = env_kit(settings).action_projection
         self.rounds_done = 0
         self.generated_windows = 0  # the next window's episode id is -(this + 1)
 
@@ -145,7 +145,7 @@ class PlannerAugmenter:
 
     def after_updates(self) -> None:
         """Runs a round once ``augment.every`` more online updates have been made."""
-        done = self.run.updates - self.run.cfg.budget.offline_updates
+        done = self.run.updates - self.run.settings.budget.offline_updates
         if done // self.settings.every > self.rounds_done:
             if self.augment():
                 self.rounds_done = done // self.settings.every
@@ -162,7 +162,7 @@ class PlannerAugmenter:
         a, real = self.settings, self.real_online()
         try:
             online_windows = WindowReplayBuffer(
-                real, self.layout.horizon, a.batch_size, device=self.run.cfg.device
+                real, self.layout.horizon, a.batch_size, device=self.run.settings.device
             )
         except (ValueError, RuntimeError, KeyError):  # no real online window yet
             return False
@@ -191,11 +191,11 @@ class PlannerAugmenter:
 
     def fit_guider(self, online_windows: WindowReplayBuffer) -> dict[str, float]:
         """``augment.guider_updates`` logistic-loss steps, offline (0) vs online (1)."""
-        mask = self.layout.condition_mask("s0", device=self.run.cfg.device)
+        mask = self.layout.condition_mask("s0", device=self.run.settings.device)
         metrics: dict[str, float] = {}
         for _ in range(self.settings.guider_updates):
-            offline = self.normalized(self.offline_windows.sample().to(self.run.cfg.device))
-            online = self.normalized(online_windows.sample().to(self.run.cfg.device))
+            offline = self.normalized(self.offline_windows.sample().to(self.run.settings.device))
+            online = self.normalized(online_windows.sample().to(self.run.settings.device))
             loss, accuracy = density_ratio_loss(self.guider, self.planner, offline, online, mask)
             self.guider_optimizer.zero_grad(set_to_none=True)
             loss.backward()
@@ -211,7 +211,7 @@ class PlannerAugmenter:
         for _ in range(self.settings.reward_updates):
             offline = offline_data[torch.randint(offline_data.shape[0], (half,))].select(*keys)
             online = real[torch.randint(real.shape[0], (half,))].select(*keys)
-            batch = torch.cat([offline, online], 0).to(self.run.cfg.device)
+            batch = torch.cat([offline, online], 0).to(self.run.settings.device)
             loss, metrics = self.reward_model.loss(batch)
             self.reward_optimizer.zero_grad(set_to_none=True)
             loss.backward()
@@ -225,7 +225,7 @@ class PlannerAugmenter:
         ``s_0`` is drawn among ``states`` (kept exact).
         """
         a = self.settings
-        s0 = states[torch.randint(states.shape[0], (a.num_windows,))].to(self.run.cfg.device)
+        s0 = states[torch.randint(states.shape[0], (a.num_windows,))].to(self.run.settings.device)
         guidance = classifier_guidance(self.guider, a.guidance_scale) if a.guidance_scale else None
         return self.sampler.plan(s0, deterministic=False, mean_shift=guidance)
 
@@ -272,6 +272,6 @@ class PlannerAugmenter:
 
 def make_augmenter(run: RunContext, planner: TrajectoryDiffusion) -> PlannerAugmenter | None:
     """The run's :class:`PlannerAugmenter` (``augment.kind=planner``), else ``None``."""
-    if run.cfg.augment.kind == "none":
+    if run.settings.augment.kind == "none":
         return None
     return PlannerAugmenter(run, planner)

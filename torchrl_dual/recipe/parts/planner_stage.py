@@ -8,28 +8,29 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from omegaconf import DictConfig
-
 from torchrl_dual.data import OfflineDataset
 from torchrl_dual.diffusion import TrajectoryDiffusion, WindowReplayBuffer
 from torchrl_dual.objectives import train_planner
 from torchrl_dual.recipe.settings.errors import UserError
+from torchrl_dual.recipe.settings.schema import RecipeSettings
 
 if TYPE_CHECKING:
     from torchrl_dual.recipe.o2o.learner import RunContext
 
 
-def offline_windows(cfg: DictConfig, data: OfflineDataset, batch_size: int) -> WindowReplayBuffer:
+def offline_windows(
+    settings: RecipeSettings, data: OfflineDataset, batch_size: int
+) -> WindowReplayBuffer:
     """``batch_size`` windows of ``planner.horizon + 1`` steps per draw from ``D_offline``.
 
     A :class:`UserError` on ``planner.horizon`` if no episode is long enough.
     """
     try:
         return WindowReplayBuffer(
-            data.transitions, cfg.planner.horizon, batch_size, device=cfg.device
+            data.transitions, settings.planner.horizon, batch_size, device=settings.device
         )
     except ValueError as err:  # no episode is long enough for a window
-        raise UserError("planner.horizon", cfg.planner.horizon, str(err)) from err
+        raise UserError("planner.horizon", settings.planner.horizon, str(err)) from err
 
 
 def pretrain_planner(
@@ -41,16 +42,16 @@ def pretrain_planner(
     ``a_0``-conditioning probability; logs ``planner/``; checkpointed through
     ``run.stage_checkpoints``.
     """
-    cfg = run.cfg
+    settings = run.settings
     with run.stage_checkpoints() as checkpoints:
         train_planner(
             planner,
             windows.sample,
-            cfg.budget.planner_updates,
-            lr=cfg.planner.lr,
-            action_condition_prob=cfg.planner.action_condition_prob,
+            settings.budget.planner_updates,
+            lr=settings.planner.lr,
+            action_condition_prob=settings.planner.action_condition_prob,
             logger=run.logger,
             log_prefix="planner/",
-            progress=cfg.progress,
+            progress=settings.progress,
             checkpoints=checkpoints,
         )

@@ -7,7 +7,7 @@ The entry is in :data:`~torchrl_dual.recipe.ALGORITHMS`; the learner is
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any
 
 from omegaconf import DictConfig
@@ -22,7 +22,6 @@ from torchrl_dual.recipe.settings.rules import (
     Integer,
     PowerOfTwo,
     Real,
-    as_settings,
     key,
 )
 
@@ -342,32 +341,3 @@ DUAL = AlgorithmSettings(
     critics=("iql", "calql", "so2"),
     check=check_dual,
 )
-
-
-@dataclass(frozen=True)
-class DualSections:
-    """DUAL's config sections, typed: what its learner and builders read.
-
-    What :class:`~torchrl_dual.recipe.algos.dual.DualLearner` and its builders read
-    (:meth:`of` a validated config).
-
-    Examples:
-        >>> from torchrl_dual.recipe import compose_checked, CONFIG_DIR
-        >>> cfg = compose_checked(CONFIG_DIR, ["budget=smoke"])
-        >>> sections = DualSections.of(cfg)
-        >>> sections.planner.num_steps, sections.distillation.final_steps
-        (32, 1)
-    """
-
-    planner: PlannerSettings
-    distillation: DistillationSettings
-    actor: ActorSettings
-    laplace: LaplaceSettings
-    exploration: ExplorationSettings
-    online: OnlineSettings
-    augment: AugmentSettings
-
-    @classmethod
-    def of(cls, cfg: DictConfig) -> DualSections:
-        """The sections of ``cfg`` (which passed ``validate_config``) as their schemas."""
-        return cls(**{f.name: as_settings(DUAL.sections[f.name], cfg[f.name]) for f in fields(cls)})

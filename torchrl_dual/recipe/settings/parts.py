@@ -239,8 +239,12 @@ class AugmentSettings:
     )
 
 
-def online_updates(cfg: DictConfig) -> int:
-    """The online phase's gradient updates (at most): ``online.utd_ratio × online_frames``."""
+def online_updates(cfg: Any) -> int:
+    """The online phase's gradient updates (at most): ``online.utd_ratio × online_frames``.
+
+    ``cfg``: the config, or the run's typed
+    :class:`~torchrl_dual.recipe.settings.schema.RecipeSettings`.
+    """
     return math.ceil(cfg.online.utd_ratio * cfg.budget.online_frames)
 
 
