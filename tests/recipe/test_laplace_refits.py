@@ -21,7 +21,7 @@ class _Base(Learner):
 
     def __init__(self, refit_every: int) -> None:
         self.run = SimpleNamespace(
-            cfg=SimpleNamespace(budget=SimpleNamespace(laplace_refit_every=refit_every))
+            settings=SimpleNamespace(budget=SimpleNamespace(laplace_refit_every=refit_every))
         )
         self.updates, self.fits = 0, 0
 
