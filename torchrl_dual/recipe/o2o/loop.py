@@ -1,13 +1,36 @@
-"""One offline-to-online run from start (or checkpoint) to end: :func:`run_o2o`.
+"""One offline-to-online run on TorchRL's :class:`~torchrl.trainers.Trainer`: :func:`run_o2o`.
 
-The offline stages of the :class:`~torchrl_dual.recipe.Learner` (shared through
-``offline_cache`` when set), the offline evaluation, then the online loop of Algorithm 1
-(lines 10-18): collect a batch with the exploration policy, store it, run the UTD
-updates (each the learner's ``update`` on a sample of the offline and online replay,
-counted by :meth:`O2ORun.update`, compiled with ``compile.compile=true``), the learner's
-hook (DUAL's Laplace refits), the weight push to the collector's workers, log, evaluate,
-checkpoint; the collector is shut down however the loop ends. Every periodic checkpoint
-is a cut point: the next batch comes from a new collector, as after a resume
+The run is TorchRL's training loop with the recipe's parts registered as its hooks
+(:func:`make_trainer`), in the order Algorithm 1 takes them:
+
+==================================  ============================================================
+Trainer stage                       the recipe's op
+==================================  ============================================================
+``setup``                           the learner's offline stages (l. 1-9; the shared ones
+                                    through ``offline_cache``), then the offline evaluation
+collector                           :class:`CutPoints`: the ``collector.name`` collector acting
+                                    with the exploration policy (l. 11-12), a new one at each
+                                    cut point
+``batch_process``                   ``run.store``: D_online ← D_online ∪ batch (l. 13), and
+                                    ``online.utd_ratio`` update credits per frame
+``process_optim_batch``             one sample of D_offline ∪ D_online per credit;
+                                    ``StopIteration`` (this batch's updates are done) when
+                                    none is left
+``optimization_stepper``            :class:`LearnerUpdates`: the learner's update (l. 14-16;
+                                    DUAL: the critic, then Eq. 7's actor), counted
+``post_steps``                      the learner's hook (l. 17, DUAL's Laplace refits), then the
+                                    weights' push to the collector's workers
+``post_steps_log``                  log, evaluate every ``budget.eval_every`` frames,
+                                    checkpoint every ``budget.checkpoint_every`` (a cut point)
+``shutdown``                        the last evaluation, the learning curve, ``summary.json``
+==================================  ============================================================
+
+What the ``Trainer`` does not do, the smallest piece beside it does
+(docs/architecture.md, "The loop"): the checkpoint is the run's own
+(:class:`~torchrl_dual.checkpoint.RunCheckpoint`: fingerprinted, atomic, with the
+offline stages' mid-stage progress), and every periodic checkpoint is a cut point, where
+the next batch comes from a new collector seeded ``seed + 1 + frames``, as after a
+resume, so a resumed run continues bitwise as an uninterrupted one would
 (docs/recipe.md, "Checkpoint and resume").
 
 Ctrl-C and SIGTERM stop a run alike (``interrupts``): in the offline phase at the end of
@@ -18,11 +41,12 @@ collector collects; the run saves, prints one line and returns.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import torch
 from omegaconf import DictConfig
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
+from torchrl.trainers import OptimizationStepper, Trainer
 
 from torchrl_dual.recipe.o2o.collectors import stop_collecting
 from torchrl_dual.recipe.o2o.interrupts import held, signals_as_interrupts
@@ -48,12 +72,184 @@ def online_batch(replay: Replay, k: int, device: torch.device) -> TensorDictBase
     return torch.stack([replay.sample() for _ in range(k)]).to(device)
 
 
+class CutPoints:
+    """The trainer's collector: batches of the ``collector.name`` collector, cut at checkpoints.
+
+    A cut point (the start, each periodic checkpoint, a resume) ends the current
+    collector and starts a new one (:meth:`O2ORun.collector`: its env seeded by
+    ``seed + 1 + frames``, a new episode). The trainer processes each batch inside
+    :func:`~torchrl_dual.recipe.o2o.interrupts.held`, so a signal stops the run once
+    that batch is processed and checkpointed as due.
+    """
+
+    init_random_frames = 0  # read by the Trainer: it updates from the first batch on
+
+    def __init__(self, run: O2ORun) -> None:
+        self.run = run
+        self.current = None  # the collector of the running stretch
+        self.cut = False  # set by the checkpoint: the next batch comes from a new collector
+
+    def __iter__(self) -> Iterator[TensorDictBase]:
+        run = self.run
+        while run.frames < run.cfg.budget.online_frames:
+            self.current = run.collector()
+            for batch in self.current:
+                with held():  # a signal now stops the run after this batch
+                    yield batch
+                if self.cut:
+                    self.cut = False
+                    break
+            stop_collecting(self.current)
+            self.current = None
+
+    def shutdown(self) -> None:
+        """Ends the current collector (at the end, on an interrupt or an error).
+
+        Its workers stop; the run's own env (``collector=single``) stays open.
+        """
+        if self.current is not None:
+            stop_collecting(self.current)
+            self.current = None
+
+
+class LearnerUpdates(OptimizationStepper):
+    """The learner's update as the trainer's optimization step (Alg. 1 l. 14-16), counted.
+
+    The run logs the batch's last update's losses (and the replay's, e.g. balanced
+    replay's priority step), kept in :attr:`last`; the step returns no metrics for the
+    trainer to average.
+    """
+
+    def __init__(self, run: O2ORun) -> None:
+        self.run = run
+        self.last: dict = {}
+        self._none = TensorDict()
+
+    def step(self, trainer: Trainer, sub_batch: TensorDictBase) -> TensorDictBase:
+        """One counted learner update on ``sub_batch``, then the replay's own step."""
+        losses = self.run.update(sub_batch)
+        losses.update(self.run.replay.after_update(sub_batch))
+        self.last = losses
+        return self._none
+
+
+class OnlinePhase:
+    """The recipe's ops on the trainer, sharing the online phase's schedule and signals."""
+
+    def __init__(self, run: O2ORun, cut_points: CutPoints, updates: LearnerUpdates) -> None:
+        self.run, self.cut_points, self.updates = run, cut_points, updates
+        self.push = COLLECTORS[run.cfg.collector.name].push  # the weights' way to the collector
+        self.device = torch.device(run.cfg.device)
+        self.offline_done = False
+        self.clock: StageClock | None = None
+        self.stats: dict = {}
+
+    def offline(self) -> None:
+        """``setup``: the offline stages and the offline evaluation; the online schedule."""
+        run, budget = self.run, self.run.cfg.budget
+        run_offline_stages(run)
+        run.stage("offline_eval", lambda: run.evaluate("offline"))
+        self.offline_done = True
+        self.next_eval = (run.frames // budget.eval_every + 1) * budget.eval_every
+        self.next_save = (run.frames // budget.checkpoint_every + 1) * budget.checkpoint_every
+        self.clock = StageClock(run.stage_seconds, run.stage_cpu_seconds, "online")
+
+    def store(self, batch: TensorDictBase) -> None:
+        """``batch_process``: stores the batch (l. 11-13); ``utd_ratio`` credits per frame."""
+        run = self.run
+        self.stats = run.store(batch)  # acted with the exploration policy
+        run.update_credit += run.cfg.online.utd_ratio * batch.numel()
+        self.updates.last = {}
+
+    def sample(self, batch: TensorDictBase) -> TensorDictBase:
+        """``process_optim_batch``: a sample per update credit.
+
+        Raises:
+            StopIteration: no credit left; the trainer ends this batch's updates.
+        """
+        run = self.run
+        if run.update_credit < 1:
+            raise StopIteration
+        run.update_credit -= 1
+        return online_batch(run.replay, run.learner.online_batches_per_update, self.device)
+
+    def after_updates(self) -> None:
+        """``post_steps``: the learner's hook (DUAL: the refit when due), the weights' push."""
+        self.run.learner.after_updates()
+        self.push(self.cut_points.current, self.run.learner.exploration_policy)
+
+    def log_evaluate_checkpoint(self, batch: TensorDictBase) -> None:
+        """``post_steps_log``: log; evaluate and checkpoint (a cut point) when due."""
+        run, budget = self.run, self.run.cfg.budget
+        run.log({**self.stats, **self.updates.last}, run.frames, "online/")
+        if (signals := online_signals(run.frames, self.stats)) is not None:
+            run.online_signals.append(signals)  # the plot's signals, the batch's reward
+        if run.frames >= self.next_eval:
+            run.evaluate("online")
+            self.next_eval += budget.eval_every
+        if run.frames >= self.next_save:
+            self.clock.tick()
+            run.save()
+            self.next_save = (run.frames // budget.checkpoint_every + 1) * budget.checkpoint_every
+            self.cut_points.cut = True
+        if run.cfg.interrupt_at_frames is not None and run.frames >= run.cfg.interrupt_at_frames:
+            raise KeyboardInterrupt
+
+    def finish(self) -> None:
+        """``shutdown``: the last evaluation (unless one just ran), the curve and summary."""
+        run = self.run
+        self.cut_points.shutdown()
+        if not run.history or run.history[-1]["frames"] != run.frames:
+            run.evaluate("online")
+        self.clock.tick()
+        run.finish()
+
+    def interrupted(self) -> None:
+        """After Ctrl-C or SIGTERM: the checkpoint, the logger closed, one line."""
+        run = self.run
+        if not self.offline_done:
+            run.logger.shutdown()
+            run.say(offline_interruption(run))
+            return
+        self.clock.tick()
+        run.save()
+        run.logger.shutdown()
+        run.say(
+            f"interrupted at {run.frames} online frames; checkpoint saved. "
+            "Continue with resume=true."
+        )
+
+
+def make_trainer(run: O2ORun) -> tuple[Trainer, OnlinePhase]:
+    """TorchRL's ``Trainer`` running ``run``, with the recipe's ops registered as its hooks."""
+    cut_points, updates = CutPoints(run), LearnerUpdates(run)
+    trainer = Trainer(
+        collector=cut_points,
+        total_frames=run.cfg.budget.online_frames,
+        frame_skip=1,
+        optim_steps_per_batch=None,  # as many as the credits allow: sample() stops them
+        loss_module=run.update,
+        optimization_stepper=updates,
+        progress_bar=False,  # the offline stages' bars and the run's lines say the progress
+        auto_log_optim_steps=False,
+    )
+    trainer.collected_frames = run.frames  # a resumed run's frames count toward the total
+    phase = OnlinePhase(run, cut_points, updates)
+    trainer.register_op("setup", phase.offline)
+    trainer.register_op("batch_process", phase.store)
+    trainer.register_op("process_optim_batch", phase.sample)
+    trainer.register_op("post_steps", phase.after_updates)
+    trainer.register_op("post_steps_log", phase.log_evaluate_checkpoint)
+    trainer.register_op("shutdown", phase.finish)
+    return trainer, phase
+
+
 def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORun:
     """Runs (or resumes) one offline-to-online run of ``make_learner``'s algorithm; returns it.
 
     ``cfg`` must have been validated. The run goes through its offline stages, the
     offline evaluation, then the online phase (collect, store, update, the learner's
-    hook, evaluate, checkpoint).
+    hook, evaluate, checkpoint), on TorchRL's ``Trainer`` (:func:`make_trainer`).
 
     Ctrl-C or SIGTERM (``interrupt_at_frames``, ``interrupt_at_offline_updates``) ends it
     early with a checkpoint and one line; before the run is built (data, networks), the
@@ -71,83 +267,11 @@ def run_o2o(cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> O2ORu
     # SIGTERM stops a run as Ctrl-C does; the run directory is this run's until it returns
     with signals_as_interrupts(), run_directory_lock(cfg.output_dir):
         run = O2ORun(cfg, make_learner)
-        # ---- Offline phase (its shared stages possibly from offline_cache)
+        trainer, phase = make_trainer(run)
         try:
-            run_offline_stages(run)
-            run.stage("offline_eval", lambda: run.evaluate("offline"))
+            trainer.train()
         except KeyboardInterrupt:
-            run.logger.shutdown()
-            run.say(offline_interruption(run))
-            return run
-        return online_phase(run)
-
-
-def online_phase(run: O2ORun) -> O2ORun:
-    """Algorithm 1's online loop (lines 10-18) for ``run``, past its offline phase."""
-    cfg = run.cfg
-    budget = cfg.budget
-    next_eval = (run.frames // budget.eval_every + 1) * budget.eval_every
-    next_save = (run.frames // budget.checkpoint_every + 1) * budget.checkpoint_every
-    clock = StageClock(run.stage_seconds, run.stage_cpu_seconds, "online")
-    push = COLLECTORS[cfg.collector.name].push  # the weights' way to the collector
-    device = torch.device(cfg.device)
-    collector = None
-    try:
-        while run.frames < budget.online_frames:
-            # A cut point (the start, each checkpoint, a resume): a new collector, its env
-            # seeded by seed + 1 + frames, a new episode. An uninterrupted run cuts where a
-            # run resumed from its checkpoint does, so the two continue bitwise alike.
-            collector = run.collector()
-            for batch in collector:
-                with held():  # a signal now stops the run after this batch
-                    stats = run.store(batch)  # l. 11-13: acted with the exploration policy
-                    # l. 14-16: online.utd_ratio gradient updates per collected frame
-                    run.update_credit += cfg.online.utd_ratio * batch.numel()
-                    losses: dict = {}
-                    while run.update_credit >= 1:
-                        k = run.learner.online_batches_per_update
-                        sample = online_batch(run.replay, k, device)  # D_offline ∪ D_online
-                        losses = run.update(sample)  # the learner's (DUAL: IQL critic + Eq. 7)
-                        losses.update(run.replay.after_update(sample))  # balanced replay's step
-                        run.update_credit -= 1
-                    run.learner.after_updates()  # l. 17, DUAL: refit the posterior when due
-                    push(collector, run.learner.exploration_policy)  # to the workers
-                    run.log({**stats, **losses}, run.frames, "online/")
-                    if (signals := online_signals(run.frames, stats)) is not None:
-                        run.online_signals.append(signals)  # the plot's signals, the batch's reward
-                    if run.frames >= next_eval:
-                        run.evaluate("online")
-                        next_eval += budget.eval_every
-                    checkpoint = run.frames >= next_save
-                    if checkpoint:
-                        clock.tick()
-                        run.save()
-                        next_save = (
-                            run.frames // budget.checkpoint_every + 1
-                        ) * budget.checkpoint_every
-                    if (
-                        cfg.interrupt_at_frames is not None
-                        and run.frames >= cfg.interrupt_at_frames
-                    ):
-                        raise KeyboardInterrupt
-                    if checkpoint:
-                        break
-            stop_collecting(collector)
-            collector = None
-    except KeyboardInterrupt:
-        clock.tick()
-        run.save()
-        run.logger.shutdown()
-        run.say(
-            f"interrupted at {run.frames} online frames; checkpoint saved. "
-            "Continue with resume=true."
-        )
+            phase.interrupted()
+        finally:  # the workers end with the loop, also on an interrupt or an error
+            trainer.collector.shutdown()
         return run
-    finally:  # the workers end with the loop, also on an interrupt or an error
-        if collector is not None:
-            collector.shutdown()
-    if not run.history or run.history[-1]["frames"] != run.frames:
-        run.evaluate("online")
-    clock.tick()
-    run.finish()
-    return run
