@@ -89,7 +89,8 @@ def test_one_dual_update_reads_through_at_most_five_files_each_calling_the_next(
         in text["recipe/settings/algos.py"]
     )
     loop = text["recipe/o2o/loop.py"]
-    assert "losses = run.update(sample)" in loop and "run.learner.after_updates()" in loop
+    assert "losses = self.run.update(sub_batch)" in loop
+    assert "self.run.learner.after_updates()" in loop
     dual = text["recipe/algos/dual.py"]
     update = dual[dual.index("    def update(self, batch") :]
     update = update[: update.index("\n    def ")]

@@ -14,7 +14,6 @@ ENTRY_POINTS: dict[str, Callable] = {
     "recipes/o2o.py": lambda *a: run_script("recipes/o2o.py", *a),
     "torchrl-dual": lambda *a: run_console_script("torchrl-dual", *a),
     "python -m torchrl_dual.recipe": lambda *a: run_module("torchrl_dual.recipe", *a),
-    "recipes/torchrl_trainer.py": lambda *a: run_script("recipes/torchrl_trainer.py", *a),
     "python -m benchmarks.learning.reference_d3rlpy": lambda *a: run_module(
         "benchmarks.learning.reference_d3rlpy", "algo=iql", *a
     ),
@@ -42,9 +41,6 @@ def test_bad_input_ends_in_one_line_and_exit_2_at_every_entry_point(entry, overr
 @pytest.mark.parametrize(
     ("entry", "override", "says"),
     [
-        ("recipes/torchrl_trainer.py", "algo=iql", "algo=iql: this script trains DUAL"),
-        ("recipes/torchrl_trainer.py", "trainer.nope=1", "Could not override 'trainer.nope'"),
-        ("recipes/torchrl_trainer.py", "trainer.progress_bar=maybe", "trainer.progress_bar"),
         ("python -m benchmarks.learning.reference_d3rlpy", "algo=dual", "no d3rlpy reference"),
     ],
 )
