@@ -89,8 +89,10 @@ def test_one_dual_update_reads_through_at_most_five_files_each_calling_the_next(
         in text["recipe/settings/algos.py"]
     )
     loop = text["recipe/o2o/loop.py"]
-    assert "losses = self.run.update(sub_batch)" in loop
+    assert "optimization_stepper=updates" in loop and "run.update" in loop
     assert "self.run.learner.after_updates()" in loop
+    run = (PACKAGE / "recipe/o2o/run.py").read_text()  # run.update: LearnerUpdates
+    assert "losses = self(sub_batch)" in run and "metrics = self.update(batch)" in run
     dual = text["recipe/algos/dual.py"]
     update = dual[dual.index("    def update(self, batch") :]
     update = update[: update.index("\n    def ")]

@@ -30,7 +30,7 @@ def test_compiled_updates_follow_the_eager_ones(algo, tmp_path):
     cache = tmp_path / "data"
     eager = _run(tmp_path / "eager", cache, algo)
     compiled = _run(tmp_path / "compiled", cache, algo, "compile.compile=true")
-    assert compiled._update is not compiled.learner.update  # the compiled wrapper
+    assert compiled.update.update is not compiled.learner.update  # the compiled wrapper
     batches = [eager.offline_buffer.sample().clone() for _ in range(UPDATES)]
     for i, batch in enumerate(batches):
         expected, got = eager.update(batch.clone()), compiled.update(batch.clone())

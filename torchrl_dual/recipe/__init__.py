@@ -26,8 +26,8 @@ from typing import TYPE_CHECKING
 from torchrl_dual._lazy import lazy_exports
 
 if TYPE_CHECKING:  # the eager imports, for type checkers and IDEs
-    from torchrl_dual.recipe.algos.dual import DualLearner, run_dual
-    from torchrl_dual.recipe.algos.iql import IQLLearner, run_iql
+    from torchrl_dual.recipe.algos.dual import DualLearner
+    from torchrl_dual.recipe.algos.iql import IQLLearner
     from torchrl_dual.recipe.cli import (
         CONFIG_DIR,
         check_command_line,
@@ -66,8 +66,6 @@ __all__ = [
     "main",
     "plot_learning_curve",
     "run",
-    "run_dual",
-    "run_iql",
     "run_o2o",
     "user_errors",
     "validate_config",
@@ -77,9 +75,7 @@ __getattr__, __dir__ = lazy_exports(
     __name__,
     {
         "DualLearner": "torchrl_dual.recipe.algos.dual",
-        "run_dual": "torchrl_dual.recipe.algos.dual",
         "IQLLearner": "torchrl_dual.recipe.algos.iql",
-        "run_iql": "torchrl_dual.recipe.algos.iql",
         "CONFIG_DIR": "torchrl_dual.recipe.cli",
         "check_command_line": "torchrl_dual.recipe.cli",
         "compose_checked": "torchrl_dual.recipe.cli",

@@ -13,15 +13,12 @@ is :class:`~torchrl_dual.recipe.O2ORun`'s.
 
 from __future__ import annotations
 
-from omegaconf import DictConfig
 from tensordict import TensorDictBase
 
 from torchrl_dual.objectives.optim import adam
 from torchrl_dual.recipe.algos.iql import make_iql_actor
 from torchrl_dual.recipe.kits.build import projected_policy
 from torchrl_dual.recipe.o2o.learner import Learner, RunContext
-from torchrl_dual.recipe.o2o.loop import run_o2o
-from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.parts.critics import make_critic
 from torchrl_dual.recipe.parts.mc_labels import MonteCarloLabels
 
@@ -100,8 +97,3 @@ class CalQLLearner(Learner):
     def load_state_dict(self, state: dict) -> None:
         """Restores the held episode of the Monte-Carlo labels."""
         self.labels.load_state_dict(state)
-
-
-def run_calql(cfg: DictConfig) -> O2ORun:
-    """Runs (or resumes) the Cal-QL baseline for a validated ``cfg``."""
-    return run_o2o(cfg, CalQLLearner)

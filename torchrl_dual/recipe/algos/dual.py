@@ -15,7 +15,6 @@ shift-aware noise and fine-tunes on offline and online data. See docs/recipe.md.
 from __future__ import annotations
 
 import torch
-from omegaconf import DictConfig
 from tensordict import TensorDictBase
 from torchrl.data.tensor_specs import TensorSpec
 
@@ -26,8 +25,6 @@ from torchrl_dual.objectives import DUALLoss, progressive_distillation
 from torchrl_dual.objectives.optim import adam
 from torchrl_dual.recipe.kits.build import env_kit
 from torchrl_dual.recipe.o2o.learner import Learner, RunContext
-from torchrl_dual.recipe.o2o.loop import run_o2o
-from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.parts.critics import Critic, make_critic, policy_view
 from torchrl_dual.recipe.parts.laplace_refits import RefitSchedule
 from torchrl_dual.recipe.parts.mc_labels import MonteCarloLabels
@@ -378,15 +375,3 @@ class DualLearner(Learner):
         batch = data[torch.randperm(len(data), generator=gen)[:samples]].to(self.settings.device)
         predicted = self.transition.predict(batch["observation"], batch["action"])
         return (predicted - batch["next", "observation"]).norm(dim=-1).cpu()
-
-
-def run_dual(cfg: DictConfig) -> O2ORun:
-    """Runs (or resumes) Algorithm 1 for a validated ``cfg``; returns the run's state.
-
-    Args:
-        cfg (DictConfig): a config validated with ``algo=dual``.
-
-    Returns:
-        O2ORun: the finished (or interrupted) run.
-    """
-    return run_o2o(cfg, DualLearner)

@@ -17,7 +17,6 @@ evaluated with its deterministic action (the Gaussian's mean; ``tanh(loc)`` for 
 
 from __future__ import annotations
 
-from omegaconf import DictConfig
 from tensordict import TensorDictBase
 from tensordict.nn import (
     AddStateIndependentNormalScale,
@@ -34,8 +33,6 @@ from torchrl_dual.modules.actors.last_layer_actor import TanhSquash
 from torchrl_dual.objectives.optim import adam
 from torchrl_dual.recipe.kits.build import projected_policy
 from torchrl_dual.recipe.o2o.learner import Learner, RunContext
-from torchrl_dual.recipe.o2o.loop import run_o2o
-from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.parts.critics import make_critic
 from torchrl_dual.recipe.settings.baselines import (
     ACTOR_DISTRIBUTIONS,
@@ -178,15 +175,3 @@ class IQLLearner(Learner):
             "loss_actor": actor_loss.detach(),
             "log_prob": batch[loss.tensor_keys.log_prob].mean().detach(),
         }
-
-
-def run_iql(cfg: DictConfig) -> O2ORun:
-    """Runs (or resumes) the IQL baseline for a validated ``cfg``.
-
-    Args:
-        cfg (DictConfig): a config validated with ``algo=iql``.
-
-    Returns:
-        O2ORun: the finished (or interrupted) run.
-    """
-    return run_o2o(cfg, IQLLearner)

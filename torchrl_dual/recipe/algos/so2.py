@@ -19,15 +19,12 @@ priorities, :mod:`torchrl_dual.recipe.o2o.replays`), the paper's "SO2 + OFF2ON" 
 from __future__ import annotations
 
 import torch
-from omegaconf import DictConfig
 from tensordict import TensorDictBase
 
 from torchrl_dual.objectives.optim import adam
 from torchrl_dual.recipe.algos.iql import make_iql_actor
 from torchrl_dual.recipe.kits.build import projected_policy
 from torchrl_dual.recipe.o2o.learner import Learner, RunContext
-from torchrl_dual.recipe.o2o.loop import run_o2o
-from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.parts.critics import make_critic
 from torchrl_dual.trainers.stepper import CriticActorStepper
 
@@ -92,8 +89,3 @@ class SO2Learner(Learner):
         """Critic steps, one per batch of a stacked ``[k, B]``, then an actor step on the last."""
         self.critic.set_phase(online=self.run.frames > 0)
         return dict(self.stepper.update(batch).items())
-
-
-def run_so2(cfg: DictConfig) -> O2ORun:
-    """Runs (or resumes) the SO2 baseline for a validated ``cfg``."""
-    return run_o2o(cfg, SO2Learner)

@@ -16,8 +16,9 @@ collector                           :class:`CutPoints`: the ``collector.name`` c
 ``process_optim_batch``             one sample of D_offline ∪ D_online per credit;
                                     ``StopIteration`` (this batch's updates are done) when
                                     none is left
-``optimization_stepper``            :class:`LearnerUpdates`: the learner's update (l. 14-16;
-                                    DUAL: the critic, then Eq. 7's actor), counted
+``optimization_stepper``            ``run.update``, :class:`~torchrl_dual.recipe.o2o.run.LearnerUpdates`:
+                                    the learner's update (l. 14-16; DUAL: the critic, then
+                                    Eq. 7's actor), counted
 ``post_steps``                      the learner's hook (l. 17, DUAL's Laplace refits), then the
                                     weights' push to the collector's workers
 ``post_steps_log``                  log, evaluate every ``budget.eval_every`` frames,
@@ -45,8 +46,8 @@ from collections.abc import Callable, Iterator
 
 import torch
 from omegaconf import DictConfig
-from tensordict import TensorDict, TensorDictBase
-from torchrl.trainers import OptimizationStepper, Trainer
+from tensordict import TensorDictBase
+from torchrl.trainers import Trainer
 
 from torchrl_dual.recipe.o2o.collectors import stop_collecting
 from torchrl_dual.recipe.o2o.interrupts import held, signals_as_interrupts
@@ -54,7 +55,7 @@ from torchrl_dual.recipe.o2o.learner import Learner
 from torchrl_dual.recipe.o2o.offline_cache import run_offline_stages
 from torchrl_dual.recipe.o2o.plots import online_signals
 from torchrl_dual.recipe.o2o.replays import Replay
-from torchrl_dual.recipe.o2o.run import O2ORun
+from torchrl_dual.recipe.o2o.run import LearnerUpdates, O2ORun
 from torchrl_dual.recipe.o2o.run_lock import run_directory_lock
 from torchrl_dual.recipe.o2o.stage_checkpoints import offline_interruption
 from torchrl_dual.recipe.o2o.stage_clock import StageClock
@@ -110,27 +111,6 @@ class CutPoints:
         if self.current is not None:
             stop_collecting(self.current)
             self.current = None
-
-
-class LearnerUpdates(OptimizationStepper):
-    """The learner's update as the trainer's optimization step (Alg. 1 l. 14-16), counted.
-
-    The run logs the batch's last update's losses (and the replay's, e.g. balanced
-    replay's priority step), kept in :attr:`last`; the step returns no metrics for the
-    trainer to average.
-    """
-
-    def __init__(self, run: O2ORun) -> None:
-        self.run = run
-        self.last: dict = {}
-        self._none = TensorDict()
-
-    def step(self, trainer: Trainer, sub_batch: TensorDictBase) -> TensorDictBase:
-        """One counted learner update on ``sub_batch``, then the replay's own step."""
-        losses = self.run.update(sub_batch)
-        losses.update(self.run.replay.after_update(sub_batch))
-        self.last = losses
-        return self._none
 
 
 class OnlinePhase:
@@ -222,13 +202,13 @@ class OnlinePhase:
 
 def make_trainer(run: O2ORun) -> tuple[Trainer, OnlinePhase]:
     """TorchRL's ``Trainer`` running ``run``, with the recipe's ops registered as its hooks."""
-    cut_points, updates = CutPoints(run), LearnerUpdates(run)
+    cut_points, updates = CutPoints(run), run.update
     trainer = Trainer(
         collector=cut_points,
         total_frames=run.cfg.budget.online_frames,
         frame_skip=1,
         optim_steps_per_batch=None,  # as many as the credits allow: sample() stops them
-        loss_module=run.update,
+        loss_module=run.learner.update,
         optimization_stepper=updates,
         progress_bar=False,  # the offline stages' bars and the run's lines say the progress
         auto_log_optim_steps=False,

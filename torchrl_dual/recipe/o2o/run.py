@@ -21,9 +21,10 @@ from typing import Any
 import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
 from torchrl.collectors import BaseCollector
 from torchrl.data import LazyTensorStorage, RandomSampler, ReplayBuffer
+from torchrl.trainers import OptimizationStepper, Trainer
 from tqdm.auto import tqdm
 
 from torchrl_dual._tensordict_patch import install as install_tensordict_patch
@@ -75,6 +76,39 @@ _COUNTERS = (
     "online_signals",
     "offline_steps",
 )
+
+
+class LearnerUpdates(OptimizationStepper):
+    """The learner's update, counted: ``run.update(batch)``, and the trainer's stepper.
+
+    Calling it runs one update of ``run.learner`` (eager, compiled or as a CUDA graph:
+    ``compile.*``, :func:`~torchrl_dual.recipe.o2o.update_step.make_update_step`), the
+    learner's ``after_update`` and counts it; the offline stages call it so. As TorchRL's
+    ``OptimizationStepper`` of the online phase (Alg. 1 l. 14-16) it adds the replay's own
+    step (e.g. balanced replay's priorities) and keeps the losses in :attr:`last`: the run
+    logs the batch's last update's losses, so the step returns none for the trainer to
+    average.
+    """
+
+    def __init__(self, run: O2ORun) -> None:
+        self.run = run
+        self.update = make_update_step(run.learner, run.cfg.get("compile"), lambda: run.frames > 0)
+        self.last: dict = {}
+        self._none = TensorDict()
+
+    def __call__(self, batch: TensorDictBase) -> dict:
+        """One learner update on ``batch``, counted; returns its metrics."""
+        metrics = self.update(batch)
+        self.run.learner.after_update()
+        self.run.updates += 1
+        return metrics
+
+    def step(self, trainer: Trainer, sub_batch: TensorDictBase) -> TensorDictBase:
+        """One counted update on ``sub_batch``, then the replay's own step."""
+        losses = self(sub_batch)
+        losses.update(self.run.replay.after_update(sub_batch))
+        self.last = losses
+        return self._none
 
 
 class O2ORun:
@@ -134,7 +168,7 @@ class O2ORun:
         self.offline_buffer = self._offline_buffer()
         # ---- the algorithm's networks, losses and policies
         self.learner = make_learner(self)
-        self._update = make_update_step(self.learner, cfg.get("compile"), lambda: self.frames > 0)
+        self.update = LearnerUpdates(self)  # one counted update; the trainer's stepper
         self.replay = REPLAYS[cfg.replay.name][1](self)  # D_offline ∪ D_online (replays.py)
         # ---- counters
         self.stages_done: list[str] = []
@@ -309,13 +343,6 @@ class O2ORun:
                 yield source[start : start + chunk].to(self.cfg.device)
 
     # ------------------------------------------------------------------ updates
-    def update(self, batch: TensorDictBase) -> dict:
-        """One learner update, counted."""
-        metrics = self._update(batch)
-        self.learner.after_update()
-        self.updates += 1
-        return metrics
-
     def pretrain_updates(self) -> None:
         """``budget.offline_updates`` updates on D_offline (DUAL: Alg. 1 lines 6-8).
 

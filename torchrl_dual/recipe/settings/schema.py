@@ -19,8 +19,9 @@ from typing import Any
 
 from omegaconf import DictConfig
 
+from torchrl_dual.recipe.settings.algo_common import Algorithm
 from torchrl_dual.recipe.settings.algos import ALGORITHMS
-from torchrl_dual.recipe.settings.envs import ENV_KITS
+from torchrl_dual.recipe.settings.envs import ENV_KITS, EnvKit
 from torchrl_dual.recipe.settings.errors import ConfigError
 from torchrl_dual.recipe.settings.o2o import (
     COLLECTORS,
@@ -228,14 +229,20 @@ def config_sections(cfg: DictConfig) -> dict[str, type]:
     no table entry raises :class:`ConfigError` (``collector.num_workers`` with
     ``collector=single`` and ``collector.num_envs`` with the others too).
     """
-    algorithm = _choice(cfg, "algo", ALGORITHMS, "the algorithm").settings
+    return _selection(cfg)[2]
+
+
+def _selection(cfg: DictConfig) -> tuple[Algorithm, EnvKit, dict[str, type]]:
+    """The ``algo`` entry, the ``env.kind`` kit and :func:`config_sections`' sections."""
+    entry = _choice(cfg, "algo", ALGORITHMS, "the algorithm")
+    algorithm = entry.settings
     kit = _choice(cfg, "env.kind", ENV_KITS, "which environment kit builds the env and data")
     critic_schema, _ = _choice(cfg, "critic.name", CRITICS, "the critic")
     replay_schema, _ = _choice(cfg, "replay.name", REPLAYS, "the online replay")
     collector_schema = _choice(cfg, "collector.name", COLLECTORS, "the online collector").settings
     check_worker_count(cfg)
     logger = _choice(cfg, "logger.backend", LOGGERS, "the TorchRL logger backend")
-    return {
+    return entry, kit, {
         "env": kit.settings,
         "budget": BudgetSettings,
         **algorithm.sections,
@@ -305,10 +312,8 @@ def validate_config(cfg: DictConfig) -> DictConfig:
         ConfigError: an unknown choice or key, a value its rule refuses, a failed cross-key
             check, or what the machine lacks for it (a package, a data set, a device).
     """
-    entry = _choice(cfg, "algo", ALGORITHMS, "the algorithm")
+    entry, kit, sections = _selection(cfg)
     algorithm = entry.settings
-    kit = _choice(cfg, "env.kind", ENV_KITS, "which environment kit builds the env and data")
-    sections = config_sections(cfg)
     known = dotted_keys(RunSettings, "")
     for name, schema in sections.items():
         known += [name, *dotted_keys(schema, name)]
