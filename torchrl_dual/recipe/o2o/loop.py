@@ -48,6 +48,7 @@ import torch
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
 from torchrl.trainers import Trainer
+from tqdm.auto import tqdm
 
 from torchrl_dual.recipe.o2o.collectors import stop_collecting
 from torchrl_dual.recipe.o2o.interrupts import held, signals_as_interrupts
@@ -116,8 +117,10 @@ class CutPoints:
 class OnlinePhase:
     """The recipe's ops on the trainer, sharing the online phase's schedule and signals."""
 
-    def __init__(self, run: O2ORun, cut_points: CutPoints, updates: LearnerUpdates) -> None:
-        self.run, self.cut_points, self.updates = run, cut_points, updates
+    def __init__(
+        self, run: O2ORun, trainer: Trainer, cut_points: CutPoints, updates: LearnerUpdates
+    ) -> None:
+        self.run, self.trainer, self.cut_points, self.updates = run, trainer, cut_points, updates
         self.push = COLLECTORS[run.cfg.collector.name].push  # the weights' way to the collector
         self.device = torch.device(run.cfg.device)
         self.offline_done = False
@@ -133,6 +136,10 @@ class OnlinePhase:
         self.next_eval = (run.frames // budget.eval_every + 1) * budget.eval_every
         self.next_save = (run.frames // budget.checkpoint_every + 1) * budget.checkpoint_every
         self.clock = StageClock(run.stage_seconds, run.stage_cpu_seconds, "online")
+        if run.cfg.progress:  # TorchRL's bar of the online frames, from a resumed run's on
+            self.trainer.progress_bar = True  # (made here, not over the offline stages' bars)
+            self.trainer._pbar = tqdm(total=budget.online_frames, initial=run.frames)
+            self.trainer._pbar_str = {}
 
     def store(self, batch: TensorDictBase) -> None:
         """``batch_process``: stores the batch (l. 11-13); ``utd_ratio`` credits per frame."""
@@ -175,10 +182,16 @@ class OnlinePhase:
         if run.cfg.interrupt_at_frames is not None and run.frames >= run.cfg.interrupt_at_frames:
             raise KeyboardInterrupt
 
+    def close_bar(self) -> None:
+        """Closes TorchRL's progress bar (the trainer leaves it open), before the last lines."""
+        if self.trainer.progress_bar and hasattr(self.trainer, "_pbar"):
+            self.trainer._pbar.close()
+
     def finish(self) -> None:
         """``shutdown``: the last evaluation (unless one just ran), the curve and summary."""
         run = self.run
         self.cut_points.shutdown()
+        self.close_bar()
         if not run.history or run.history[-1]["frames"] != run.frames:
             run.evaluate("online")
         self.clock.tick()
@@ -191,6 +204,7 @@ class OnlinePhase:
             run.logger.shutdown()
             run.say(offline_interruption(run))
             return
+        self.close_bar()
         self.clock.tick()
         run.save()
         run.logger.shutdown()
@@ -210,11 +224,11 @@ def make_trainer(run: O2ORun) -> tuple[Trainer, OnlinePhase]:
         optim_steps_per_batch=None,  # as many as the credits allow: sample() stops them
         loss_module=run.learner.update,
         optimization_stepper=updates,
-        progress_bar=False,  # the offline stages' bars and the run's lines say the progress
+        progress_bar=False,  # TorchRL's bar of the online frames starts after the offline phase
         auto_log_optim_steps=False,
     )
     trainer.collected_frames = run.frames  # a resumed run's frames count toward the total
-    phase = OnlinePhase(run, cut_points, updates)
+    phase = OnlinePhase(run, trainer, cut_points, updates)
     trainer.register_op("setup", phase.offline)
     trainer.register_op("batch_process", phase.store)
     trainer.register_op("process_optim_batch", phase.sample)
