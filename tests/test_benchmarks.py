@@ -76,6 +76,18 @@ def test_online_reward_counts_the_batches_with_reward_and_the_positive_evaluatio
     assert records["dual"][3]["batches"] == 4
 
 
+def test_update_path_lists_the_files_of_one_dual_update_in_call_order():
+    from benchmarks.studies.update_path import files_of_one_update
+
+    files = files_of_one_update(["algo=dual"])
+    # the run's stepper, the learner, Alg. 1's stepper, then DUAL's loss and Eq. 7's actor
+    assert files[:2] == ["recipe/o2o/run.py", "recipe/algos/dual.py"]
+    order = [files.index(f) for f in ("trainers/stepper.py", "objectives/dual.py",
+                                      "objectives/weighted_map_actor.py")]  # fmt: skip
+    assert order == sorted(order)
+    assert "recipe/o2o/loop.py" not in files and "recipe/o2o/update_step.py" not in files
+
+
 def test_paired_mcnemar_counts_discordant_seeds_and_gives_the_exact_binomial_tail():
     from benchmarks.studies.online_reward import paired_mcnemar
 

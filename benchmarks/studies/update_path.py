@@ -1,0 +1,78 @@
+"""Which package files one online update of the recipe passes through, in call order.
+
+    python -m benchmarks.studies.update_path                 # DUAL with its IQL critic
+    python -m benchmarks.studies.update_path algo=iql critic=iql
+
+Builds a small Frozen-Lake run (``budget=smoke``, 1000 transitions), then profiles one
+call of the trainer's optimization step, ``run.update.step`` (the learner's update on a
+sampled batch, its bookkeeping and the replay's own step), after a first call that builds
+the optimizers' state. Each ``torchrl_dual`` file is listed once, where it is first
+entered; the files entered after the last optimizer step (the refit count, the replay's
+step) are marked. docs/architecture.md's "Size and shape" table cites the count.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import sys
+import tempfile
+
+from torchrl_dual.recipe import ALGORITHMS, CONFIG_DIR, O2ORun, compose_checked
+
+AFTER_THE_STEP = ("recipe/parts/laplace_refits.py", "recipe/o2o/replays.py")
+"""The learner's ``after_update`` (the refit count) and the replay's step."""
+
+
+def files_of_one_update(overrides: list[str]) -> list[str]:
+    """The ``torchrl_dual`` files one ``run.update.step`` enters, in first-entry order."""
+    out = tempfile.mkdtemp()
+    cfg = compose_checked(
+        CONFIG_DIR,
+        [
+            "env=frozenlake",
+            "budget=smoke",
+            "progress=false",
+            "budget.dataset_transitions=1000",
+            f"output_dir={out}/run",
+            f"data_cache_dir={out}/data",
+            *overrides,
+        ],
+    )
+    with contextlib.redirect_stdout(io.StringIO()):
+        run = O2ORun(cfg, ALGORITHMS[cfg.algo].learner)
+    batch = run.offline_buffer.sample().to(cfg.device)
+    run.update.step(None, batch)  # the optimizers' state, lazy modules
+    seen: list[str] = []
+
+    def profile(frame, event, arg):
+        name = frame.f_code.co_filename
+        if event == "call" and "/torchrl_dual/" in name:
+            name = name.rsplit("/torchrl_dual/", 1)[1]
+            if name not in seen:
+                seen.append(name)
+
+    sys.setprofile(profile)
+    try:
+        run.update.step(None, batch)
+    finally:
+        sys.setprofile(None)
+    return seen
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Prints the files and their counts for the overrides in ``argv``."""
+    overrides = list(sys.argv[1:] if argv is None else argv) or ["algo=dual"]
+    files = files_of_one_update(overrides)
+    to_step = [f for f in files if f not in AFTER_THE_STEP]
+    recipe = [f for f in to_step if f.startswith("recipe/")]
+    print(
+        f"{' '.join(overrides)}: {len(to_step)} package files up to the optimizer steps, "
+        f"{len(recipe)} of them in recipe/ ({len(files)} with the bookkeeping after them)"
+    )
+    for name in files:
+        print(f"  {name}{'   (after the step)' if name in AFTER_THE_STEP else ''}")
+
+
+if __name__ == "__main__":
+    main()
