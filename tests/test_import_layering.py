@@ -76,6 +76,7 @@ ALLOWED: dict[str, tuple[str, ...]] = {
     ),
     "recipe.parts": (
         "recipe.parts",
+        "trainers.hooks",  # Alg. 1 line 17's schedule, written once (RefitSchedule)
         "recipe.o2o",
         "recipe.kits",
         "recipe.settings",
@@ -84,6 +85,7 @@ ALLOWED: dict[str, tuple[str, ...]] = {
     "recipe.algos": (
         "recipe.algos",
         "trainers.stepper",  # Alg. 1's update, written once (CriticActorStepper)
+        "trainers.hooks",  # Alg. 1 line 17's schedule, written once (RefitSchedule)
         "recipe.parts",
         "recipe.o2o",
         "recipe.kits",

@@ -15,6 +15,7 @@ from torchrl_dual.trainers.dual_trainer import DUALTrainer
 from torchrl_dual.trainers.hooks import (
     LaplaceRefitHook,
     OfflineStagesHook,
+    RefitSchedule,
     register_before_weight_update,
 )
 from torchrl_dual.trainers.logging_hooks import DUALSignalsLogHook, NormalizedScoreLogHook
@@ -29,6 +30,7 @@ __all__ = [
     "LaplaceRefitHook",
     "NormalizedScoreLogHook",
     "OfflineStagesHook",
+    "RefitSchedule",
     "register_configs",
     "register_before_weight_update",
 ]

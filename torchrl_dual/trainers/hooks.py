@@ -24,7 +24,12 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.trainers import Trainer, TrainerHookBase
 
-__all__ = ["LaplaceRefitHook", "OfflineStagesHook", "register_before_weight_update"]
+__all__ = [
+    "LaplaceRefitHook",
+    "OfflineStagesHook",
+    "RefitSchedule",
+    "register_before_weight_update",
+]
 
 
 def register_before_weight_update(trainer: Trainer, op: Callable[[], None]) -> None:
@@ -42,6 +47,39 @@ def register_before_weight_update(trainer: Trainer, op: Callable[[], None]) -> N
     trainer.register_op("post_steps", op)
     ops = trainer._post_steps_ops
     ops.insert(0, ops.pop())
+
+
+class RefitSchedule:
+    """Alg. 1 line 17's schedule, the one home of it (the recipe's learners, :class:`LaplaceRefitHook`).
+
+    The posterior is refitted after the first block of updates that brings the count
+    since the last fit to ``every``. Its owner checkpoints ``since``.
+
+    Examples:
+        >>> schedule = RefitSchedule(every=3)
+        >>> schedule.count(2); schedule.due
+        False
+        >>> schedule.count(); schedule.due
+        True
+        >>> schedule.reset(); schedule.since
+        0
+    """
+
+    def __init__(self, every: int) -> None:
+        self.every, self.since = int(every), 0
+
+    def count(self, updates: int = 1) -> None:
+        """``updates`` more gradient updates since the last fit."""
+        self.since += updates
+
+    @property
+    def due(self) -> bool:
+        """Whether a refit is due (checked after each block of updates)."""
+        return self.since >= self.every
+
+    def reset(self) -> None:
+        """A fit happened."""
+        self.since = 0
 
 
 class OfflineStagesHook(TrainerHookBase):
@@ -111,6 +149,9 @@ class OfflineStagesHook(TrainerHookBase):
 class LaplaceRefitHook(TrainerHookBase):
     """Refits the last-layer Laplace (Eq. 8) every ``interval`` optimizer steps (Alg. 1 l. 17).
 
+    After the first batch of optimizer steps that brings the count since the last fit to
+    ``interval`` (:class:`RefitSchedule`, the recipe's rule too).
+
     Args:
         ensemble: the :class:`~torchrl_dual.modules.LaplaceEnsembleActor` (Eq. 9) whose
             posterior is refitted.
@@ -120,7 +161,8 @@ class LaplaceRefitHook(TrainerHookBase):
         weight_fn: the Eq. 7 weights ``w_i`` of each sample, e.g.
             ``WeightedMAPActorLoss.advantage_weights``; uniform when ``None``.
 
-    The step of the last refit is the hook's ``state_dict``.
+    The schedule's count, the step of the last refit and the number of refits are the
+    hook's ``state_dict``.
 
     Example:
         >>> from torchrl_dual.trainers import LaplaceRefitHook
@@ -133,11 +175,11 @@ class LaplaceRefitHook(TrainerHookBase):
         >>> ensemble, trainer = Counting(), FakeTrainer()
         >>> hook = LaplaceRefitHook(ensemble, lambda: [], interval=100)
         >>> hook._trainer = trainer
-        >>> for count in (50, 100, 150, 250):
+        >>> for count in (70, 140, 210, 280, 350):  # 70 optimizer steps per collected batch
         ...     trainer._optim_count = count
         ...     hook()
-        >>> ensemble.fits
-        2
+        >>> ensemble.fits, hook.last_refit_step  # at 140 and 280 (not at each 100 crossed)
+        (2, 280)
     """
 
     def __init__(
@@ -153,33 +195,46 @@ class LaplaceRefitHook(TrainerHookBase):
         self.batches_fn = batches_fn
         self.interval = interval
         self.weight_fn = weight_fn
+        self.schedule = RefitSchedule(interval)
+        self.last_seen_step = 0
         self.last_refit_step = 0
         self.num_refits = 0
         self._trainer: Any = None
 
     def __call__(self) -> None:
-        """Refits the posterior if an ``interval`` boundary was crossed since the last refit.
+        """Refits the posterior once ``interval`` optimizer steps have passed since the last fit.
 
-        The step count is the trainer's optimizer-step count; the fit runs under
+        The steps are the trainer's optimizer-step count; the fit runs under
         :func:`torch.no_grad` on ``batches_fn()``, weighted by ``weight_fn``.
         """
         step = self._trainer._optim_count
-        if step // self.interval > self.last_refit_step // self.interval:
+        self.schedule.count(step - self.last_seen_step)
+        self.last_seen_step = step
+        if self.schedule.due:
             with torch.no_grad():
                 self.ensemble.fit_laplace(self.batches_fn(), weight_fn=self.weight_fn)
+            self.schedule.reset()
             self.last_refit_step = step
             self.num_refits += 1
 
     def state_dict(self) -> dict[str, Any]:
-        """The step of the last refit and the number of refits."""
-        return {"last_refit_step": self.last_refit_step, "num_refits": self.num_refits}
+        """The steps since the last refit, the last step seen and of the last refit, the refits."""
+        return {
+            "since": self.schedule.since,
+            "last_seen_step": self.last_seen_step,
+            "last_refit_step": self.last_refit_step,
+            "num_refits": self.num_refits,
+        }
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
-        """Restores the step of the last refit and the number of refits from :meth:`state_dict`.
+        """Restores the schedule and the counts from :meth:`state_dict`.
 
         Args:
-            state_dict (dict): ``{"last_refit_step": int, "num_refits": int}``.
+            state_dict (dict): ``{"since", "last_seen_step", "last_refit_step", "num_refits"}``,
+                each an int.
         """
+        self.schedule.since = int(state_dict["since"])
+        self.last_seen_step = int(state_dict["last_seen_step"])
         self.last_refit_step = int(state_dict["last_refit_step"])
         self.num_refits = int(state_dict["num_refits"])
 

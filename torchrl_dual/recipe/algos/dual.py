@@ -26,13 +26,13 @@ from torchrl_dual.objectives.optim import adam
 from torchrl_dual.recipe.kits.build import env_kit
 from torchrl_dual.recipe.o2o.learner import Learner, RunContext
 from torchrl_dual.recipe.parts.critics import Critic, make_critic, policy_view
-from torchrl_dual.recipe.parts.laplace_refits import RefitSchedule
 from torchrl_dual.recipe.parts.mc_labels import MonteCarloLabels
 from torchrl_dual.recipe.parts.networks import make_planner, make_policy, student_like
 from torchrl_dual.recipe.parts.planner_augment import augment_capacity, make_augmenter
 from torchrl_dual.recipe.parts.planner_stage import offline_windows, pretrain_planner
 from torchrl_dual.recipe.settings.dual import ActorSettings
 from torchrl_dual.recipe.settings.parts import POLICY_CRITICS
+from torchrl_dual.trainers.hooks import RefitSchedule
 from torchrl_dual.trainers.stepper import CriticActorStepper
 
 

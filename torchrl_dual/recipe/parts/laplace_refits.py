@@ -26,42 +26,7 @@ from torchrl_dual.modules import LaplaceEnsembleActor, LastLayerActor, explorati
 from torchrl_dual.recipe.kits.build import env_kit
 from torchrl_dual.recipe.o2o.learner import RunContext
 from torchrl_dual.recipe.parts.networks import make_policy
-
-
-class RefitSchedule:
-    """Alg. 1 line 17's schedule, the one home of it.
-
-    The posterior is refitted after the first block of updates that brings the count
-    since the last fit to ``every`` (``budget.laplace_refit_every``). The count is
-    checkpointed by the learner.
-
-    Examples:
-        >>> schedule = RefitSchedule(every=3)
-        >>> for _ in range(2):
-        ...     schedule.count()
-        >>> schedule.due
-        False
-        >>> schedule.count(); schedule.due
-        True
-        >>> schedule.reset(); schedule.since
-        0
-    """
-
-    def __init__(self, every: int) -> None:
-        self.every, self.since = int(every), 0
-
-    def count(self) -> None:
-        """One more gradient update since the last fit."""
-        self.since += 1
-
-    @property
-    def due(self) -> bool:
-        """Whether a refit is due (checked after each block of updates)."""
-        return self.since >= self.every
-
-    def reset(self) -> None:
-        """A fit happened."""
-        self.since = 0
+from torchrl_dual.trainers.hooks import RefitSchedule
 
 
 class LaplaceRefits:
