@@ -88,6 +88,28 @@ def test_update_path_lists_the_files_of_one_dual_update_in_call_order():
     assert "recipe/o2o/loop.py" not in files and "recipe/o2o/update_step.py" not in files
 
 
+def test_smoke_bitwise_names_each_run_and_what_differs(tmp_path):
+    from benchmarks.robustness.smoke_bitwise import compare, differences, runs
+
+    assert runs()["dual_calql"] == ["algo=dual", "critic=calql"] and "so2" in runs()
+    for side in ("a", "b"):
+        scalars = tmp_path / side / "iql" / "logs" / "iql" / "scalars" / "eval"
+        scalars.mkdir(parents=True)
+        (scalars / "return.csv").write_text("100,1.5\n")
+        (tmp_path / side / "iql" / "summary.json").write_text('{"history": [{"return": 1.5}]}')
+    assert differences(tmp_path / "a" / "iql", tmp_path / "b" / "iql") == []
+    assert compare(tmp_path / "a", tmp_path / "b")
+    (tmp_path / "b" / "iql" / "logs" / "iql" / "scalars" / "eval" / "return.csv").write_text(
+        "100,1.5000001\n"
+    )
+    (tmp_path / "b" / "iql" / "summary.json").write_text('{"history": [{"return": 1.4}]}')
+    assert differences(tmp_path / "a" / "iql", tmp_path / "b" / "iql") == [
+        "summary.json history",
+        "logs/iql/scalars/eval/return.csv",
+    ]
+    assert not compare(tmp_path / "a", tmp_path / "b")
+
+
 def test_paired_mcnemar_counts_discordant_seeds_and_gives_the_exact_binomial_tail():
     from benchmarks.studies.online_reward import paired_mcnemar
 
