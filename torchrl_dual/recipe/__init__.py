@@ -7,8 +7,8 @@ tree, shipped in the package. Five subpackages, each importing only the ones aft
 * ``algos`` — one learner per algorithm: :class:`DualLearner` (``algos/dual.py``,
   Algorithm 1), :class:`IQLLearner` and the other baselines;
 * ``parts`` — what several algorithms share: the critics, DUAL's network builders, the
-  Laplace refit schedule, the planner's offline stage and augmentation, Cal-QL's labels;
-* ``o2o`` — the algorithm-independent run: :class:`O2ORun`, :func:`run_o2o` (the loop),
+  Laplace fits, the planner's offline stage and augmentation, Cal-QL's labels;
+* ``o2o`` — the algorithm-independent run: :class:`O2ORun`, :func:`run_o2o` (TorchRL's ``Trainer``),
   :class:`Learner`, replays, collectors, loggers, checkpoint and resume;
 * ``kits`` — the env kits' data, envs and evaluators;
 * ``settings`` — the config schema and the tables :data:`ALGORITHMS`,

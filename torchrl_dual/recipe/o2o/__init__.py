@@ -1,5 +1,5 @@
 """The algorithm-independent offline-to-online run and the :class:`Learner` protocol.
 
-Data, replay, collectors, the online loop, evaluation, logging, checkpoint and resume, and
+Data, replay, collectors, the run on TorchRL's ``Trainer``, evaluation, logging, checkpoint and resume, and
 the :class:`Learner` protocol each algorithm implements.
 """

@@ -3,11 +3,12 @@
 :class:`O2ORun` owns what every offline-to-online algorithm of the recipe shares: the
 seeds, the offline data, the online env and the evaluator, the offline replay buffer
 and TorchRL's ``OfflineToOnlineReplayBuffer``, the logger, the counters, the
-collector, the update-to-data schedule, evaluation, checkpoint and resume, and the
-learning curve at the end. What is particular to one algorithm (its networks, its
-offline stages, one gradient update, the acting policies) is a :class:`Learner`;
-:func:`run_o2o` runs one learner through the offline and the online phase. Each entry
-of :data:`~torchrl_dual.recipe.ALGORITHMS` is a learner class and a config file.
+collector, the counted update (:class:`LearnerUpdates`, also the trainer's optimization
+stepper), evaluation, checkpoint and resume, and the learning curve at the end. What is
+particular to one algorithm (its networks, its offline stages, one gradient update, the
+acting policies) is a :class:`Learner`; :func:`run_o2o` runs one learner through the
+offline and the online phase on TorchRL's ``Trainer``. Each entry of
+:data:`~torchrl_dual.recipe.ALGORITHMS` is a learner class and a config file.
 """
 
 from __future__ import annotations
