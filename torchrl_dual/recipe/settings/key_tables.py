@@ -49,9 +49,11 @@ def _load(path: Path) -> dict[str, Any]:
 
 
 def _options(group: str) -> Iterator[tuple[str, dict[str, Any]]]:
-    """``(name, mapping)`` of every YAML file of ``group``, by name."""
+    """``(name, mapping)`` of every YAML file of ``group``, by name, without its defaults list."""
     for path in sorted((CONFIG_DIR / group).glob("*.yaml")):
-        yield path.stem, _load(path)
+        node = _load(path)
+        node.pop("defaults", None)
+        yield path.stem, node
 
 
 def selections() -> dict[tuple[str, type], dict[str, dict[str, Any]]]:
