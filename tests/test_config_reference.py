@@ -7,10 +7,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-import yaml
-
 from torchrl_dual.recipe.settings.key_tables import CONFIG_DIR, key_reference, main, selections
-from torchrl_dual.recipe.settings.structured import schema_nodes
 
 GROUPS = ("env", "budget", "critic", "collector", "replay", "logger")
 PAGE = Path(__file__).resolve().parents[1] / "docs" / "config.md"
@@ -35,26 +32,6 @@ def test_each_file_sets_exactly_the_keys_of_the_schema_that_checks_it():
                 keys -= {"defaults", "hydra", "compile", *GROUPS}  # files set `algo`
                 fields -= {"algo"}
             assert keys == fields, (option, section, sorted(keys ^ fields))
-
-
-def test_each_file_extends_the_stored_schema_of_each_of_its_sections():
-    """The defaults list of each shipped file names, for each section it sets, the schema
-    that checks it, as stored in Hydra's ConfigStore (settings/structured.py)."""
-    stored = schema_nodes()
-    for (section, schema), nodes in selections().items():
-        for option in nodes:
-            if option == "config.yaml" and section == "":
-                continue  # the top-level keys are left untyped while composing
-            path = CONFIG_DIR / ("config.yaml" if option == "config.yaml" else "/".join(
-                option.split("=")) + ".yaml")  # fmt: skip
-            entries = yaml.safe_load(path.read_text())["defaults"]
-            extended = {
-                entry.split("@")[1].replace("_here_", option.split("=")[0]): entry
-                for entry in entries
-                if isinstance(entry, str) and entry.startswith("/recipe_schema/")
-            }
-            name = extended[section].split("@")[0].removeprefix("/recipe_schema/")
-            assert stored[name] is schema, (option, section, name)
 
 
 def test_every_key_says_what_it_means_in_one_table_cell():

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import dataclasses
 import io
 import sys
 from collections.abc import Iterator, Sequence
@@ -32,8 +31,7 @@ from torchrl_dual.recipe.o2o.interrupts import signals_as_interrupts
 from torchrl_dual.recipe.o2o.run_lock import run_directory_lock
 from torchrl_dual.recipe.settings.algos import ALGORITHMS
 from torchrl_dual.recipe.settings.errors import ConfigError, UserError, unknown_key, user_errors
-from torchrl_dual.recipe.settings.schema import config_sections, validate_config
-from torchrl_dual.recipe.settings.structured import store_schemas
+from torchrl_dual.recipe.settings.schema import validate_config
 
 CONFIG_DIR = Path(__file__).resolve().parent / "config"
 """The recipe's Hydra config tree (``config.yaml`` and its groups), shipped in the package."""
@@ -193,16 +191,9 @@ def compose_checked(config_dir: str | Path, overrides: Sequence[str], config_nam
             cfg = compose(config_name, [o.input_line for o in parsed])
         except HydraException as err:  # say why in our words, else in Hydra's first line
             _explain_keys(config_dir, config_name, groups, keys)
-            _explain_type(config_name, groups, keys, err)
             raise ConfigError(None, None, str(err).splitlines()[0]) from err
     OmegaConf.set_struct(cfg, True)
-    try:
-        return validate_config(cfg)
-    except ConfigError as err:  # the value as the command line wrote it (-1, not -1.0)
-        written = {o.key_or_group.lstrip("+~"): o for o in keys}
-        if err.key in written and err.value is not None:
-            raise ConfigError(err.key, written[err.key].value(), err.problem) from err
-        raise
+    return validate_config(cfg)
 
 
 def _explain_keys(
@@ -228,28 +219,6 @@ def _explain_keys(
             raise ConfigError(
                 f"+{name}", value, f"{name} exists already; write {name}={value} to change it"
             )
-
-
-def _explain_type(
-    config_name: str, groups: list[Override], keys: list[Override], err: HydraException
-) -> None:
-    """Raises the rule's :class:`ConfigError` for a value its schema's type refused.
-
-    Hydra names the key (a structured config's ``ValidationError``); the message is the
-    key's rule's, as for any other refused value. Returns if that is not what failed.
-    """
-    key = getattr(err.__cause__, "full_key", None)
-    override = next((o for o in keys if o.key_or_group.lstrip("+~") == key), None)
-    if override is None or "." not in key:
-        return
-    section, name = key.split(".", 1)
-    if override.is_delete():  # a schema's key cannot be deleted: the key goes missing
-        raise ConfigError(None, None, f"missing key '{key}' in {section}")
-    base = compose(config_name, [o.input_line for o in groups])
-    schema = config_sections(base).get(section)
-    rule = {f.name: f.metadata["rule"] for f in dataclasses.fields(schema or object)}.get(name)
-    if rule is not None:
-        raise ConfigError(key, override.value(), rule.describe())
 
 
 @contextlib.contextmanager
@@ -278,7 +247,6 @@ def _recipe_composition(config_dir: Path) -> Iterator[None]:
     hidden = {key: repo.pop(key) for key in list(repo) if key in ours}
     running = GlobalHydra.instance().hydra
     GlobalHydra.instance().hydra = None
-    store_schemas()  # the YAML files extend them (settings/structured.py)
     try:
         yield
     finally:
@@ -363,7 +331,6 @@ def main() -> None:
         ``torchrl-dual budget=smoke``, ``python -m torchrl_dual.recipe algo=iql``,
         ``python recipes/o2o.py env=frozenlake`` (the same program).
     """
-    store_schemas()  # the YAML files extend them (settings/structured.py)
     with signals_as_interrupts():  # SIGTERM as Ctrl-C from the start, not only in the run
         try:
             cfg = check_command_line(CONFIG_DIR)  # composition and config errors: exit 2

@@ -49,11 +49,9 @@ def _load(path: Path) -> dict[str, Any]:
 
 
 def _options(group: str) -> Iterator[tuple[str, dict[str, Any]]]:
-    """``(name, mapping)`` of every YAML file of ``group``, by name, without its defaults list."""
+    """``(name, mapping)`` of every YAML file of ``group``, by name."""
     for path in sorted((CONFIG_DIR / group).glob("*.yaml")):
-        node = _load(path)
-        node.pop("defaults", None)
-        yield path.stem, node
+        yield path.stem, _load(path)
 
 
 def selections() -> dict[tuple[str, type], dict[str, dict[str, Any]]]:
