@@ -32,16 +32,21 @@ def runs() -> dict[str, list[str]]:
 
 
 def record(out: Path) -> None:
-    """Runs every entry of :func:`runs` at ``budget=smoke`` into ``out/<name>``."""
+    """Runs every entry of :func:`runs` at ``budget=smoke`` into ``out/<name>`` (its log:
+    ``out/<name>.log``)."""
+    out.mkdir(parents=True, exist_ok=True)
     for name, overrides in runs().items():
         command = [sys.executable, "-m", "torchrl_dual.recipe", *overrides, "budget=smoke"]
         command += ["progress=false", "num_threads=1", f"output_dir={out / name}"]
         done = subprocess.run(command, capture_output=True, text=True)
+        (out / f"{name}.log").write_text(done.stdout + done.stderr)
         print(f"{name}: exit {done.returncode}", flush=True)
 
 
 def differences(before: Path, after: Path) -> list[str]:
     """What differs between two run directories: the history, a CSV (missing or changed)."""
+    if not (after / "summary.json").exists():
+        return ["no summary.json (the run failed: its log says why)"]
     found = []
     history = [json.loads((d / "summary.json").read_text())["history"] for d in (before, after)]
     if history[0] != history[1]:
