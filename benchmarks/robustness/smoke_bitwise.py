@@ -62,8 +62,8 @@ def compare(before: Path, after: Path) -> bool:
     """Prints, per run both directories hold, whether it is bitwise equal; all equal?"""
     equal = True
     for name in runs():
-        if not (before / name / "summary.json").exists():
-            continue
+        if not (before / name / "summary.json").exists() or not (after / name).exists():
+            continue  # not recorded on both sides
         found = differences(before / name, after / name)
         equal &= not found
         print(f"{name}: {'bitwise equal' if not found else 'differs: ' + ', '.join(found[:5])}")

@@ -20,8 +20,8 @@ import tempfile
 
 from torchrl_dual.recipe import ALGORITHMS, CONFIG_DIR, O2ORun, compose_checked
 
-AFTER_THE_STEP = ("recipe/parts/laplace_refits.py", "recipe/o2o/replays.py")
-"""The learner's ``after_update`` (the refit count) and the replay's step."""
+AFTER_THE_STEP = ("recipe/parts/laplace_refits.py", "trainers/hooks.py", "recipe/o2o/replays.py")
+"""The learner's ``after_update`` (the refit count: ``RefitSchedule``) and the replay's step."""
 
 
 def files_of_one_update(overrides: list[str]) -> list[str]:

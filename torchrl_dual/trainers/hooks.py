@@ -196,7 +196,6 @@ class LaplaceRefitHook(TrainerHookBase):
         self.interval = interval
         self.weight_fn = weight_fn
         self.schedule = RefitSchedule(interval)
-        self.last_seen_step = 0
         self.last_refit_step = 0
         self.num_refits = 0
         self._trainer: Any = None
@@ -208,8 +207,7 @@ class LaplaceRefitHook(TrainerHookBase):
         :func:`torch.no_grad` on ``batches_fn()``, weighted by ``weight_fn``.
         """
         step = self._trainer._optim_count
-        self.schedule.count(step - self.last_seen_step)
-        self.last_seen_step = step
+        self.schedule.count(step - self.last_refit_step - self.schedule.since)  # the new steps
         if self.schedule.due:
             with torch.no_grad():
                 self.ensemble.fit_laplace(self.batches_fn(), weight_fn=self.weight_fn)
@@ -218,10 +216,9 @@ class LaplaceRefitHook(TrainerHookBase):
             self.num_refits += 1
 
     def state_dict(self) -> dict[str, Any]:
-        """The steps since the last refit, the last step seen and of the last refit, the refits."""
+        """The steps since the last refit, the step of the last refit, the refits."""
         return {
             "since": self.schedule.since,
-            "last_seen_step": self.last_seen_step,
             "last_refit_step": self.last_refit_step,
             "num_refits": self.num_refits,
         }
@@ -230,11 +227,9 @@ class LaplaceRefitHook(TrainerHookBase):
         """Restores the schedule and the counts from :meth:`state_dict`.
 
         Args:
-            state_dict (dict): ``{"since", "last_seen_step", "last_refit_step", "num_refits"}``,
-                each an int.
+            state_dict (dict): ``{"since", "last_refit_step", "num_refits"}``, each an int.
         """
         self.schedule.since = int(state_dict["since"])
-        self.last_seen_step = int(state_dict["last_seen_step"])
         self.last_refit_step = int(state_dict["last_refit_step"])
         self.num_refits = int(state_dict["num_refits"])
 

@@ -273,8 +273,7 @@ class DualLearner(Learner):
         The critic is IQL, Cal-QL's TD + bounded penalty, or SO2's ensemble TD (one
         step per batch of a stacked ``[k, B]``).
         """
-        if self.critic.phases is not None:  # SO2's offline and online settings
-            self.critic.set_phase(online=self.run.frames > 0)
+        self.critic.set_phase(online=self.run.frames > 0)
         return dict(self.stepper.update(batch).items())
 
     def after_update(self) -> None:

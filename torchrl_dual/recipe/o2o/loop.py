@@ -74,6 +74,11 @@ def online_batch(replay: Replay, k: int, device: torch.device) -> TensorDictBase
     return torch.stack([replay.sample() for _ in range(k)]).to(device)
 
 
+def _next_multiple(frames: int, every: int) -> int:
+    """The first multiple of ``every`` past ``frames``."""
+    return (frames // every + 1) * every
+
+
 class CutPoints:
     """The trainer's collector: batches of the ``collector.name`` collector, cut at checkpoints.
 
@@ -133,8 +138,8 @@ class OnlinePhase:
         run_offline_stages(run)
         run.stage("offline_eval", lambda: run.evaluate("offline"))
         self.offline_done = True
-        self.next_eval = (run.frames // budget.eval_every + 1) * budget.eval_every
-        self.next_save = (run.frames // budget.checkpoint_every + 1) * budget.checkpoint_every
+        self.next_eval = _next_multiple(run.frames, budget.eval_every)
+        self.next_save = _next_multiple(run.frames, budget.checkpoint_every)
         self.clock = StageClock(run.stage_seconds, run.stage_cpu_seconds, "online")
         if run.cfg.progress:  # TorchRL's bar of the online frames, from a resumed run's on
             self.trainer.progress_bar = True  # (made here, not over the offline stages' bars)
@@ -177,7 +182,7 @@ class OnlinePhase:
         if run.frames >= self.next_save:
             self.clock.tick()
             run.save()
-            self.next_save = (run.frames // budget.checkpoint_every + 1) * budget.checkpoint_every
+            self.next_save = _next_multiple(run.frames, budget.checkpoint_every)
             self.cut_points.cut = True
         if run.cfg.interrupt_at_frames is not None and run.frames >= run.cfg.interrupt_at_frames:
             raise KeyboardInterrupt
