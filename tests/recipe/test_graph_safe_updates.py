@@ -120,7 +120,9 @@ def contract_failures(run: O2ORun) -> list[str]:
     failures = []
     for online in (False, True):
         phase = "online" if online else "offline"
-        run.frames = 100 if online else 0
+        if online:
+            run.frames = 100
+            run.learner.collector_started()
         run.learner.update(_batch(run, online))  # first call: optimizer state, phases
         traces, states = [], []
         for _ in range(UPDATES):

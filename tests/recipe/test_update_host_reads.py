@@ -92,7 +92,9 @@ def test_one_update_reads_nothing_back_to_the_host(algo, online, cache_dir, tmp_
          f"data_cache_dir={cache_dir}"],
     )  # fmt: skip
     run = O2ORun(cfg, ALGORITHMS[algo].learner)
-    run.frames = 100 if online else 0
+    if online:
+        run.frames = 100
+        run.learner.collector_started()
     k = run.learner.online_batches_per_update if online else 1
     run.learner.update(online_batch(run.offline_buffer, k, torch.device("cpu")))  # state
     batch = online_batch(run.offline_buffer, k, torch.device("cpu"))

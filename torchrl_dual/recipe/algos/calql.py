@@ -60,7 +60,7 @@ class CalQLLearner(Learner):
         """
         return self.labels.online_transitions(transitions)
 
-    def start_episodes(self) -> None:
+    def collector_started(self) -> None:
         """Ends the held episode at its last transition, as a new collector starts."""
         self.labels.cut()
 

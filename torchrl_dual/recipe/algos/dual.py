@@ -241,8 +241,10 @@ class DualLearner(Learner):
         """All of them; with ``critic=calql``, whole episodes with their bound."""
         return transitions if self.labels is None else self.labels.online_transitions(transitions)
 
-    def start_episodes(self) -> None:
-        """With ``critic=calql``: the held episode ends at the cut."""
+    def collector_started(self) -> None:
+        """Online from here: ``critic=so2`` takes its online settings; with ``critic=calql``,
+        the held episode ends at the cut."""
+        self.critic.set_phase(online=True)
         if self.labels:
             self.labels.cut()
 
@@ -273,7 +275,6 @@ class DualLearner(Learner):
         The critic is IQL, Cal-QL's TD + bounded penalty, or SO2's ensemble TD (one
         step per batch of a stacked ``[k, B]``).
         """
-        self.critic.set_phase(online=self.run.frames > 0)
         return dict(self.stepper.update(batch).items())
 
     def after_update(self) -> None:

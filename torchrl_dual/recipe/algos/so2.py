@@ -85,7 +85,10 @@ class SO2Learner(Learner):
         q = self.critic.loss.q_value(observation, action)
         return (self.alpha * log_prob - q).mean(), {"entropy": -log_prob.mean().detach()}
 
+    def collector_started(self) -> None:
+        """Online from here: the critic takes SO2's targets (SAC-N's until then)."""
+        self.critic.set_phase(online=True)
+
     def update(self, batch: TensorDictBase) -> dict:
         """Critic steps, one per batch of a stacked ``[k, B]``, then an actor step on the last."""
-        self.critic.set_phase(online=self.run.frames > 0)
         return dict(self.stepper.update(batch).items())

@@ -172,11 +172,12 @@ class Learner(ABC):
     def after_updates(self) -> None:  # noqa: B027 - optional hook
         """Called after each block of online updates (DUAL refits its Laplace posterior)."""
 
-    def start_episodes(self) -> None:  # noqa: B027 - optional hook
-        """Called when a collector starts: the episode in progress ends at its last transition.
+    def collector_started(self) -> None:  # noqa: B027 - optional hook
+        """Called when a collector starts: the updates from here on are online ones.
 
         A collector starts at the online phase's start, each checkpoint's cut point
-        and a resume (Cal-QL's labels release the episode, truncated).
+        and a resume. The episode in progress ends at its last transition (Cal-QL's
+        labels release it, truncated) and a critic with online settings takes them (SO2's).
         """
 
     def shared_modules(self) -> dict[str, Any]:

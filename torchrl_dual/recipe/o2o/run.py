@@ -401,7 +401,7 @@ class O2ORun:
         """
         remaining = max(self.cfg.budget.online_frames - self.frames, 0)
         self.open_episodes = {}  # a new collector starts new trajectories
-        self.learner.start_episodes()  # and the learner's episode in progress ends here
+        self.learner.collector_started()  # its episode in progress ends, its critic is online
         return COLLECTORS[self.cfg.collector.name].make(self, remaining)
 
     def store(self, batch: TensorDictBase) -> dict:

@@ -87,7 +87,7 @@ class MonteCarloLabels:
 
         It is marked truncated and done, and released with the next finished
         episode, under its own id
-        (:meth:`~torchrl_dual.recipe.Learner.start_episodes`: each checkpoint's cut
+        (:meth:`~torchrl_dual.recipe.Learner.collector_started`: each checkpoint's cut
         point and a resume).
         """
         if self.pending is not None:
