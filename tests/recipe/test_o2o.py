@@ -30,7 +30,7 @@ from torchrl_dual.recipe import (
 from torchrl_dual.recipe.algos.dual import make_actor, make_transition_model
 from torchrl_dual.recipe.kits import build as env_kits
 from torchrl_dual.recipe.parts import networks
-from torchrl_dual.recipe.settings.schema import RecipeSettings
+from torchrl_dual.recipe.settings.structured import RecipeSettings
 
 pytestmark = pytest.mark.long_running(seconds=140)  # starts first under xdist
 ONLINE_FRAMES = 400  # budget/smoke.yaml

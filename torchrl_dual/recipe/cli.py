@@ -32,6 +32,7 @@ from torchrl_dual.recipe.o2o.run_lock import run_directory_lock
 from torchrl_dual.recipe.settings.algos import ALGORITHMS
 from torchrl_dual.recipe.settings.errors import ConfigError, UserError, unknown_key, user_errors
 from torchrl_dual.recipe.settings.schema import validate_config
+from torchrl_dual.recipe.settings.structured import SCHEMA_GROUP
 
 CONFIG_DIR = Path(__file__).resolve().parent / "config"
 """The recipe's Hydra config tree (``config.yaml`` and its groups), shipped in the package."""
@@ -233,6 +234,9 @@ def _recipe_composition(config_dir: Path) -> Iterator[None]:
       ``torchrl.trainers.algorithms.configs`` (or
       :func:`torchrl_dual.trainers.register_configs`) ran in the process ("Error merging
       'logger/csv' with schema");
+    * hides the recipe's own schemas (``recipe_schema``, stored once a run has typed its
+      config): its files do not extend them, and Hydra deep-copies the whole store at each
+      composition;
     * sets aside a running Hydra app's ``GlobalHydra`` (``initialize_config_dir`` refuses
       to start inside one), so a Hydra app of the user's can call :func:`compose_checked`.
 
@@ -243,7 +247,7 @@ def _recipe_composition(config_dir: Path) -> Iterator[None]:
     from hydra.core.global_hydra import GlobalHydra
 
     repo = ConfigStore.instance().repo
-    ours = {path.name for path in config_dir.iterdir() if path.is_dir()}
+    ours = {path.name for path in config_dir.iterdir() if path.is_dir()} | {SCHEMA_GROUP}
     hidden = {key: repo.pop(key) for key in list(repo) if key in ours}
     running = GlobalHydra.instance().hydra
     GlobalHydra.instance().hydra = None

@@ -2,7 +2,7 @@
 
 Read top to bottom: the builders of DUAL's own networks (Alg. 1 line 1), each from its
 typed config section (the run's
-:class:`~torchrl_dual.recipe.settings.schema.RecipeSettings`; DUAL's schemas and checks
+:class:`~torchrl_dual.recipe.settings.structured.RecipeSettings`; DUAL's schemas and checks
 live in ``settings/dual.py`` so that a bad value is reported before torch is imported), then :class:`DualLearner`: its networks, its offline stages (lines
 2-9), its update (lines 7-8 and 15-16) and its Laplace refits (line 17). The online loop
 that calls them (lines 10-18) is :func:`~torchrl_dual.recipe.run_o2o` (``o2o/loop.py``);
@@ -242,8 +242,10 @@ class DualLearner(Learner):
         return transitions if self.labels is None else self.labels.online_transitions(transitions)
 
     def collector_started(self) -> None:
-        """Online from here: ``critic=so2`` takes its online settings; with ``critic=calql``,
-        the held episode ends at the cut."""
+        """Online from here: ``critic=so2`` takes its online settings.
+
+        With ``critic=calql``, the held episode ends at the cut.
+        """
         self.critic.set_phase(online=True)
         if self.labels:
             self.labels.cut()

@@ -50,7 +50,7 @@ from torchrl_dual.envs import (
 from torchrl_dual.evaluation import evaluate_episodes, frozenlake_policy_actions
 from torchrl_dual.recipe.settings.envs import ENV_KITS, EnvKit
 from torchrl_dual.recipe.settings.errors import ConfigError, UserError, warn
-from torchrl_dual.recipe.settings.schema import RecipeSettings
+from torchrl_dual.recipe.settings.structured import RecipeSettings
 from torchrl_dual.transforms import PreviousTransition
 
 Evaluator = Callable[[nn.Module], dict[str, float]]

@@ -44,7 +44,7 @@ from torchrl_dual.recipe.o2o.summary import score_text, write_summary
 from torchrl_dual.recipe.o2o.update_step import make_update_step
 from torchrl_dual.recipe.settings.errors import UserError
 from torchrl_dual.recipe.settings.o2o import COLLECTORS, REPLAYS, check_output_dir
-from torchrl_dual.recipe.settings.schema import RecipeSettings
+from torchrl_dual.recipe.settings.structured import RecipeSettings
 
 # Settings that may change when a run is resumed; everything else must match.
 RESUMABLE_KEYS = (

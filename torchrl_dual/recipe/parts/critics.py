@@ -37,7 +37,7 @@ from torchrl_dual.recipe.settings.parts import (
     IQLCriticSettings,
     SO2CriticSettings,
 )
-from torchrl_dual.recipe.settings.schema import RecipeSettings
+from torchrl_dual.recipe.settings.structured import RecipeSettings
 
 CriticLoss = IQLCriticLoss | OnePassIQLLoss | CalQLLoss | SO2QLoss
 

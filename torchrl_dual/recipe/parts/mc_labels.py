@@ -22,7 +22,7 @@ import torch
 from tensordict import TensorDictBase
 
 from torchrl_dual.data import monte_carlo_returns
-from torchrl_dual.recipe.settings.schema import RecipeSettings
+from torchrl_dual.recipe.settings.structured import RecipeSettings
 
 if TYPE_CHECKING:
     from torchrl_dual.recipe.o2o.learner import RunContext

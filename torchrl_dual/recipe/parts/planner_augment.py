@@ -50,7 +50,7 @@ from torchrl_dual.recipe.kits.build import env_kit
 from torchrl_dual.recipe.o2o.learner import RunContext
 from torchrl_dual.recipe.parts.planner_stage import offline_windows
 from torchrl_dual.recipe.settings.parts import online_updates
-from torchrl_dual.recipe.settings.schema import RecipeSettings
+from torchrl_dual.recipe.settings.structured import RecipeSettings
 
 _REWARD_KEYS = (
     "observation",

@@ -12,7 +12,7 @@ from torchrl_dual.data import OfflineDataset
 from torchrl_dual.diffusion import TrajectoryDiffusion, WindowReplayBuffer
 from torchrl_dual.objectives import train_planner
 from torchrl_dual.recipe.settings.errors import UserError
-from torchrl_dual.recipe.settings.schema import RecipeSettings
+from torchrl_dual.recipe.settings.structured import RecipeSettings
 
 if TYPE_CHECKING:
     from torchrl_dual.recipe.o2o.learner import RunContext

@@ -243,7 +243,7 @@ def online_updates(cfg: Any) -> int:
     """The online phase's gradient updates (at most): ``online.utd_ratio × online_frames``.
 
     ``cfg``: the config, or the run's typed
-    :class:`~torchrl_dual.recipe.settings.schema.RecipeSettings`.
+    :class:`~torchrl_dual.recipe.settings.structured.RecipeSettings`.
     """
     return math.ceil(cfg.online.utd_ratio * cfg.budget.online_frames)
 

@@ -40,7 +40,6 @@ from torchrl_dual.recipe.settings.rules import (
     IntegerList,
     Maybe,
     Text,
-    as_settings,
     check_section,
     dotted_keys,
     key,
@@ -242,59 +241,20 @@ def _selection(cfg: DictConfig) -> tuple[Algorithm, EnvKit, dict[str, type]]:
     collector_schema = _choice(cfg, "collector.name", COLLECTORS, "the online collector").settings
     check_worker_count(cfg)
     logger = _choice(cfg, "logger.backend", LOGGERS, "the TorchRL logger backend")
-    return entry, kit, {
-        "env": kit.settings,
-        "budget": BudgetSettings,
-        **algorithm.sections,
-        "critic": critic_schema,
-        "replay": replay_schema,
-        "collector": collector_schema,
-        "logger": logger.settings,
-        "compile": CompileSettings,
-    }
-
-
-@dataclass(frozen=True)
-class RecipeSettings:
-    """A validated config, typed: what the learners read.
-
-    The top-level keys (:class:`RunSettings`: ``settings.device``, ``settings.seed``,
-    ...) and every section as an instance of its schema (``settings.budget``,
-    ``settings.critic``, the algorithm's ``settings.actor``, ...), plain Python values
-    with the interpolations resolved (:meth:`of` a config that passed
-    :func:`validate_config`).
-
-    Examples:
-        >>> from torchrl_dual.recipe import CONFIG_DIR, compose_checked
-        >>> settings = RecipeSettings.of(compose_checked(CONFIG_DIR, ["budget=smoke"]))
-        >>> settings.device, settings.planner.num_steps, settings.budget.distill_updates
-        ('cpu', 32, [10, 10, 10, 10, 10])
-        >>> type(settings.critic).__name__, "actor" in settings.sections
-        ('IQLCriticSettings', True)
-    """
-
-    run: RunSettings
-    sections: dict[str, Any]
-
-    @classmethod
-    def of(cls, cfg: DictConfig) -> RecipeSettings:
-        """The typed view of ``cfg`` (which passed :func:`validate_config`)."""
-        return cls(
-            as_settings(RunSettings, cfg),
-            {name: as_settings(schema, cfg[name]) for name, schema in config_sections(cfg).items()},
-        )
-
-    def get(self, name: str, default: Any = None) -> Any:
-        """A section or top-level key, ``default`` where the config has none."""
-        return self.sections.get(name, getattr(self.run, name, default))
-
-    def __getattr__(self, name: str) -> Any:
-        """A section (``settings.actor``), else a top-level key (``settings.device``)."""
-        if name in ("run", "sections"):  # not set yet (copy, pickle): no recursion
-            raise AttributeError(name)
-        if name in self.sections:
-            return self.sections[name]
-        return getattr(self.run, name)
+    return (
+        entry,
+        kit,
+        {
+            "env": kit.settings,
+            "budget": BudgetSettings,
+            **algorithm.sections,
+            "critic": critic_schema,
+            "replay": replay_schema,
+            "collector": collector_schema,
+            "logger": logger.settings,
+            "compile": CompileSettings,
+        },
+    )
 
 
 def validate_config(cfg: DictConfig) -> DictConfig:
