@@ -156,9 +156,12 @@ class NormalizedScoreLogHook(TrainerHookBase):
             >>> sorted(hook(None))
             ['eval/normalized_score', 'eval/return']
         """
+        kept: list = []  # the envs, built at the first evaluation
 
         def evaluate() -> dict[str, float]:
-            returns = evaluate_episodes(make_env, policy, num_episodes, **evaluate_kwargs)
+            returns = evaluate_episodes(
+                make_env, policy, num_episodes, envs=kept, **evaluate_kwargs
+            )
             mean = float(np.mean(returns))
             return {
                 "normalized_score": float(normalized_score(mean, random_return, expert_return)),

@@ -151,18 +151,19 @@ def pointmaze_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
     """The PointMaze kit's evaluator: deterministic episodes, scored by the data's references.
 
     Runs ``budget.eval_episodes`` episodes in the shifted env (and, under ``env.shift``, in
-    the unshifted one too).
+    the unshifted one too); the envs are built at the first evaluation and kept.
     """
     env = cfg.env
+    kept: dict[bool, list] = {True: [], False: []}  # shifted, unshifted
 
-    def returns(policy: nn.Module, shift: dict[str, Any]) -> np.ndarray:
+    def returns(policy: nn.Module, shifted: bool) -> np.ndarray:
         return evaluate_episodes(
             lambda: make_pointmaze_gym_env(
                 env.maze,
                 max_episode_steps=env.max_episode_steps,
                 goal_cell=_pointmaze_goal(env),
                 start_avoid_cells=_pointmaze_starts_avoided(env),
-                **shift,
+                **(_pointmaze_shift(env) if shifted else {}),
             ),
             policy,
             cfg.budget.eval_episodes,
@@ -170,10 +171,11 @@ def pointmaze_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
             action_fn=lambda a: np.clip(a, -1.0, 1.0),
             seed=10_000 + cfg.seed,
             device=cfg.device,
+            envs=kept[shifted],
         )
 
     def evaluate(policy: nn.Module) -> dict[str, float]:
-        shifted = returns(policy, _pointmaze_shift(env))
+        shifted = returns(policy, True)
         mean = float(shifted.mean())
         result = {
             "return": mean,
@@ -181,7 +183,7 @@ def pointmaze_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
             "normalized_score": float(data.normalized_score(mean)),
         }
         if env.shift != "none":
-            plain = float(returns(policy, {}).mean())
+            plain = float(returns(policy, False).mean())
             result["return_unshifted"] = plain
             result["normalized_score_unshifted"] = float(data.normalized_score(plain))
         return result

@@ -232,16 +232,20 @@ def minari_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
 
 
 def minari_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
-    """Deterministic episodes in the data set's evaluation env; raw (unmodified) returns."""
+    """Deterministic episodes in the data set's evaluation env; raw (unmodified) returns.
+
+    The envs are built at the first evaluation and kept.
+    """
     has_references = data.reference_min is not None and data.reference_max is not None
+    kept: dict[bool, list] = {True: [], False: []}  # shifted, unshifted
+    probe = minari_gym_env(cfg, data, eval_env=True, shifted=False)
+    low, high = probe.action_space.low, probe.action_space.high
+    probe.close()
 
     def score(mean_return: float) -> float:
         return float(data.normalized_score(mean_return)) if has_references else math.nan
 
     def returns(policy: nn.Module, shifted: bool) -> np.ndarray:
-        probe = minari_gym_env(cfg, data, eval_env=True, shifted=False)
-        low, high = probe.action_space.low, probe.action_space.high
-        probe.close()
         return evaluate_episodes(
             lambda: minari_gym_env(cfg, data, eval_env=True, shifted=shifted),
             policy,
@@ -250,6 +254,7 @@ def minari_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
             action_fn=lambda a: np.clip(a, low, high),
             seed=10_000 + cfg.seed,
             device=cfg.device,
+            envs=kept[shifted],
         )
 
     def evaluate(policy: nn.Module) -> dict[str, float]:
