@@ -71,7 +71,7 @@ def evaluation_starts(cfg) -> list[list[float]]:
 
 # ----------------------------------------------------------------------------- starts
 def test_no_online_or_evaluation_episode_starts_inside_the_avoided_cells(tmp_path):
-    steps = ("algo=iql", "env.max_episode_steps=1", "budget.eval_episodes=120")
+    steps = ("algo=iql", "env.max_episode_steps=1", "budget.eval_episodes=60")
     before = compose(tmp_path, *MEDIUM_EXPLORE, *steps)
     after = compose(tmp_path, *MEDIUM_EXPLORE, *steps, AVOID)
     assert after.env.start_avoid_cells == ROOM
