@@ -46,6 +46,7 @@ if TYPE_CHECKING:  # the eager imports, for type checkers and IDEs
     from torchrl_dual.recipe.settings.errors import ConfigError, UserError, user_errors
     from torchrl_dual.recipe.settings.parts import CRITICS
     from torchrl_dual.recipe.settings.schema import validate_config
+    from torchrl_dual.recipe.settings.structured import RecipeSettings, store_schemas, typed_config
 
 __all__ = [
     "ALGORITHMS",
@@ -59,6 +60,7 @@ __all__ = [
     "IQLLearner",
     "Learner",
     "O2ORun",
+    "RecipeSettings",
     "UserError",
     "check_command_line",
     "compose_checked",
@@ -67,6 +69,8 @@ __all__ = [
     "plot_learning_curve",
     "run",
     "run_o2o",
+    "store_schemas",
+    "typed_config",
     "user_errors",
     "validate_config",
 ]
@@ -95,5 +99,8 @@ __getattr__, __dir__ = lazy_exports(
         "user_errors": "torchrl_dual.recipe.settings.errors",
         "CRITICS": "torchrl_dual.recipe.settings.parts",
         "validate_config": "torchrl_dual.recipe.settings.schema",
+        "RecipeSettings": "torchrl_dual.recipe.settings.structured",
+        "store_schemas": "torchrl_dual.recipe.settings.structured",
+        "typed_config": "torchrl_dual.recipe.settings.structured",
     },
 )
