@@ -18,7 +18,6 @@ import d3rlpy
 import torch
 from d3rlpy.models.encoders import VectorEncoderFactory
 from d3rlpy.torch_utility import TorchMiniBatch
-from omegaconf import DictConfig
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from torch import nn
@@ -28,6 +27,7 @@ from torchrl_dual.recipe import (
     ConfigError,
     Learner,
     O2ORun,
+    RecipeSettings,
     compose_checked,
     run_o2o,
     user_errors,
@@ -36,12 +36,12 @@ from torchrl_dual.recipe.kits.build import projected_policy  # the same projecti
 from torchrl_dual.recipe.parts.mc_labels import MC_RETURN, MonteCarloLabels
 
 
-def _encoder(section: DictConfig) -> VectorEncoderFactory:
+def _encoder(section: Any) -> VectorEncoderFactory:
     """d3rlpy's MLP encoder of a recipe section's ``hidden`` × ``depth``."""
     return VectorEncoderFactory(hidden_units=[section.hidden] * section.depth)
 
 
-def _shared(cfg: DictConfig) -> dict[str, Any]:
+def _shared(cfg: RecipeSettings) -> dict[str, Any]:
     """The settings both references take from the recipe: sizes, batch, γ, τ, rates."""
     return {
         "batch_size": cfg.online.batch_size,
@@ -54,7 +54,7 @@ def _shared(cfg: DictConfig) -> dict[str, Any]:
     }
 
 
-def iql_config(cfg: DictConfig) -> Any:
+def iql_config(cfg: RecipeSettings) -> Any:
     """d3rlpy's ``IQLConfig`` with the recipe's sizes, rates and IQL constants."""
     return d3rlpy.algos.IQLConfig(
         **_shared(cfg),
@@ -64,7 +64,7 @@ def iql_config(cfg: DictConfig) -> Any:
     )
 
 
-def calql_config(cfg: DictConfig) -> Any:
+def calql_config(cfg: RecipeSettings) -> Any:
     """d3rlpy's ``CalQLConfig`` with the recipe's sizes, rates and penalty constants; the
     penalty's weight is ``critic.min_q_weight`` fixed (α = 1, no Lagrange tuning), as in
     Cal-QL's own code and ``algo=calql``."""
@@ -78,7 +78,7 @@ def calql_config(cfg: DictConfig) -> Any:
     )
 
 
-REFERENCES: dict[str, Callable[[DictConfig], Any]] = {"iql": iql_config, "calql": calql_config}
+REFERENCES: dict[str, Callable[[RecipeSettings], Any]] = {"iql": iql_config, "calql": calql_config}
 """``algo`` -> the d3rlpy config that is its reference implementation."""
 
 
@@ -104,7 +104,7 @@ class D3rlpyLearner(Learner):
 
     def __init__(self, run: O2ORun) -> None:
         self.run = run
-        cfg = run.cfg
+        cfg = run.settings  # typed, as the recipe's learners read it
         if cfg.algo == "calql":
             self.labels = MonteCarloLabels(run)  # returns-to-go, as algo=calql labels them
         else:
@@ -127,7 +127,7 @@ class D3rlpyLearner(Learner):
 
     def modules(self) -> dict[str, Any]:
         """d3rlpy's own checkpointer's objects (networks and optimizer wrappers)."""
-        checkpointer = self.impl.modules.create_checkpointer(str(self.run.cfg.device))
+        checkpointer = self.impl.modules.create_checkpointer(str(self.run.settings.device))
         return {f"d3rlpy_{name}": obj for name, obj in checkpointer.modules.items()}
 
     def offline_stages(self) -> list:
@@ -152,7 +152,7 @@ class D3rlpyLearner(Learner):
             returns_to_go=returns,
             terminals=batch["next", "terminated"].reshape(-1, 1).float(),
             intervals=torch.ones_like(reward),
-            device=str(self.run.cfg.device),
+            device=str(self.run.settings.device),
         )
         metrics = self.impl.update(minibatch, self.grad_step)
         self.grad_step += 1
