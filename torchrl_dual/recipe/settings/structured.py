@@ -10,11 +10,11 @@ Hydra types and checks those sections as it composes.
 
 :func:`typed_config` merges a recipe config into the stored schemas of its sections: each
 section becomes a structured config of its schema (a value of the wrong type is refused,
-an integer in a float field becomes a float), and
-:meth:`~torchrl_dual.recipe.settings.schema.RecipeSettings.of` reads the instances from
-it. The recipe's own YAML files do not extend the schemas: Hydra would then load and merge
-about ten more nodes per composition, 40 to 75 ms more each (docs/architecture.md); the
-rules check the composed config instead (:func:`~torchrl_dual.recipe.validate_config`).
+an integer in a float field becomes a float), and :meth:`RecipeSettings.of` reads the
+instances from it. The recipe's own YAML files do not extend the schemas: Hydra would then
+load and merge about ten more nodes per composition, each composition 40 to 75 ms slower
+(docs/architecture.md); the rules check the composed config instead
+(:func:`~torchrl_dual.recipe.validate_config`).
 
 Examples:
     >>> from omegaconf import OmegaConf
