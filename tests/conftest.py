@@ -48,7 +48,7 @@ def expected_seconds(item: pytest.Item) -> float:
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """The longest files first, the others in collection order (a stable sort).
 
-    ``-n 3 --dist loadfile`` (with ``--no-loadscope-reorder``, in pyproject's ``addopts``)
+    ``-n 2 --dist loadfile`` (with ``--no-loadscope-reorder``, in pyproject's ``addopts``)
     hands whole files to the workers in this order, so the files that take minutes start
     at once and the many short ones fill the other worker around them; xdist's default
     order (most tests first) started the one-test, three-minute distillation file last.
