@@ -17,6 +17,7 @@ from omegaconf import OmegaConf
 from omegaconf.errors import ValidationError
 
 from torchrl_dual.recipe import ALGORITHMS, CONFIG_DIR, compose_checked
+from torchrl_dual.recipe import cli as recipe_cli
 from torchrl_dual.recipe.settings.rules import as_settings
 from torchrl_dual.recipe.settings.schema import BudgetSettings, RunSettings, config_sections
 from torchrl_dual.recipe.settings.structured import (
@@ -69,8 +70,16 @@ def test_a_value_its_field_cannot_hold_is_refused_when_the_config_is_typed(tmp_p
         typed_config(cfg)
 
 
-def test_the_recipe_s_composition_does_not_see_the_stored_schemas():
+def test_the_recipe_s_composition_does_not_see_the_stored_schemas(monkeypatch):
     store_schemas()
+    seen = []
+
+    def composing(*args, **kwargs):  # what Hydra's store holds while the recipe composes
+        seen.append(SCHEMA_GROUP in ConfigStore.instance().repo)
+        return compose(*args, **kwargs)
+
+    monkeypatch.setattr(recipe_cli, "compose", composing)
     cfg = compose_checked(CONFIG_DIR, ["budget=smoke"])
+    assert seen == [False]  # hidden: Hydra deep-copies the whole store at each composition
     assert OmegaConf.get_type(cfg.budget) is dict  # its files do not extend them
     assert SCHEMA_GROUP in ConfigStore.instance().repo  # and they are back afterwards

@@ -137,8 +137,9 @@ class RecipeSettings:
         The instances of :func:`typed_config`'s sections and top-level keys.
         """
         typed = typed_config(cfg)
-        sections = {name: OmegaConf.to_object(typed[name]) for name in config_sections(cfg)}
-        return cls(RunSettings(**{f.name: typed[f.name] for f in fields(RunSettings)}), sections)
+        run = {f.name: typed[f.name] for f in fields(RunSettings)}
+        sections = {name: OmegaConf.to_object(typed[name]) for name in typed if name not in run}
+        return cls(RunSettings(**run), sections)
 
     def get(self, name: str, default: Any = None) -> Any:
         """A section or top-level key, ``default`` where the config has none."""
