@@ -25,6 +25,10 @@ def _pair(make_model, teacher_steps=4, **kwargs):
     return student, teacher
 
 
+def _teacher_weights(loss: DistillationLoss) -> TensorDict:
+    return TensorDict.from_module(loss.teacher)
+
+
 def _state(module):
     return {k: v.detach().clone() for k, v in module.state_dict().items()}
 
@@ -69,16 +73,16 @@ def test_the_loss_keeps_a_frozen_private_copy_of_the_teacher_in_its_state(make_m
     assert loss.action_condition_prob == 0.5
     assert all(p.requires_grad for p in teacher.parameters())
     assert loss.teacher is not teacher
-    assert not any(p.requires_grad for p in loss.teacher.parameters())
-    saved = {k: v for k, v in loss.state_dict().items() if k.startswith("teacher_buffers.")}
+    assert list(loss.teacher.parameters()) == []  # buffers only
+    saved = {k: v for k, v in loss.state_dict().items() if k.startswith("teacher.")}
     weights = dict(teacher.named_parameters())
-    assert set(saved) == {f"teacher_buffers.{k}" for k in teacher.state_dict()}
+    assert set(saved) == {f"teacher.{k}" for k in teacher.state_dict()}
     for name, value in weights.items():
-        torch.testing.assert_close(saved[f"teacher_buffers.{name}"], value.detach())
+        torch.testing.assert_close(saved[f"teacher.{name}"], value.detach())
     with torch.no_grad():
         next(teacher.parameters()).add_(1.0)  # the caller's teacher changes later
     assert not torch.equal(
-        saved[f"teacher_buffers.{next(iter(weights))}"], next(teacher.parameters())
+        saved[f"teacher.{next(iter(weights))}"], next(teacher.parameters())
     )
 
 
@@ -88,7 +92,7 @@ def test_only_the_student_receives_gradients_and_updates(make_model, make_window
     loss_params = {id(p) for p in loss_fn.parameters()}
     assert loss_params == {id(p) for p in student.parameters()}
     assert not loss_params & {id(p) for p in teacher.parameters()}
-    teacher_state, teacher_buffers = _state(teacher), loss_fn.teacher_buffers.clone()
+    teacher_state, teacher_buffers = _state(teacher), _teacher_weights(loss_fn).clone()
     student_state = _state(student)
     optimizer = torch.optim.Adam(loss_fn.parameters(), lr=1e-2)
 
@@ -96,11 +100,11 @@ def test_only_the_student_receives_gradients_and_updates(make_model, make_window
     for name, param in student.denoiser.named_parameters():
         assert param.grad is not None and param.grad.abs().sum() > 0, name
     assert all(p.grad is None for p in teacher.parameters())
-    assert all(t.grad is None for t in loss_fn.teacher_buffers.values(True, True))
+    assert all(t.grad is None for t in _teacher_weights(loss_fn).values(True, True))
     optimizer.step()
 
     _assert_same_state(teacher, teacher_state)
-    assert (loss_fn.teacher_buffers == teacher_buffers).all()
+    assert (_teacher_weights(loss_fn) == teacher_buffers).all()
     changed = [k for k, v in student.state_dict().items() if not torch.equal(v, student_state[k])]
     assert any(k.startswith("denoiser.") for k in changed)
 
@@ -111,15 +115,15 @@ def test_an_optimizer_step_on_the_loss_leaves_the_teacher_and_its_targets_bit_id
     student, teacher = _pair(make_model)
     loss_fn = DistillationLoss(student, teacher)
     trainable = [p for p in loss_fn.parameters() if p.requires_grad]
-    teacher_ptrs = {t.data_ptr() for t in loss_fn.teacher_buffers.values(True, True)}
+    teacher_ptrs = {t.data_ptr() for t in _teacher_weights(loss_fn).values(True, True)}
     assert not teacher_ptrs & {p.data_ptr() for p in trainable}  # no shared storage
-    assert not any(t.requires_grad for t in loss_fn.teacher_buffers.values(True, True))
+    assert not any(t.requires_grad for t in _teacher_weights(loss_fn).values(True, True))
     layout = teacher.layout
     cond, mask = layout.conditioned_window(torch.randn(4, layout.obs_dim))
     z = torch.where(mask, cond, torch.randn_like(cond))
     i = torch.full((4,), 2.0)
     target = loss_fn.teacher_target(z, i, cond, mask)
-    buffers, student_state = loss_fn.teacher_buffers.clone(), _state(student)
+    buffers, student_state = _teacher_weights(loss_fn).clone(), _state(student)
 
     optimizer = torch.optim.SGD(trainable, lr=1.0)  # a large step: any leak would show
     for _ in range(2):
@@ -130,7 +134,7 @@ def test_an_optimizer_step_on_the_loss_leaves_the_teacher_and_its_targets_bit_id
     assert all(
         torch.equal(a, b)
         for a, b in zip(
-            loss_fn.teacher_buffers.values(True, True), buffers.values(True, True), strict=True
+            _teacher_weights(loss_fn).values(True, True), buffers.values(True, True), strict=True
         )
     )
     assert torch.equal(loss_fn.teacher_target(z, i, cond, mask), target)

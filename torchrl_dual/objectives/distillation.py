@@ -69,6 +69,7 @@ class DistillationLoss(TrajectoryWindowLoss):
     student: TrajectoryDiffusion
     student_params: TensorDictParams
     target_student_params: TensorDictParams
+    teacher: TrajectoryDiffusion
 
     def __init__(
         self,
@@ -87,15 +88,10 @@ class DistillationLoss(TrajectoryWindowLoss):
                 f"student {student.num_steps}; set student.num_steps = {teacher.num_steps // 2}."
             )
         self.convert_to_functional(student, "student")
-        # The teacher is frozen: a private copy of its weights as buffers, never parameters
-        # (the caller's teacher is neither modified nor reset by reset_parameters_recursive),
-        # and a copy of the module without weights of its own (on the meta device) that
-        # runs with them: a cast or device move of the loss carries the only copy.
-        weights = TensorDict.from_module(teacher).detach().clone()
-        with weights.to("meta").to_module(teacher):
-            frame = copy.deepcopy(teacher).requires_grad_(False)
-        self.teacher_buffers = TensorDictParams(weights, no_convert=True)
-        self.__dict__["teacher"] = frame
+        # The teacher is frozen: a private copy whose weights are buffers, never parameters
+        # (the caller's teacher is neither modified nor reset by reset_parameters_recursive);
+        # a cast or device move of the loss carries it, and it runs without a weight swap.
+        self.teacher = _frozen_copy(teacher)
         self.action_condition_prob = action_condition_prob
         self.reduction = reduction
 
@@ -111,26 +107,25 @@ class DistillationLoss(TrajectoryWindowLoss):
         steps = self.student.num_steps
         t, mid, s = i / steps, (i - 0.5) / steps, (i - 1) / steps
         teacher = self.teacher
-        with self.teacher_buffers.to_module(teacher):
-            z_mid = teacher.ddim_step(z, t, mid, cond, mask)
-            z_s = teacher.ddim_step(z_mid, mid, s, cond, mask)
-            alpha_t, sigma_t = teacher._scales(t, z)
-            alpha_s, sigma_s = teacher._scales(s, z)
+        z_mid = teacher.ddim_step(z, t, mid, cond, mask)
+        z_s = teacher.ddim_step(z_mid, mid, s, cond, mask)
+        alpha_t, sigma_t = teacher._scales(t, z)
+        alpha_s, sigma_s = teacher._scales(s, z)
         ratio = sigma_s / sigma_t
         return torch.where(mask, cond, (z_s - ratio * z) / (alpha_s - ratio * alpha_t))
 
     def distillation_loss(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, dict]:
         """Per-window truncated-SNR weighted x-error against the two-step target."""
-        with self.student_params.to_module(self.student):  # the normalizer's statistics too
-            x0, mask = self._windows(self.student, tensordict)
-        batch = x0.shape[:-2]
-        i = torch.randint(1, self.student.num_steps + 1, batch, device=x0.device).to(x0.dtype)
-        t = i / self.student.num_steps
-        z = torch.where(mask, x0, self.student.noise(x0, t, torch.randn_like(x0)))
-        target = self.teacher_target(z, i, x0, mask)
-        with self.student_params.to_module(self.student):
-            x_hat = self.student.predict(z, t, x0, mask)[0]
-        weight = self.student.schedule.snr(t).clamp(min=1.0, max=1e4)[..., None, None]
+        student = self.student
+        with self.student_params.to_module(student):  # the normalizer's statistics too
+            x0, mask = self._windows(student, tensordict)
+            batch = x0.shape[:-2]
+            i = torch.randint(1, student.num_steps + 1, batch, device=x0.device).to(x0.dtype)
+            t = i / student.num_steps
+            z = torch.where(mask, x0, student.noise(x0, t, torch.randn_like(x0)))
+            target = self.teacher_target(z, i, x0, mask)
+            x_hat = student.predict(z, t, x0, mask)[0]
+        weight = student.schedule.snr(t).clamp(min=1.0, max=1e4)[..., None, None]
         loss = masked_mean(weight * (x_hat - target) ** 2, mask)
         metadata = {"target_gap": masked_mean((x_hat - target) ** 2, mask).mean().detach()}
         return loss, metadata
@@ -147,6 +142,16 @@ class DistillationLoss(TrajectoryWindowLoss):
         loss, metadata = self.distillation_loss(tensordict)
         loss = self._reduce_loss(loss)
         return TensorDict({"loss_distillation": loss, **metadata}, batch_size=[])
+
+
+def _frozen_copy(module: torch.nn.Module) -> torch.nn.Module:
+    """A deep copy of ``module`` with its parameters as buffers (never trained or reset)."""
+    frozen = copy.deepcopy(module)
+    for part in frozen.modules():
+        for name, param in list(part.named_parameters(recurse=False)):
+            delattr(part, name)
+            part.register_buffer(name, param.detach())
+    return frozen
 
 
 class _RoundCheckpoints:
