@@ -1,5 +1,11 @@
 """``compile.compile=true``: the recipe's updates through ``torch.compile`` give the eager
-updates' losses and weights to float tolerance over 100 updates (issue 30 item 3)."""
+updates' losses and weights to float tolerance over 100 updates (issue 30 item 3).
+
+DUAL's update stands for every learner here: the compiled wrapper is the one every
+learner's update goes through, and DUAL's holds IQL's critic terms and Eq. 7's actor.
+``test_update_host_reads.py`` checks every learner's update for host reads (what breaks
+a compiled graph); ``test_compile.py`` compiles each loss of the package.
+"""
 
 from __future__ import annotations
 
@@ -13,7 +19,7 @@ TINY = (
     "budget.network_width=16", "budget.batch_size=32", "progress=false", "num_threads=1",
 )  # fmt: skip
 
-pytestmark = pytest.mark.long_running(seconds=60)
+pytestmark = pytest.mark.long_running(seconds=40)
 UPDATES = 100
 
 
@@ -25,11 +31,10 @@ def _run(tmp_path, cache, algo: str, *extra: str) -> O2ORun:
     return O2ORun(cfg, ALGORITHMS[algo].learner)
 
 
-@pytest.mark.parametrize("algo", ["iql", "dual"])
-def test_compiled_updates_follow_the_eager_ones(algo, tmp_path):
+def test_compiled_dual_updates_follow_the_eager_ones(tmp_path):
     cache = tmp_path / "data"
-    eager = _run(tmp_path / "eager", cache, algo)
-    compiled = _run(tmp_path / "compiled", cache, algo, "compile.compile=true")
+    eager = _run(tmp_path / "eager", cache, "dual")
+    compiled = _run(tmp_path / "compiled", cache, "dual", "compile.compile=true")
     assert compiled.update.update is not compiled.learner.update  # the compiled wrapper
     batches = [eager.offline_buffer.sample().clone() for _ in range(UPDATES)]
     for i, batch in enumerate(batches):
