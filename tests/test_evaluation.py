@@ -13,6 +13,7 @@ from torchrl_dual.envs import LocomotionShift, flatten_pointmaze_obs, make_point
 from torchrl_dual.evaluation import evaluate_episodes
 from torchrl_dual.recipe import CONFIG_DIR, compose_checked
 from torchrl_dual.recipe.kits import build as env_kits
+from torchrl_dual.recipe.kits import pointmaze as pointmaze_kit
 
 ENVS = {
     "pointmaze": (
@@ -74,7 +75,7 @@ def test_the_pointmaze_evaluator_builds_its_envs_at_the_first_evaluation_only(
         built.append(make_pointmaze_gym_env(*args, **kwargs))
         return built[-1]
 
-    monkeypatch.setattr(env_kits, "make_pointmaze_gym_env", counted)
+    monkeypatch.setattr(pointmaze_kit, "make_pointmaze_gym_env", counted)
     data = type("Scores", (), {"normalized_score": staticmethod(lambda r: r)})()
     evaluate = env_kits.make_evaluator(cfg, data)
     results = [evaluate(_policy(2)) for _ in range(3)]

@@ -20,6 +20,7 @@ from torchrl_dual.envs import (
 )
 from torchrl_dual.recipe import CONFIG_DIR, ConfigError, compose_checked
 from torchrl_dual.recipe.kits import build as env_kits
+from torchrl_dual.recipe.kits import pointmaze as pointmaze_kit
 
 
 def compose(tmp_path: Path, *overrides: str):
@@ -69,7 +70,7 @@ def test_pointmaze_offline_data_is_requested_exactly_as_without_a_shift(
 ):
     calls = []
     monkeypatch.setattr(
-        env_kits,
+        pointmaze_kit,
         "load_or_generate_maze_dataset",
         lambda *args, **kwargs: calls.append((args, kwargs)),
     )
@@ -92,9 +93,9 @@ def test_env_goal_cell_reaches_the_data_the_train_env_and_the_evaluator(tmp_path
     for episode in range(6):  # each reset draws a new start (and, without it, a new goal)
         assert (env.reset()["observation"][4:] < -0.5).all(), episode
     seen = []
-    real = env_kits.make_pointmaze_gym_env
+    real = pointmaze_kit.make_pointmaze_gym_env
     monkeypatch.setattr(
-        env_kits,
+        pointmaze_kit,
         "make_pointmaze_gym_env",
         lambda *args, **kwargs: seen.append(kwargs.get("goal_cell")) or real(*args, **kwargs),
     )
@@ -164,13 +165,13 @@ def test_the_pointmaze_evaluator_runs_shifted_envs_and_reports_the_unshifted_sco
     tmp_path, monkeypatch
 ):
     made = []
-    real = env_kits.make_pointmaze_gym_env
+    real = pointmaze_kit.make_pointmaze_gym_env
 
     def recording(*args, **kwargs):
         made.append(kwargs.get("shift", "none"))
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(env_kits, "make_pointmaze_gym_env", recording)
+    monkeypatch.setattr(pointmaze_kit, "make_pointmaze_gym_env", recording)
     policy = TensorDictModule(
         lambda obs: torch.ones(*obs.shape[:-1], 2), in_keys=["observation"], out_keys=["action"]
     )

@@ -20,6 +20,7 @@ from tensordict.nn import TensorDictModule
 from torchrl_dual.envs import open_cells, start_cells
 from torchrl_dual.recipe import CONFIG_DIR, ConfigError, compose_checked
 from torchrl_dual.recipe.kits import build as env_kits
+from torchrl_dual.recipe.kits import pointmaze as pointmaze_kit
 from torchrl_dual.recipe.o2o.offline_cache import offline_key_config
 
 ROOM = [[4, 6], [5, 6], [6, 5], [6, 6]]  # Medium's dead end, medium_explore's avoided cells
@@ -178,7 +179,7 @@ def test_the_default_starts_every_episode_where_it_started_before(tmp_path, goal
     env = env_kits.make_train_env(cfg)
     online = [env.reset()["observation"][:2].tolist() for _ in range(3)]
     assert online == ONLINE_BEFORE[goal]  # float32 values, compared exactly
-    evaluation = env_kits.make_pointmaze_gym_env(
+    evaluation = pointmaze_kit.make_pointmaze_gym_env(
         "medium", goal_cell=None if goal == "null" else [6, 6]
     )
     for i, expected in enumerate(EVALUATION_BEFORE[goal]):
@@ -203,11 +204,11 @@ def test_medium_explore_starts_one_to_two_moves_from_the_goal_in_12_percent_of_e
     env = OmegaConf.create(
         {"maze": "medium", "goal_cell": [6, 6], "data_avoid_cells": ROOM, "start_avoid_cells": None}
     )
-    before = env_kits.pointmaze_start_distances(env)
+    before = pointmaze_kit.pointmaze_start_distances(env)
     assert sum(before["goal"].values()) == 25 and before["avoided"][0] == 3  # 12 %
     assert (before["goal"][1], before["goal"][2]) == (2, 1)
     env.start_avoid_cells = ROOM
-    after = env_kits.pointmaze_start_distances(env)
+    after = pointmaze_kit.pointmaze_start_distances(env)
     assert sum(after["goal"].values()) == 22 and min(after["goal"]) == 3
     assert min(after["avoided"]) == 1
     # the cells left out are exactly the three inside the room

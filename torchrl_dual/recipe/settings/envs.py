@@ -6,8 +6,8 @@ An :class:`EnvKit` holds everything the recipe needs from one kind of environmen
 schema of its ``env.*`` keys, the offline data set ``D_offline``, the online env, the
 evaluator returning D4RL-normalized scores, and the projection of the policy's action
 onto what the env executes. The builders are :class:`~torchrl_dual.recipe.settings.lazy.Ref`
-s to :mod:`torchrl_dual.recipe.kits` (PointMaze and Frozen-Lake in ``kits.build``, the
-Minari families in ``kits.minari_families``), imported when a run starts. Adding an
+s to :mod:`torchrl_dual.recipe.kits` (``kits.pointmaze``, ``kits.frozenlake`` and, for the
+Minari families, ``kits.minari_families``), imported when a run starts. Adding an
 environment is adding one entry to :data:`ENV_KITS`, its builders and one
 ``torchrl_dual/recipe/config/env/<name>.yaml`` that sets ``kind``; nothing else in the
 recipe branches on the env.
@@ -63,7 +63,7 @@ class EnvKit:
     Examples:
         >>> kit = ENV_KITS["frozenlake"]
         >>> kit.settings.__name__, kit.action_projection  # Frozen-Lake executes a one-hot action
-        ('FrozenLakeSettings', Ref('torchrl_dual.recipe.kits.build:one_hot_argmax'))
+        ('FrozenLakeSettings', Ref('torchrl_dual.recipe.kits.frozenlake:one_hot_argmax'))
         >>> sorted(ENV_KITS)
         ['adroit', 'antmaze', 'frozenlake', 'locomotion', 'pointmaze']
     """
@@ -176,7 +176,7 @@ class PointMazeSettings(EnvSettings):
         'allowed cells become Gymnasium-Robotics\' reset cells (`"r"` in its `maze_map`; with a '
         'random goal `"c"`, the avoided cells staying goals): '
         "`torchrl_dual.envs.start_cells(maze, goal_cell, start_avoid_cells)` lists them, "
-        "`torchrl_dual.recipe.kits.build.pointmaze_start_distances` reads how far they lie from "
+        "`torchrl_dual.recipe.kits.pointmaze.pointmaze_start_distances` reads how far they lie from "
         "the goal and from `data_avoid_cells`. A wall, an outside cell or no cell left to start "
         "in (with a random goal: fewer than 2) is an error. An online key: the data, the offline "
         "phase and its cache entry do not change; the normalized score's reference returns keep "
@@ -467,23 +467,24 @@ def check_minari_dataset(cfg: DictConfig) -> None:
 
 
 # ----------------------------------------------------------------------------- the table
-_BUILD = "torchrl_dual.recipe.kits.build"
+_POINTMAZE = "torchrl_dual.recipe.kits.pointmaze"
+_FROZENLAKE = "torchrl_dual.recipe.kits.frozenlake"
 _MINARI = "torchrl_dual.recipe.kits.minari_families"
 
 ENV_KITS: dict[str, EnvKit] = {
     "pointmaze": EnvKit(
         PointMazeSettings,
-        Ref(f"{_BUILD}:pointmaze_data"),
-        Ref(f"{_BUILD}:pointmaze_env"),
-        Ref(f"{_BUILD}:pointmaze_evaluator"),
-        check=Ref(f"{_BUILD}:check_pointmaze"),
+        Ref(f"{_POINTMAZE}:pointmaze_data"),
+        Ref(f"{_POINTMAZE}:pointmaze_env"),
+        Ref(f"{_POINTMAZE}:pointmaze_evaluator"),
+        check=Ref(f"{_POINTMAZE}:check_pointmaze"),
     ),
     "frozenlake": EnvKit(
         FrozenLakeSettings,
-        Ref(f"{_BUILD}:frozenlake_data"),
-        Ref(f"{_BUILD}:frozenlake_env"),
-        Ref(f"{_BUILD}:frozenlake_evaluator"),
-        action_projection=Ref(f"{_BUILD}:one_hot_argmax"),
+        Ref(f"{_FROZENLAKE}:frozenlake_data"),
+        Ref(f"{_FROZENLAKE}:frozenlake_env"),
+        Ref(f"{_FROZENLAKE}:frozenlake_evaluator"),
+        action_projection=Ref(f"{_FROZENLAKE}:one_hot_argmax"),
     ),
     **{  # antmaze, locomotion, adroit: one data path, env and evaluator for every family
         kind: EnvKit(
