@@ -278,7 +278,7 @@ def test_an_existing_checkpoint_without_resume_fails(tmp_path):
 
 
 def test_resume_with_a_logger_that_cannot_resume_fails(tmp_path, monkeypatch):
-    from torchrl_dual.recipe.settings.o2o import LOGGERS
+    from torchrl_dual.recipe.settings.loggers import LOGGERS
 
     as_if_installed = dataclasses.replace(LOGGERS["mlflow"], package=None)
     monkeypatch.setitem(LOGGERS, "mlflow", as_if_installed)

@@ -21,7 +21,7 @@ from test_diffql import FAST as DIFFQL_FAST
 
 from torchrl_dual.recipe import ConfigError, compose_checked, run
 from torchrl_dual.recipe.o2o.plots import plot_learning_curve
-from torchrl_dual.recipe.settings.o2o import LOGGERS
+from torchrl_dual.recipe.settings.loggers import LOGGERS
 
 # the smoke budget cut further (test_diffql's FAST) on short PointMaze episodes
 FAST = [*DIFFQL_FAST, *POINTMAZE]

@@ -26,7 +26,8 @@ import yaml
 
 from torchrl_dual.recipe.settings.algos import ALGORITHMS
 from torchrl_dual.recipe.settings.envs import ENV_KITS
-from torchrl_dual.recipe.settings.o2o import COLLECTORS, LOGGERS, REPLAYS
+from torchrl_dual.recipe.settings.loggers import LOGGERS
+from torchrl_dual.recipe.settings.o2o import COLLECTORS, REPLAYS
 from torchrl_dual.recipe.settings.parts import CRITICS
 from torchrl_dual.recipe.settings.schema import BudgetSettings, CompileSettings, RunSettings
 

@@ -4,7 +4,7 @@ The schema of a composed config is put together from tables: the top-level keys
 (:class:`RunSettings`), ``budget`` (:class:`BudgetSettings`), ``env`` (the schema of its
 ``ENV_KITS`` entry), the sections of the chosen ``algo`` (its ``ALGORITHMS`` entry),
 ``critic`` (its ``CRITICS`` entry), ``replay`` (its ``REPLAYS`` entry), ``collector`` (its
-``COLLECTORS`` entry) and ``logger`` (its ``LOGGERS`` entry, ``loggers``).
+``COLLECTORS`` entry) and ``logger`` (its ``LOGGERS`` entry).
 Every key is checked against its rule, then the combinations across keys, then what the
 env and the machine must provide (a goal cell of the maze, a Minari data set on disk, the
 device, the logger's package, a usable output_dir). Nothing before those last checks
@@ -23,12 +23,11 @@ from torchrl_dual.recipe.settings.algo_common import Algorithm
 from torchrl_dual.recipe.settings.algos import ALGORITHMS
 from torchrl_dual.recipe.settings.envs import ENV_KITS, EnvKit
 from torchrl_dual.recipe.settings.errors import ConfigError
+from torchrl_dual.recipe.settings.loggers import LOGGERS, check_logger
 from torchrl_dual.recipe.settings.o2o import (
     COLLECTORS,
-    LOGGERS,
     REPLAYS,
     check_collector,
-    check_logger,
     check_output_dir,
     check_worker_count,
 )
