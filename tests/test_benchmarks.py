@@ -88,6 +88,13 @@ def test_update_path_lists_the_files_of_one_dual_update_in_call_order():
     assert "recipe/o2o/loop.py" not in files and "recipe/o2o/update_step.py" not in files
 
 
+def test_update_path_runs_so2_on_its_balanced_replay_of_offline_and_online_data():
+    from benchmarks.studies.update_path import files_of_one_update
+
+    files = files_of_one_update(["algo=so2"])  # its replay samples D_online too
+    assert "objectives/so2.py" in files and "recipe/o2o/replays.py" in files
+
+
 def test_smoke_bitwise_names_each_run_and_what_differs(tmp_path):
     from benchmarks.robustness.smoke_bitwise import compare, differences, runs
 

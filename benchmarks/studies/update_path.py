@@ -2,13 +2,15 @@
 
     python -m benchmarks.studies.update_path                 # DUAL with its IQL critic
     python -m benchmarks.studies.update_path algo=iql critic=iql
+    python -m benchmarks.studies.update_path algo=so2   # balanced replay, [k, B] batches
 
 Builds a small Frozen-Lake run (``budget=smoke``, 1000 transitions), then profiles one
 call of the trainer's optimization step, ``run.update.step`` (the learner's update on a
-sampled batch, its bookkeeping and the replay's own step), after a first call that builds
-the optimizers' state. Each ``torchrl_dual`` file is listed once, where it is first
-entered; the files entered after the last optimizer step (the refit count, the replay's
-step) are marked. docs/architecture.md's "Size and shape" table cites the count.
+batch of D_offline ∪ D_online, its bookkeeping and the replay's own step), after a first
+call that builds the optimizers' state; 200 of the data's transitions stand in for
+D_online. Each ``torchrl_dual`` file is listed once, where it is first entered; the files
+entered after the last optimizer step (the refit count, the replay's step) are marked.
+docs/architecture.md's "Size and shape" table cites the count.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import sys
 import tempfile
 
 from torchrl_dual.recipe import ALGORITHMS, CONFIG_DIR, O2ORun, compose_checked
+from torchrl_dual.recipe.o2o.loop import online_batch
 
 AFTER_THE_STEP = ("recipe/parts/laplace_refits.py", "trainers/hooks.py", "recipe/o2o/replays.py")
 """The learner's ``after_update`` (the refit count: ``RefitSchedule``) and the replay's step."""
@@ -41,7 +44,11 @@ def files_of_one_update(overrides: list[str]) -> list[str]:
     )
     with contextlib.redirect_stdout(io.StringIO()):
         run = O2ORun(cfg, ALGORITHMS[cfg.algo].learner)
-    batch = run.offline_buffer.sample().to(cfg.device)
+    # The online phase: the collector's start (SO2's critic takes its online settings)
+    # and D_online, where 200 of the data's transitions stand in for collected ones.
+    run.learner.collector_started()
+    run.replay.extend(run.learner.online_transitions(run.data.transitions[:200].clone()))
+    batch = online_batch(run.replay, run.learner.online_batches_per_update, cfg.device)
     run.update.step(None, batch)  # the optimizers' state, lazy modules
     seen: list[str] = []
 
