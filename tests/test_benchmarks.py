@@ -193,3 +193,19 @@ def test_resume_kill_benchmark_kills_resumes_and_finds_the_runs_equal(tmp_path):
     assert result["differences"] == [] and result["entries_compared"] > 100
     assert result["final_frames"] == [300, 300]
     assert 50 <= result["checkpoint_frames_at_kill"] < 300
+
+
+def test_package_size_counts_code_docstrings_comments_and_blank_lines(tmp_path, capsys):
+    from benchmarks.studies import package_size
+
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "m.py").write_text(
+        '"""Module\ndoc."""\n\nX = 1\n"""X\'s doc."""\n\n\n'
+        'class A:\n    """One line."""\n\n    def f(self):  # code\n'
+        '        # a comment\n        return "not a docstring"\n'
+    )
+    kinds = package_size.line_kinds(tmp_path)
+    assert (kinds["docstring"], kinds["code"], kinds["comment"], kinds["blank"]) == (4, 4, 1, 4)
+    assert kinds["total"] == 13
+    package_size.main([str(tmp_path)])
+    assert capsys.readouterr().out == "13 lines: 4 code, 4 docstring, 4 blank, 1 comment\n"
