@@ -20,7 +20,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 from torchrl_dual.data.minari_standins import STANDINS, write_standin_dataset  # noqa: E402
 from torchrl_dual.recipe import CONFIG_DIR, compose_checked  # noqa: E402
-from torchrl_dual.recipe.settings.envs import FAMILIES  # noqa: E402
+from torchrl_dual.recipe.settings.minari_datasets import FAMILIES  # noqa: E402
 
 
 def test_every_number_of_the_three_tables_is_stored_with_its_table_row_and_column():

@@ -24,7 +24,7 @@ from torchrl_dual.envs.d4rl_antmaze import SingleGoalAntMaze  # noqa: E402
 from torchrl_dual.recipe import run  # noqa: E402
 from torchrl_dual.recipe.kits import build as env_kits  # noqa: E402
 from torchrl_dual.recipe.kits.minari_families import minari_evaluator, minari_gym_env  # noqa: E402
-from torchrl_dual.recipe.settings.envs import FAMILIES  # noqa: E402
+from torchrl_dual.recipe.settings.minari_datasets import FAMILIES  # noqa: E402
 from torchrl_dual.recipe.settings.references import REWARD_TRANSFORMS  # noqa: E402
 
 ANTMAZE_ID, HOPPER_ID, PEN_ID = (

@@ -224,7 +224,7 @@ def test_every_config_key_is_classified_for_the_offline_cache(tmp_path, monkeypa
     key and orphan every cache entry written before it (it happened with
     ``compile.cudagraphs``)."""
     from torchrl_dual.recipe.settings.algos import ALGORITHMS
-    from torchrl_dual.recipe.settings.envs import FAMILIES
+    from torchrl_dual.recipe.settings.minari_datasets import FAMILIES
 
     monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
     envs = sorted(p.stem for p in (Path(RECIPE_CONFIG_DIR) / "env").glob("*.yaml"))

@@ -34,8 +34,8 @@ from omegaconf import DictConfig
 from torchrl_dual.data.d4rl_references import D4RL_HORIZONS, d4rl_references
 from torchrl_dual.envs import register_robotics_envs, release_maze_xml
 from torchrl_dual.envs.d4rl_antmaze import D4RLAntMazeTask, d4rl_horizon_seconds, d4rl_maze_of
-from torchrl_dual.recipe.settings.envs import FAMILIES
 from torchrl_dual.recipe.settings.errors import UserError
+from torchrl_dual.recipe.settings.minari_datasets import FAMILIES
 
 ANTMAZE_D4RL_OBSERVATION_KEYS = ["achieved_goal", "observation"]
 """D4RL's 29 AntMaze numbers (torso x, y, then Minari's ``observation``), no goal."""

@@ -63,8 +63,8 @@ from torchrl_dual.recipe.kits.d4rl_protocol import (
     horizon_of_seconds,
     protocol_metadata,
 )
-from torchrl_dual.recipe.settings.envs import FAMILIES
 from torchrl_dual.recipe.settings.errors import UserError
+from torchrl_dual.recipe.settings.minari_datasets import FAMILIES
 from torchrl_dual.recipe.settings.references import reward_transform
 
 OBSERVATION_STD_EPS = 1e-3

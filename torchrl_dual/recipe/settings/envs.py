@@ -15,16 +15,18 @@ recipe branches on the env.
 
 from __future__ import annotations
 
-import json
-import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 from omegaconf import DictConfig
 
-from torchrl_dual.recipe.settings.errors import ConfigError
 from torchrl_dual.recipe.settings.lazy import Ref
+from torchrl_dual.recipe.settings.minari_datasets import (
+    FAMILIES,
+    PROTOCOLS,
+    check_minari_dataset,
+)
 from torchrl_dual.recipe.settings.names import FROZENLAKE_MAPS, POINTMAZE_MAZES, SHIFTS_BY_KIND
 from torchrl_dual.recipe.settings.rules import (
     CellList,
@@ -227,50 +229,6 @@ class FrozenLakeSettings(EnvSettings):
     )
 
 
-PROTOCOLS = ("d4rl", "minari")
-"""Values of ``env.protocol`` (``torchrl_dual.recipe.kits.d4rl_protocol``)."""
-
-
-@dataclass(frozen=True)
-class MinariFamily:
-    """Published Minari data sets of one env kind.
-
-    Args:
-        id_format (str): the data set id with ``{task}``, ``{dataset}``, ``{version}``.
-        tasks (tuple of str): values of ``env.task`` (empty: the family has one task).
-        datasets (tuple of str): known data set names (others are accepted: Minari grows).
-    """
-
-    id_format: str
-    tasks: tuple[str, ...]
-    datasets: tuple[str, ...]
-
-    def dataset_id(self, env: DictConfig) -> str:
-        """The Minari id of ``env.task`` / ``env.dataset`` / ``env.dataset_version``."""
-        task = env.get("task", "")
-        return self.id_format.format(task=task, dataset=env.dataset, version=env.dataset_version)
-
-
-FAMILIES: dict[str, MinariFamily] = {
-    "antmaze": MinariFamily(
-        "D4RL/antmaze/{dataset}-{version}",
-        (),
-        ("umaze", "umaze-diverse", "medium-play", "medium-diverse", "large-play", "large-diverse"),
-    ),
-    "locomotion": MinariFamily(
-        "mujoco/{task}/{dataset}-{version}",
-        ("hopper", "halfcheetah", "walker2d"),
-        ("medium", "expert", "simple"),
-    ),
-    "adroit": MinariFamily(
-        "D4RL/{task}/{dataset}-{version}",
-        ("pen", "door", "hammer", "relocate"),
-        ("cloned", "human", "expert"),
-    ),
-}
-"""``env.kind`` -> :class:`MinariFamily`."""
-
-
 @dataclass
 class MinariSettings(EnvSettings):
     """``env/antmaze.yaml``, ``env/hopper.yaml``, ...: a Minari data set and its env."""
@@ -409,61 +367,6 @@ MINARI_SETTINGS: dict[str, type] = {
     "locomotion": LocomotionSettings,
     "adroit": AdroitSettings,
 }
-
-
-# ----------------------------------------------------------------------------- checks
-def check_minari_dataset(cfg: DictConfig) -> None:
-    """Stops before any work when the Minari data set cannot be read.
-
-    It stops when minari is missing, ``MINARI_DATASETS_PATH`` is not a directory, the
-    data set is not on disk or its ``metadata.json`` does not parse.
-    """
-    dataset_id = FAMILIES[cfg.env.kind].dataset_id(cfg.env)
-    try:
-        from minari.storage import get_dataset_path
-    except ImportError as err:
-        raise ConfigError(
-            "env.kind",
-            cfg.env.kind,
-            "reading Minari data sets needs the minari package: pip install 'torchrl-dual[minari]'",
-        ) from err
-    try:
-        path = get_dataset_path(dataset_id)  # creates the directories: fails on a file
-    except OSError as err:
-        reason = f"{err.strerror}: {err.filename}"
-        root = os.environ.get("MINARI_DATASETS_PATH")
-        if root:
-            raise ConfigError(
-                "MINARI_DATASETS_PATH",
-                root,
-                f"not a directory Minari can use ({reason}); point it at a directory, or "
-                "unset it to use ~/.minari/datasets",
-            ) from err
-        raise ConfigError(
-            None,
-            None,
-            f"Minari's data sets directory cannot be used ({reason}); set "
-            "MINARI_DATASETS_PATH to a directory",
-        ) from err
-    if not (path / "data").exists():
-        raise ConfigError(
-            "env.dataset",
-            cfg.env.dataset,
-            f"the Minari data set {dataset_id} is not on disk (looked in {path}; set "
-            f"MINARI_DATASETS_PATH to look elsewhere); download it with: "
-            f"minari download {dataset_id}",
-        )
-    metadata = path / "data" / "metadata.json"  # Minari reads it first
-    try:
-        if metadata.is_file():
-            json.loads(metadata.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise ConfigError(
-            "env.dataset",
-            cfg.env.dataset,
-            f"the Minari data set {dataset_id} is damaged: {metadata} cannot be read ({err}); "
-            f"download it again with: minari download --force {dataset_id}",
-        ) from err
 
 
 # ----------------------------------------------------------------------------- the table
