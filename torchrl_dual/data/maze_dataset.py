@@ -25,11 +25,8 @@ from torchrl_dual.data.cache import default_cache_dir, load_or_generate
 from torchrl_dual.data.maze_controller import MazeWaypointController
 from torchrl_dual.data.offline_dataset import OfflineDataset
 from torchrl_dual.data.transition_layout import make_transitions
-from torchrl_dual.envs.pointmaze import (
-    default_max_episode_steps,
-    flatten_pointmaze_obs,
-    make_pointmaze_gym_env,
-)
+from torchrl_dual.envs.maze_cells import default_max_episode_steps
+from torchrl_dual.envs.pointmaze import flatten_pointmaze_obs, make_pointmaze_gym_env
 
 MAZE_GENERATOR_VERSION = 1
 """Bump when the generated data changes for identical arguments (invalidates caches)."""
@@ -311,7 +308,7 @@ def load_or_generate_maze_dataset(
         >>> bool((a.transitions["observation"] == b.transitions["observation"]).all())
         True
     """
-    from torchrl_dual.envs.pointmaze import goal_maze_map, pointmaze_env_id
+    from torchrl_dual.envs.maze_cells import goal_maze_map, pointmaze_env_id
 
     pointmaze_env_id(maze)  # fail fast on an unknown maze
     root = Path(cache_dir) if cache_dir is not None else default_cache_dir()

@@ -35,18 +35,20 @@ from torchrl_dual.envs.locomotion_shifts import (
     LocomotionShift,
     locomotion_robot,
 )
-from torchrl_dual.envs.maze_xml import release_maze_xml
-from torchrl_dual.envs.onehot_action import ContinuousOneHotAction
-from torchrl_dual.envs.pointmaze import (
+from torchrl_dual.envs.maze_cells import (
     POINTMAZE_IDS,
     default_max_episode_steps,
-    flatten_pointmaze_obs,
     goal_maze_map,
-    make_pointmaze_env,
-    make_pointmaze_gym_env,
     open_cells,
     pointmaze_env_id,
     start_cells,
+)
+from torchrl_dual.envs.maze_xml import release_maze_xml
+from torchrl_dual.envs.onehot_action import ContinuousOneHotAction
+from torchrl_dual.envs.pointmaze import (
+    flatten_pointmaze_obs,
+    make_pointmaze_env,
+    make_pointmaze_gym_env,
 )
 from torchrl_dual.envs.robotics import register_robotics_envs
 from torchrl_dual.envs.shifts import (
