@@ -15,8 +15,9 @@ Conventions (the Gymnasium-Robotics defaults, which mirror D4RL ``maze2d``):
   fixes it, as D4RL maze2d fixes one target per maze (the start stays random), which
   makes the task single-goal instead of goal-conditioned.
 * start: a random open cell other than the goal's (Gymnasium-Robotics);
-  ``start_avoid_cells`` leaves given cells out (:func:`~torchrl_dual.envs.start_cells`), e.g. the region the
-  offline data never enter, so that no episode starts inside the task's unexplored part.
+  ``start_avoid_cells`` leaves given cells out (:func:`~torchrl_dual.envs.start_cells`),
+  e.g. the region the offline data never enter, so that no episode starts inside the
+  task's unexplored part.
 """
 
 from __future__ import annotations
@@ -93,7 +94,8 @@ def make_pointmaze_gym_env(
         shift_scale (float, optional): factor of ``"damping"`` / ``"mass"`` (the
             shift's default if ``None``).
         goal_cell (sequence of int, optional): ``(row, col)`` of a fixed goal cell
-            (:func:`~torchrl_dual.envs.goal_maze_map`); ``None`` (default): a random open cell per episode.
+            (:func:`~torchrl_dual.envs.goal_maze_map`); ``None`` (default): a random open
+            cell per episode.
         start_avoid_cells (sequence of (row, col), optional): open cells where no episode
             starts (:func:`~torchrl_dual.envs.start_cells`); ``None`` (default): none.
 
@@ -181,7 +183,8 @@ def make_pointmaze_env(
         goal_cell (sequence of int, optional): ``(row, col)`` of a fixed goal cell;
             ``None`` (default): a random open cell per episode.
         start_avoid_cells (sequence of (row, col), optional): open cells where no episode
-            starts (:func:`~torchrl_dual.envs.start_cells`); ``None`` (default): every open cell but the goal's.
+            starts (:func:`~torchrl_dual.envs.start_cells`); ``None`` (default): every open
+            cell but the goal's.
         reward_scale (float): the reward becomes ``reward_scale * r + reward_shift``
             (``RewardScaling`` after ``DoubleToFloat``; e.g. Cal-QL's sparse ``10 r - 5``).
             Defaults to 1.
