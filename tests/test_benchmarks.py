@@ -81,11 +81,11 @@ def test_update_path_lists_the_files_of_one_dual_update_in_call_order():
 
     files = files_of_one_update(["algo=dual"])
     # the run's stepper, the learner, Alg. 1's stepper, then DUAL's loss and Eq. 7's actor
-    assert files[:2] == ["recipe/o2o/run.py", "recipe/algos/dual.py"]
+    assert files[:2] == ["recipe/o2o/update_step.py", "recipe/algos/dual.py"]
     order = [files.index(f) for f in ("trainers/stepper.py", "objectives/dual.py",
                                       "objectives/weighted_map_actor.py")]  # fmt: skip
     assert order == sorted(order)
-    assert "recipe/o2o/loop.py" not in files and "recipe/o2o/update_step.py" not in files
+    assert "recipe/o2o/loop.py" not in files and "recipe/o2o/run.py" not in files
 
 
 def test_update_path_runs_so2_on_its_balanced_replay_of_offline_and_online_data():

@@ -18,7 +18,7 @@ from torchrl.trainers import Trainer
 
 from torchrl_dual.recipe import CONFIG_DIR, IQLLearner, O2ORun, compose_checked, run_o2o
 from torchrl_dual.recipe.o2o.loop import CutPoints, make_trainer
-from torchrl_dual.recipe.o2o.run import LearnerUpdates
+from torchrl_dual.recipe.o2o.update_step import LearnerUpdates
 
 
 def _cfg(tmp_path, *overrides: str):

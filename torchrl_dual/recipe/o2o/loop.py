@@ -16,7 +16,7 @@ collector                           :class:`CutPoints`: the ``collector.name`` c
 ``process_optim_batch``             one sample of D_offline ∪ D_online per credit;
                                     ``StopIteration`` (this batch's updates are done) when
                                     none is left
-``optimization_stepper``            ``run.update``, :class:`~torchrl_dual.recipe.o2o.run.LearnerUpdates`:
+``optimization_stepper``            ``run.update``, :class:`~torchrl_dual.recipe.o2o.update_step.LearnerUpdates`:
                                     the learner's update (l. 14-16; DUAL: the critic, then
                                     Eq. 7's actor), counted
 ``post_steps``                      the learner's hook (l. 17, DUAL's Laplace refits), then the
@@ -56,10 +56,11 @@ from torchrl_dual.recipe.o2o.learner import Learner
 from torchrl_dual.recipe.o2o.offline_cache import run_offline_stages
 from torchrl_dual.recipe.o2o.plots import online_signals
 from torchrl_dual.recipe.o2o.replays import Replay
-from torchrl_dual.recipe.o2o.run import LearnerUpdates, O2ORun
+from torchrl_dual.recipe.o2o.run import O2ORun
 from torchrl_dual.recipe.o2o.run_lock import run_directory_lock
 from torchrl_dual.recipe.o2o.stage_checkpoints import offline_interruption
 from torchrl_dual.recipe.o2o.stage_clock import StageClock
+from torchrl_dual.recipe.o2o.update_step import LearnerUpdates
 from torchrl_dual.recipe.settings.o2o import COLLECTORS
 
 

@@ -1,16 +1,15 @@
 """The algorithm-independent offline-to-online run, and the :class:`Learner` it drives.
 
 :class:`O2ORun` owns what every offline-to-online algorithm of the recipe shares: the
-seeds, the offline data, the online env and the evaluator, the offline replay buffer
-and TorchRL's ``OfflineToOnlineReplayBuffer``, the logger, the counters, the
-collector, the counted update (:class:`LearnerUpdates`, also the trainer's optimization
-stepper), evaluation, checkpoint and resume, and the learning curve at the end. What is
-particular to one algorithm (its networks, its offline stages, one gradient update, the
-acting policies) is a :class:`Learner`; :func:`run_o2o` runs one learner through the
-offline and the online phase on TorchRL's ``Trainer``. Each entry of
-:data:`~torchrl_dual.recipe.ALGORITHMS` is a learner class and a config file.
+seeds, the offline data, the online env and the evaluator, the offline replay buffer and
+TorchRL's ``OfflineToOnlineReplayBuffer``, the logger, the counters, the collector, the
+counted update (``run.update``, :class:`~torchrl_dual.recipe.o2o.update_step.LearnerUpdates`),
+evaluation, checkpoint and resume, and the report at the end. What is particular to one
+algorithm (its networks, its offline stages, one gradient update, the acting policies) is
+a :class:`Learner`; :func:`run_o2o` runs one learner through the offline and the online
+phase on TorchRL's ``Trainer``. Each entry of :data:`~torchrl_dual.recipe.ALGORITHMS` is
+a learner class and a config file.
 """
-
 from __future__ import annotations
 
 import random
@@ -22,10 +21,9 @@ from typing import Any
 import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDictBase
 from torchrl.collectors import BaseCollector
 from torchrl.data import LazyTensorStorage, RandomSampler, ReplayBuffer
-from torchrl.trainers import OptimizationStepper, Trainer
 from tqdm.auto import tqdm
 
 from torchrl_dual._tensordict_patch import install as install_tensordict_patch
@@ -35,13 +33,12 @@ from torchrl_dual.recipe.kits import build as env_kits
 from torchrl_dual.recipe.o2o.episodes import assign_episodes
 from torchrl_dual.recipe.o2o.interrupts import held
 from torchrl_dual.recipe.o2o.learner import Learner
-from torchrl_dual.recipe.o2o.loggers import logs_text, make_logger
-from torchrl_dual.recipe.o2o.plots import plot_learning_curve
+from torchrl_dual.recipe.o2o.loggers import make_logger
 from torchrl_dual.recipe.o2o.run_lock import acquire_run_directory
 from torchrl_dual.recipe.o2o.stage_checkpoints import StageCheckpoints
 from torchrl_dual.recipe.o2o.stage_clock import StageClock
-from torchrl_dual.recipe.o2o.summary import score_text, write_summary
-from torchrl_dual.recipe.o2o.update_step import make_update_step
+from torchrl_dual.recipe.o2o.summary import report_finished_run, score_text
+from torchrl_dual.recipe.o2o.update_step import LearnerUpdates
 from torchrl_dual.recipe.settings.errors import UserError
 from torchrl_dual.recipe.settings.o2o import COLLECTORS, REPLAYS, check_output_dir
 from torchrl_dual.recipe.settings.structured import RecipeSettings
@@ -61,8 +58,7 @@ RESUMABLE_KEYS = (
     "collector",  # how frames are gathered: a resumed run may use other workers or cores
     "compile",  # how an update runs (compiled or not), not what it computes
 )
-# Part of the fingerprint: a checkpoint of another layout (e.g. written before the
-# O2ORun / Learner split) is refused with the checkpoint's "incompatible run" error.
+# Part of the fingerprint: a checkpoint of another layout is refused ("incompatible run").
 CHECKPOINT_LAYOUT = "o2o-learner-3"
 _COUNTERS = (
     "stages_done",
@@ -77,39 +73,6 @@ _COUNTERS = (
     "online_signals",
     "offline_steps",
 )
-
-
-class LearnerUpdates(OptimizationStepper):
-    """The learner's update, counted: ``run.update(batch)``, and the trainer's stepper.
-
-    Calling it runs one update of ``run.learner`` (eager, compiled or as a CUDA graph:
-    ``compile.*``, :func:`~torchrl_dual.recipe.o2o.update_step.make_update_step`), the
-    learner's ``after_update`` and counts it; the offline stages call it so. As TorchRL's
-    ``OptimizationStepper`` of the online phase (Alg. 1 l. 14-16) it adds the replay's own
-    step (e.g. balanced replay's priorities) and keeps the losses in :attr:`last`: the run
-    logs the batch's last update's losses, so the step returns none for the trainer to
-    average.
-    """
-
-    def __init__(self, run: O2ORun) -> None:
-        self.run = run
-        self.update = make_update_step(run.learner, run.cfg.get("compile"), lambda: run.frames > 0)
-        self.last: dict = {}
-        self._none = TensorDict()
-
-    def __call__(self, batch: TensorDictBase) -> dict:
-        """One learner update on ``batch``, counted; returns its metrics."""
-        metrics = self.update(batch)
-        self.run.learner.after_update()
-        self.run.updates += 1
-        return metrics
-
-    def step(self, trainer: Trainer, sub_batch: TensorDictBase) -> TensorDictBase:
-        """One counted update on ``sub_batch``, then the replay's own step."""
-        losses = self(sub_batch)
-        losses.update(self.run.replay.after_update(sub_batch))
-        self.last = losses
-        return self._none
 
 
 class O2ORun:
@@ -426,27 +389,11 @@ class O2ORun:
         }
 
     def finish(self) -> None:
-        """Writes the learning curve and ``summary.json``, closes the logger, prints the paths."""
+        """Checkpoints, closes the logger, then writes and prints what the run measured.
+
+        ``summary.json``, the learning curve and the final scores
+        (:func:`~torchrl_dual.recipe.o2o.summary.report_finished_run`).
+        """
         self.save()
         self.logger.shutdown()
-        write_summary(self, self.output_dir / "summary.json")
-        png = plot_learning_curve(
-            self.history,
-            self.output_dir / "learning_curve.png",
-            title=f"{self.learner.title} on {self.cfg.env.name}",
-            signals=self.online_signals,
-        )
-        offline = next((h for h in self.history if h["label"] == "offline"), None)
-        final = self.history[-1] if self.history else None
-        self.say("done.")
-        if offline is not None:
-            self.say(
-                f"normalized score after the offline phase: {score_text(offline['normalized_score'])}"
-            )
-        if final is not None:
-            self.say(
-                "normalized score at the end of the online phase: "
-                + score_text(final["normalized_score"])
-            )
-        self.say(logs_text(self.cfg, self.output_dir / "logs", self.name))
-        self.say(f"learning curve: {png}")
+        report_finished_run(self)

@@ -1,6 +1,6 @@
-"""``summary.json``: what a finished recipe run measured, for the learning suite.
+"""What a finished recipe run measured: ``summary.json``, the learning curve, the scores.
 
-One small file per run (``python -m benchmarks.learning`` collects them): the evaluation history,
+``summary.json`` is one small file per run (``python -m benchmarks.learning`` collects them): the evaluation history,
 the online signals per collected batch (DUAL's epistemic std and shift distance), the wall time of every stage and of the online phase, whether the offline stages came from
 a shared offline phase, and the resolved config.
 """
@@ -11,15 +11,21 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 from omegaconf import DictConfig, OmegaConf
 
+from torchrl_dual.recipe.o2o.loggers import logs_text
+from torchrl_dual.recipe.o2o.plots import plot_learning_curve
+
 
 class FinishedRun(Protocol):
-    """What :func:`run_summary` reads of a run (a :class:`~torchrl_dual.recipe.O2ORun`)."""
+    """What this module reads of a run (a :class:`~torchrl_dual.recipe.O2ORun`)."""
 
     cfg: DictConfig
+    name: str
+    output_dir: Path
+    learner: Any
     history: list[dict]
     online_signals: list[dict]
     stage_seconds: dict[str, float]
@@ -27,6 +33,9 @@ class FinishedRun(Protocol):
     shared_offline: bool
     frames: int
     updates: int
+
+    def say(self, text: str) -> None:
+        """Prints ``text`` on one line, prefixed by the run's name."""
 
 
 NO_REFERENCES = "n/a (the data set has no reference returns; set env.reference_returns)"
@@ -82,3 +91,27 @@ def write_summary(run: FinishedRun, path: Path) -> Path:
     tmp.write_text(json.dumps(run_summary(run), indent=1, default=float))
     os.replace(tmp, path)
     return path
+
+
+def report_finished_run(run: FinishedRun) -> None:
+    """Writes ``summary.json`` and the learning curve into the run's directory, prints both.
+
+    Also prints the normalized scores after the offline phase and at the end, and where
+    the logger wrote.
+    """
+    write_summary(run, run.output_dir / "summary.json")
+    png = plot_learning_curve(
+        run.history,
+        run.output_dir / "learning_curve.png",
+        title=f"{run.learner.title} on {run.cfg.env.name}",
+        signals=run.online_signals,
+    )
+    offline = next((h["normalized_score"] for h in run.history if h["label"] == "offline"), None)
+    run.say("done.")
+    if offline is not None:
+        run.say(f"normalized score after the offline phase: {score_text(offline)}")
+    if run.history:
+        final = run.history[-1]["normalized_score"]
+        run.say(f"normalized score at the end of the online phase: {score_text(final)}")
+    run.say(logs_text(run.cfg, run.output_dir / "logs", run.name))
+    run.say(f"learning curve: {png}")

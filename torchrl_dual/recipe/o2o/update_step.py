@@ -1,6 +1,8 @@
-"""How a run calls its learner's update: eager, through ``torch.compile``, or as CUDA graphs.
+"""How a run calls its learner's update: counted, eager, compiled or as CUDA graphs.
 
-The ``compile.*`` keys, as TorchRL's sota-implementations name them.
+:class:`LearnerUpdates` is ``run.update``: the learner's update, counted, which the
+offline stages call and TorchRL's ``Trainer`` steps as its optimization stepper. How the
+update itself runs follows the ``compile.*`` keys, as TorchRL's sota-implementations name them.
 
 * ``compile.compile=true``: ``learner.update`` through ``torch.compile``
   (``compile.compile_mode``). The losses trace whole (no graph break,
@@ -25,11 +27,12 @@ The ``compile.*`` keys, as TorchRL's sota-implementations name them.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import torch
 from omegaconf import DictConfig
 from tensordict import TensorDict, TensorDictBase
+from torchrl.trainers import OptimizationStepper, Trainer
 
 if TYPE_CHECKING:
     from torchrl_dual.recipe.o2o.learner import Learner
@@ -57,6 +60,49 @@ def make_update_step(
         lambda: make_capturable(optimizers_of(learner)),
         lambda: [p for o in optimizers_of(learner) for g in o.param_groups for p in g["params"]],
     )
+
+
+class UpdatedRun(Protocol):
+    """What :class:`LearnerUpdates` uses of its run (an :class:`~torchrl_dual.recipe.O2ORun`)."""
+
+    cfg: DictConfig
+    learner: Learner
+    replay: Any
+    frames: int
+    updates: int
+
+
+class LearnerUpdates(OptimizationStepper):
+    """The learner's update, counted: ``run.update(batch)``, and the trainer's stepper.
+
+    Calling it runs one update of ``run.learner`` (eager, compiled or as a CUDA graph:
+    ``compile.*``, :func:`~torchrl_dual.recipe.o2o.update_step.make_update_step`), the
+    learner's ``after_update`` and counts it; the offline stages call it so. As TorchRL's
+    ``OptimizationStepper`` of the online phase (Alg. 1 l. 14-16) it adds the replay's own
+    step (e.g. balanced replay's priorities) and keeps the losses in :attr:`last`: the run
+    logs the batch's last update's losses, so the step returns none for the trainer to
+    average.
+    """
+
+    def __init__(self, run: UpdatedRun) -> None:
+        self.run = run
+        self.update = make_update_step(run.learner, run.cfg.get("compile"), lambda: run.frames > 0)
+        self.last: dict = {}
+        self._none = TensorDict()
+
+    def __call__(self, batch: TensorDictBase) -> dict:
+        """One learner update on ``batch``, counted; returns its metrics."""
+        metrics = self.update(batch)
+        self.run.learner.after_update()
+        self.run.updates += 1
+        return metrics
+
+    def step(self, trainer: Trainer, sub_batch: TensorDictBase) -> TensorDictBase:
+        """One counted update on ``sub_batch``, then the replay's own step."""
+        losses = self(sub_batch)
+        losses.update(self.run.replay.after_update(sub_batch))
+        self.last = losses
+        return self._none
 
 
 class GraphedUpdate:
