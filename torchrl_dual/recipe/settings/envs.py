@@ -1,14 +1,13 @@
 """The table of environment kits, one entry per ``env.kind``, and their ``env.*`` schema.
 
-A kit builds the data and the envs of Algorithm 1 line 1.
-
-An :class:`EnvKit` holds everything the recipe needs from one kind of environment: the
-schema of its ``env.*`` keys, the offline data set ``D_offline``, the online env, the
-evaluator returning D4RL-normalized scores, and the projection of the policy's action
-onto what the env executes. The builders are :class:`~torchrl_dual.recipe.settings.lazy.Ref`
-s to :mod:`torchrl_dual.recipe.kits` (``kits.pointmaze``, ``kits.frozenlake`` and, for the
-Minari families, ``kits.minari_families``), imported when a run starts. Adding an
-environment is adding one entry to :data:`ENV_KITS`, its builders and one
+An :class:`EnvKit` builds the data and the envs of Algorithm 1 line 1: it holds all the
+recipe needs from one kind of environment, the schema of its ``env.*`` keys, the offline
+data set ``D_offline``, the online env, the evaluator returning D4RL-normalized scores,
+and the projection of the policy's action onto what the env executes. The builders are
+references (:class:`~torchrl_dual.recipe.settings.lazy.Ref`) into :mod:`torchrl_dual.recipe.kits`
+(``kits.pointmaze``, ``kits.frozenlake`` and, for the Minari families,
+``kits.minari_families``), imported when a run starts. Adding an environment is adding
+one entry to :data:`ENV_KITS`, its builders and one
 ``torchrl_dual/recipe/config/env/<name>.yaml`` that sets ``kind``; nothing else in the
 recipe branches on the env.
 """
@@ -22,11 +21,7 @@ from typing import Any
 from omegaconf import DictConfig
 
 from torchrl_dual.recipe.settings.lazy import Ref
-from torchrl_dual.recipe.settings.minari_datasets import (
-    FAMILIES,
-    PROTOCOLS,
-    check_minari_dataset,
-)
+from torchrl_dual.recipe.settings.minari_datasets import FAMILIES, PROTOCOLS, check_minari_dataset
 from torchrl_dual.recipe.settings.names import FROZENLAKE_MAPS, POINTMAZE_MAZES, SHIFTS_BY_KIND
 from torchrl_dual.recipe.settings.rules import (
     CellList,
