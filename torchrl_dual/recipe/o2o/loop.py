@@ -131,6 +131,7 @@ class OnlinePhase:
         self.device = torch.device(run.cfg.device)
         self.offline_done = False
         self.clock: StageClock | None = None
+        self.bar: tqdm | None = None
         self.stats: dict = {}
 
     def offline(self) -> None:
@@ -142,10 +143,10 @@ class OnlinePhase:
         self.next_eval = _next_multiple(run.frames, budget.eval_every)
         self.next_save = _next_multiple(run.frames, budget.checkpoint_every)
         self.clock = StageClock(run.stage_seconds, run.stage_cpu_seconds, "online")
-        if run.cfg.progress:  # TorchRL's bar of the online frames, from a resumed run's on
-            self.trainer.progress_bar = True  # (made here, not over the offline stages' bars)
-            self.trainer._pbar = tqdm(total=budget.online_frames, initial=run.frames)
-            self.trainer._pbar_str = {}
+        # the online frames' bar, from a resumed run's frames on (TorchRL's starts at 0)
+        self.bar = tqdm(
+            total=budget.online_frames, initial=run.frames, disable=not run.cfg.progress
+        )
 
     def store(self, batch: TensorDictBase) -> None:
         """``batch_process``: stores the batch (l. 11-13); ``utd_ratio`` credits per frame."""
@@ -172,8 +173,9 @@ class OnlinePhase:
         self.push(self.cut_points.current, self.run.learner.exploration_policy)
 
     def log_evaluate_checkpoint(self, batch: TensorDictBase) -> None:
-        """``post_steps_log``: log; evaluate and checkpoint (a cut point) when due."""
+        """``post_steps_log``: log, move the bar; evaluate and checkpoint (a cut point) when due."""
         run, budget = self.run, self.run.cfg.budget
+        self.bar.update(run.frames - self.bar.n)
         run.log({**self.stats, **self.updates.last}, run.frames, "online/")
         if (signals := online_signals(run.frames, self.stats)) is not None:
             run.online_signals.append(signals)  # the plot's signals, the batch's reward
@@ -189,9 +191,9 @@ class OnlinePhase:
             raise KeyboardInterrupt
 
     def close_bar(self) -> None:
-        """Closes TorchRL's progress bar (the trainer leaves it open), before the last lines."""
-        if self.trainer.progress_bar and hasattr(self.trainer, "_pbar"):
-            self.trainer._pbar.close()
+        """Closes the online frames' bar, before the last lines."""
+        if self.bar is not None:
+            self.bar.close()
 
     def finish(self) -> None:
         """``shutdown``: the last evaluation (unless one just ran), the curve and summary."""
@@ -230,7 +232,7 @@ def make_trainer(run: O2ORun) -> tuple[Trainer, OnlinePhase]:
         optim_steps_per_batch=None,  # as many as the credits allow: sample() stops them
         loss_module=run.learner.update,
         optimization_stepper=updates,
-        progress_bar=False,  # TorchRL's bar of the online frames starts after the offline phase
+        progress_bar=False,  # OnlinePhase's bar: after the offline phase, from a resume's frames
         auto_log_optim_steps=False,
     )
     trainer.collected_frames = run.frames  # a resumed run's frames count toward the total
