@@ -215,5 +215,7 @@ def test_finite_checks_times_both_sides_and_writes_the_ratio(tmp_path):
     out = tmp_path / "checks.json"
     report = finite_checks.main(["--tiny", "--updates", "2", "--rounds", "2", "--json", str(out)])
     assert len(report["ms_per_update_checks_on"]) == len(report["ms_per_update_checks_off"]) == 2
-    assert report["ratio_of_medians_on_over_off"] == report["median_on_ms"] / report["median_off_ms"]
+    assert (
+        report["ratio_of_medians_on_over_off"] == report["median_on_ms"] / report["median_off_ms"]
+    )
     assert "provenance" in json.loads(out.read_text())

@@ -128,6 +128,7 @@ def build_distillation(s: Sizes, device: str, capturable: bool):
 def build_actor_critic(s: Sizes, device: str, capturable: bool):
     """``DualLearner.update``: ``CriticActorStepper`` on ``DUALLoss``, IQL's Q + V step and
     soft update, then Eq. 7's actor step."""
+
     def mlp(inputs: int) -> MLP:
         return MLP(in_features=inputs, out_features=1, num_cells=[s.hidden] * 2,
                    activation_class=nn.ReLU)  # fmt: skip

@@ -81,9 +81,7 @@ def test_the_loss_keeps_a_frozen_private_copy_of_the_teacher_in_its_state(make_m
         torch.testing.assert_close(saved[f"teacher.{name}"], value.detach())
     with torch.no_grad():
         next(teacher.parameters()).add_(1.0)  # the caller's teacher changes later
-    assert not torch.equal(
-        saved[f"teacher.{next(iter(weights))}"], next(teacher.parameters())
-    )
+    assert not torch.equal(saved[f"teacher.{next(iter(weights))}"], next(teacher.parameters()))
 
 
 def test_only_the_student_receives_gradients_and_updates(make_model, make_windows):

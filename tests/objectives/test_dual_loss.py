@@ -232,7 +232,9 @@ def test_set_keys_renames_in_both_parts_and_rejects_unknown_names():
 def test_a_nan_reward_is_named_with_its_batch_index():
     data = batch()
     data["next", "reward"][5] = float("nan")
-    with pytest.raises(ValueError, match=r"DUALLoss's loss_qvalue holds a NaN or inf.*'next', 'reward'.*index 5"):
+    with pytest.raises(
+        ValueError, match=r"DUALLoss's loss_qvalue holds a NaN or inf.*'next', 'reward'.*index 5"
+    ):
         dual_loss()(data)
     assert torch.isfinite(dual_loss(check_finite=False)(batch())["loss_qvalue"])
 

@@ -528,7 +528,9 @@ def test_non_finite_advantage_weights_are_refused_with_where_they_come_from():
     loss_fn = WeightedMAPActorLoss.from_iql(linear_head_actor(), iql)
     bad = batch.clone()
     bad["observation"][3, 0] = float("nan")
-    with pytest.raises(ValueError, match=r"advantage weights holds a NaN or inf.*'observation'.*index 3"):
+    with pytest.raises(
+        ValueError, match=r"advantage weights holds a NaN or inf.*'observation'.*index 3"
+    ):
         loss_fn.advantage_weights(bad)
     with torch.no_grad():
         iql.value_network_params.apply_(lambda p: p.fill_(float("nan")))

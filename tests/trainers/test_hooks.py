@@ -42,7 +42,12 @@ def test_stepper_steps_critic_then_actor_and_returns_tensors(tmp_path):
     batch = trainer._modules["replay_buffer"].replay_buffer.offline_buffer.sample(16)
     out = stepper.step(trainer, batch)
     assert set(out.keys()) == {
-        "loss_qvalue", "loss_value", "loss_actor", "weight_mean", "log_prob", "actor_std"
+        "loss_qvalue",
+        "loss_value",
+        "loss_actor",
+        "weight_mean",
+        "log_prob",
+        "actor_std",
     }
     assert all(torch.is_tensor(v) and not v.requires_grad for v in out.values())
     params = [p for g in stepper.critic_optimizer.param_groups for p in g["params"]]

@@ -10,6 +10,7 @@ a :class:`Learner`; :func:`run_o2o` runs one learner through the offline and the
 phase on TorchRL's ``Trainer``. Each entry of :data:`~torchrl_dual.recipe.ALGORITHMS` is
 a learner class and a config file.
 """
+
 from __future__ import annotations
 
 import random
