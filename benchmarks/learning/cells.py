@@ -133,13 +133,13 @@ CELLS: dict[str, Cell] = {
         ("env=pointmaze_umaze",), ONLINE_TUNING_VARIANTS, 5,
         "PointMaze U-maze: DUAL with offline share 0.75 or UTD 0.25 online (`dual`: 0.5 and 0.5)",
     ),
-    # issue 41: the README's U-maze comparison on seeds 5-9, which no tuning saw (DUAL's
-    # budget split was chosen on `umaze` seeds 0-2), all on the AMD EPYC: IQL and d3rlpy's
-    # IQL on the code after fused Adam (issue 40), DUAL re-run on its fused actor (cb46f83)
+    # the README's U-maze comparison on seeds 5-9, which no tuning saw (DUAL's budget split
+    # was chosen on `umaze` seeds 0-2): its four shown variants ran in one sitting, on one
+    # host and commit (the retired `iql_equal_time_24k` on another host)
     "umaze_fresh": Cell(
         ("env=pointmaze_umaze",),
         ("dual", "iql", "iql_d3rlpy", "iql_equal_time_24k", "iql_equal_time_29k"), 5,
-        "PointMaze U-maze, fresh seeds 5-9 (no tuning saw them), one machine (AMD EPYC)",
+        "PointMaze U-maze, fresh seeds 5-9 (no tuning saw them), in one sitting on one machine",
         first_seed=5,
     ),
     # its own `dual` runs: the online-only ablations (latent UQ, and DUAL + EDIS below) ran
