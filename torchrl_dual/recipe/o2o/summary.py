@@ -1,8 +1,9 @@
 """What a finished recipe run measured: ``summary.json``, the learning curve, the scores.
 
-``summary.json`` is one small file per run (``python -m benchmarks.learning`` collects them): the evaluation history,
-the online signals per collected batch (DUAL's epistemic std and shift distance), the wall time of every stage and of the online phase, whether the offline stages came from
-a shared offline phase, and the resolved config.
+``summary.json`` is one small file per run (``python -m benchmarks.learning`` collects
+them): the evaluation history, the online signals per collected batch (DUAL's epistemic
+std and shift distance), the wall time of every stage and of the online phase, whether
+the offline stages came from a shared offline phase, and the resolved config.
 """
 
 from __future__ import annotations
