@@ -92,7 +92,7 @@ def test_one_dual_update_reads_through_at_most_five_files_each_calling_the_next(
     assert "optimization_stepper=updates" in loop and "run.update" in loop
     assert "self.run.learner.after_updates()" in loop
     counted = (PACKAGE / "recipe/o2o/update_step.py").read_text()  # run.update: LearnerUpdates
-    assert "losses = self(sub_batch)" in counted and "metrics = self.update(batch)" in counted
+    assert "**self(sub_batch)" in counted and "metrics = self.update(batch)" in counted
     dual = text["recipe/algos/dual.py"]
     update = dual[dual.index("    def update(self, batch") :]
     update = update[: update.index("\n    def ")]

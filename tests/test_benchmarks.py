@@ -79,20 +79,23 @@ def test_online_reward_counts_the_batches_with_reward_and_the_positive_evaluatio
 def test_update_path_lists_the_files_of_one_dual_update_in_call_order():
     from benchmarks.studies.update_path import files_of_one_update
 
-    files = files_of_one_update(["algo=dual"])
-    # the run's stepper, the learner, Alg. 1's stepper, then DUAL's loss and Eq. 7's actor
-    assert files[:2] == ["recipe/o2o/update_step.py", "recipe/algos/dual.py"]
-    order = [files.index(f) for f in ("trainers/stepper.py", "objectives/dual.py",
-                                      "objectives/weighted_map_actor.py")]  # fmt: skip
-    assert order == sorted(order)
-    assert "recipe/o2o/loop.py" not in files and "recipe/o2o/run.py" not in files
+    files, after = files_of_one_update(["algo=dual"])
+    # the run's stepper, the learner, Alg. 1's stepper, DUAL's loss, then Eq. 7's actor
+    assert files[:4] == [
+        "recipe/o2o/update_step.py", "recipe/algos/dual.py", "trainers/stepper.py",
+        "objectives/dual.py",
+    ]  # fmt: skip
+    assert files.index("objectives/weighted_map_actor.py") > 3
+    # the refit count (the learner's after_update) and the replay's step come after
+    assert after == ["trainers/hooks.py", "recipe/o2o/replays.py"]
+    assert "recipe/o2o/loop.py" not in files + after and "recipe/o2o/run.py" not in files + after
 
 
 def test_update_path_runs_so2_on_its_balanced_replay_of_offline_and_online_data():
     from benchmarks.studies.update_path import files_of_one_update
 
-    files = files_of_one_update(["algo=so2"])  # its replay samples D_online too
-    assert "objectives/so2.py" in files and "recipe/o2o/replays.py" in files
+    files, after = files_of_one_update(["algo=so2"])  # its replay samples D_online too
+    assert "objectives/so2.py" in files and "recipe/o2o/replays.py" in after
 
 
 def test_smoke_bitwise_names_each_run_and_what_differs(tmp_path):

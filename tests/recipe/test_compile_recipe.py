@@ -35,7 +35,8 @@ def test_compiled_dual_updates_follow_the_eager_ones(tmp_path):
     cache = tmp_path / "data"
     eager = _run(tmp_path / "eager", cache, "dual")
     compiled = _run(tmp_path / "compiled", cache, "dual", "compile.compile=true")
-    assert compiled.update.update is not compiled.learner.update  # the compiled wrapper
+    assert eager.update.update == eager.learner.update  # the learner's own, eager
+    assert compiled.update.update != compiled.learner.update  # the compiled wrapper
     batches = [eager.offline_buffer.sample().clone() for _ in range(UPDATES)]
     for i, batch in enumerate(batches):
         expected, got = eager.update(batch.clone()), compiled.update(batch.clone())

@@ -99,9 +99,7 @@ class LearnerUpdates(OptimizationStepper):
 
     def step(self, trainer: Trainer, sub_batch: TensorDictBase) -> TensorDictBase:
         """One counted update on ``sub_batch``, then the replay's own step."""
-        losses = self(sub_batch)
-        losses.update(self.run.replay.after_update(sub_batch))
-        self.last = losses
+        self.last = {**self(sub_batch), **self.run.replay.after_update(sub_batch)}
         return self._none
 
 
