@@ -168,6 +168,13 @@ CELLS: dict[str, Cell] = {
         ("env=pointmaze_umaze", "env.shift=rotation"), ("dual", "dual_lambda0", "iql"), 5,
         "umaze_rotation's DUAL, λ = 0 and IQL again, seeds 0-4, one host and one commit",
     ),
+    # the same claim on fresh seeds 5-9, which no tuning saw, on another host than the
+    # seeds 0-4 of `umaze_rotation_onehost` (whose CPU rounds differently)
+    "umaze_rotation_fresh": Cell(
+        ("env=pointmaze_umaze", "env.shift=rotation"), ("dual", "dual_lambda0", "iql"), 5,
+        "umaze_rotation's DUAL, λ = 0 and IQL on fresh seeds 5-9, one host and one commit",
+        first_seed=5,
+    ),
     "umaze_damping": Cell(
         ("env=pointmaze_umaze", "env.shift=damping"), SHIFT_VARIANTS, 3,
         "U-maze, online damping × 150",

@@ -75,6 +75,7 @@ CLAIMS: tuple[Claim, ...] = (
     Claim("umaze_baselines", "Cal-QL − d3rlpy's Cal-QL", "calql", "calql_d3rlpy"),
     Claim("umaze_temperature", "DUAL at T = data − DUAL", "dual_tdata", "dual", b_cell="umaze"),
     *_set("umaze_rotation_onehost", "DUAL", _IQL + _LAMBDA),
+    *_set("umaze_rotation_fresh", "DUAL", _IQL + _LAMBDA),
     *_set("umaze_rotation", "DUAL", _IQL + _LAMBDA),
     *_set("umaze_damping", "DUAL", _IQL + _LAMBDA),
     *_set("umaze_mass", "DUAL", _IQL + _LAMBDA),
