@@ -34,7 +34,7 @@ def test_a_constant_critic_reads_as_that_constant_against_the_exact_returns(tmp_
     params.set_((*last[:-1], "bias"), torch.full_like(params.get((*last[:-1], "bias")), 2.0))
     figures = critic_calibration.calibration(run, samples=500, seed=3)
 
-    returns = monte_carlo_returns(run.data.transitions, run.cfg.critic.discount).reshape(-1)
+    returns = monte_carlo_returns(run.data.transitions, run.settings.critic.discount).reshape(-1)
     index = torch.randperm(len(returns), generator=torch.Generator().manual_seed(3))[:500]
     assert figures["transitions"] == 500
     assert abs(figures["q_data"] - 2.0) < 1e-6 and abs(figures["q_policy"] - 2.0) < 1e-6

@@ -310,3 +310,36 @@ def test_learners_and_parts_use_the_run_through_its_narrow_context():
     assert {attr for _, attr in used} >= {"settings", "data", "env"}  # the reader finds them
     assert "cfg" not in declared
     assert sorted((name, attr) for name, attr in used if attr not in declared) == []
+
+
+# Where the composed config is read as such: its checks, the entry point, and the two
+# places that turn it into the run's typed settings (``O2ORun``, ``run_o2o``).
+READS_THE_COMPOSED_CONFIG = {
+    "recipe/cli.py",
+    "recipe/o2o/loop.py",
+    "recipe/o2o/run.py",
+    "recipe/kits/pointmaze.py",  # check_pointmaze, ENV_KITS' check of the PointMaze cells
+}
+
+
+def _imports_dict_config(path: Path) -> bool:
+    return any(
+        isinstance(node, ast.ImportFrom)
+        and node.module == "omegaconf"
+        and any(alias.name == "DictConfig" for alias in node.names)
+        for node in ast.walk(ast.parse(path.read_text()))
+    )
+
+
+def test_only_the_checks_and_the_entry_read_the_composed_config():
+    """Outside ``recipe/settings`` (the config's checks), the recipe reads the validated
+    config typed, as ``RecipeSettings``: the run, its collectors, replays, loggers and
+    summary, the env kits' builders, the learners and their parts."""
+    recipe = PACKAGE / "recipe"
+    readers = {
+        path.relative_to(PACKAGE).as_posix()
+        for path in recipe.rglob("*.py")
+        if "settings" not in path.relative_to(recipe).parts and _imports_dict_config(path)
+    }
+    assert "recipe/o2o/run.py" in readers  # the reader finds them
+    assert readers == READS_THE_COMPOSED_CONFIG

@@ -38,6 +38,8 @@ def test_every_cell_and_variant_of_the_grid_is_a_valid_recipe_config(tmp_path):
 def test_runs_the_suite_groups_for_sharing_have_one_recipe_offline_key(tmp_path):
     """The queue's ``sharing_key`` (from ``variants.ONLINE_ONLY``) puts two runs in one
     group exactly when the recipe's offline cache gives them one key (U-maze, seed 0)."""
+    from omegaconf import OmegaConf
+
     from torchrl_dual.recipe import ALGORITHMS, compose_checked
     from torchrl_dual.recipe.o2o.offline_cache import offline_key_config
 
@@ -54,7 +56,8 @@ def test_runs_the_suite_groups_for_sharing_have_one_recipe_offline_key(tmp_path)
             [*run.overrides, "budget=default", f"output_dir={tmp_path}"],
         )
         online = getattr(ALGORITHMS[cfg.algo].learner, "online_keys", ())
-        keys[run] = json.dumps(offline_key_config(cfg, online), sort_keys=True, default=str)
+        config = OmegaConf.to_container(cfg, resolve=True)
+        keys[run] = json.dumps(offline_key_config(config, online), sort_keys=True, default=str)
     for a in runs:
         for b in runs:
             same_group = a.sharing_key() == b.sharing_key()

@@ -37,7 +37,7 @@ def test_the_signal_is_eq_10s_distance_on_each_kind_of_transition(tmp_path):
     online = shift_signal.online_distance(run, "none", steps=120, seed=2)
     # 120 steps of 40-step episodes: 3 resets, whose steps have no previous step
     assert len(online) == 117 and bool((online > 0).all())
-    env = shift_signal.make_train_env(run.cfg, run.data)
+    env = shift_signal.make_train_env(run.settings, run.data)
     env.set_seed(2)
     torch.manual_seed(5)
     with shift_signal.set_exploration_type(shift_signal.ExplorationType.RANDOM):

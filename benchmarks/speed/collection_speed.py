@@ -34,7 +34,7 @@ from torchrl.envs.utils import ExplorationType
 
 from benchmarks.provenance import write_json
 from benchmarks.speed.latency_candidates import Config, build_dual_m5
-from torchrl_dual.recipe import CONFIG_DIR, compose_checked
+from torchrl_dual.recipe import CONFIG_DIR, RecipeSettings, compose_checked
 from torchrl_dual.recipe.kits import build as env_kits
 
 ENVS = {
@@ -69,13 +69,14 @@ def collectors(
                 f"data_cache_dir={workdir / 'data'}",
             ],
         )
+        settings = RecipeSettings.of(cfg)
         if dataset_id is not None and data is None:
-            data = env_kits.make_offline_dataset(cfg)  # the observation normalizer's
-        env = env_kits.make_train_env(cfg, data)
+            data = env_kits.make_offline_dataset(settings)  # the observation normalizer's
+        env = env_kits.make_train_env(settings, data)
         if policy is None:
             obs_dim = env.observation_spec["observation"].shape[-1]
             policy = build_dual_m5(Config(obs_dim=obs_dim, action_dim=env.action_spec.shape[-1]))
-        env = env_kits.make_collection_env(cfg, data, env)
+        env = env_kits.make_collection_env(settings, data, env)
         env.set_seed(cfg.seed + 1)
         out[count] = Collector(
             env,

@@ -114,7 +114,7 @@ def measure(family: str, updates: int, steps: int, workdir: Path) -> dict:
     # a raw Gymnasium step with random actions (the data set's env behind its observation map)
     from torchrl_dual.recipe.kits.minari_families import minari_gym_env
 
-    raw = minari_gym_env(o2o.cfg, o2o.data, eval_env=True, shifted=False)
+    raw = minari_gym_env(o2o.settings, o2o.data, eval_env=True, shifted=False)
     raw.reset(seed=0)
 
     def raw_step() -> None:

@@ -48,11 +48,13 @@ def _compose(out: Path, *overrides: str):
 
 def random_episodes(cfg, episodes: int, seed: int = 0) -> dict:
     """``episodes`` uniform-random episodes in the kit's evaluation env of ``cfg``."""
+    from torchrl_dual.recipe import RecipeSettings
     from torchrl_dual.recipe.kits import build
     from torchrl_dual.recipe.kits.minari_families import minari_gym_env
 
-    data = build.make_offline_dataset(cfg)
-    env = minari_gym_env(cfg, data, eval_env=True, shifted=False)
+    settings = RecipeSettings.of(cfg)
+    data = build.make_offline_dataset(settings)
+    env = minari_gym_env(settings, data, eval_env=True, shifted=False)
     dt = float(env.unwrapped.ant_env.dt)
     rng = np.random.default_rng(seed)
     rows = []

@@ -62,10 +62,10 @@ def load_run(run_dir: Path, workdir: Path) -> O2ORun:
 def calibration(run: O2ORun, samples: int, seed: int = 0) -> dict[str, float]:
     """The figures of the module docstring on ``samples`` offline transitions."""
     data = run.data.transitions
-    returns = monte_carlo_returns(data, float(run.cfg.critic.discount)).reshape(-1).float()
+    returns = monte_carlo_returns(data, float(run.settings.critic.discount)).reshape(-1).float()
     gen = torch.Generator().manual_seed(seed)
     index = torch.randperm(len(data), generator=gen)[: min(samples, len(data))]
-    batch = data[index].to(run.cfg.device)
+    batch = data[index].to(run.settings.device)
     target = returns[index]
     loss = run.learner.critic.loss
     q_data = min_q(loss, batch).cpu()

@@ -25,12 +25,12 @@ The run directory is read only (its checkpoint is loaded from a temporary copy).
 from __future__ import annotations
 
 import argparse
+import copy
 import sys
 import tempfile
 from pathlib import Path
 
 import torch
-from omegaconf import OmegaConf
 from tensordict import TensorDictBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
@@ -50,8 +50,9 @@ def offline_distance(run: O2ORun, samples: int, seed: int = 0) -> torch.Tensor:
 def online_rollout(run: O2ORun, shift: str, steps: int, seed: int = 0) -> TensorDictBase:
     """``steps`` env steps of the run's exploration policy in its train env with
     ``env.shift=shift``, without the steps that have no previous step (after a reset)."""
-    cfg = OmegaConf.merge(run.cfg, {"env": {"shift": shift}})
-    env = make_train_env(cfg, run.data)
+    settings = copy.deepcopy(run.settings)
+    settings.env.shift = shift
+    env = make_train_env(settings, run.data)
     env.set_seed(seed)
     with set_exploration_type(ExplorationType.RANDOM):
         rollout = env.rollout(steps, run.learner.policy, break_when_any_done=False)
@@ -102,9 +103,9 @@ def main(argv: list[str] | None = None) -> int:
         with tempfile.TemporaryDirectory() as workdir:
             run = load_run(run_dir, Path(workdir))
             if not hasattr(run.learner, "transition"):
-                print(f"error: {run_dir} is not a DUAL run (algo={run.cfg.algo})")
+                print(f"error: {run_dir} is not a DUAL run (algo={run.settings.algo})")
                 return 2
-            weight = float(run.cfg.exploration.shift_weight)
+            weight = float(run.settings.exploration.shift_weight)
             offline = offline_distance(run, args.samples)
             base = float(offline.mean())
             table = {"offline": summary(offline, base, weight)}

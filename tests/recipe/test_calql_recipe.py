@@ -38,7 +38,7 @@ def test_calql_runs_end_to_end_on_pointmaze(calql_run):
 def test_offline_data_carries_its_monte_carlo_returns(calql_run):
     _, result = calql_run
     data = result.data.transitions
-    expected = monte_carlo_returns(data, result.cfg.critic.discount)
+    expected = monte_carlo_returns(data, result.settings.critic.discount)
     assert torch.allclose(data[MC_RETURN], expected.float())
     batch = result.offline_buffer.sample()
     assert MC_RETURN in batch.keys()
@@ -51,7 +51,7 @@ def test_online_episodes_enter_the_buffer_labelled_when_they_end(calql_run):
     # every stored online transition belongs to a finished episode and carries its exact
     # return-to-go (PointMaze episodes here: 50 steps, truncated)
     assert bool(online["next", "done"][-1])
-    expected = monte_carlo_returns(online, result.cfg.critic.discount)
+    expected = monte_carlo_returns(online, result.settings.critic.discount)
     assert torch.allclose(online[MC_RETURN], expected.float())
 
 
@@ -59,7 +59,7 @@ def test_an_unfinished_episode_is_held_until_it_ends(calql_run):
     _, result = calql_run
     learner = result.learner.labels
     learner.pending = None
-    gamma = result.cfg.critic.discount
+    gamma = result.settings.critic.discount
 
     def piece(rewards, done_at=None, episode=0):
         n = len(rewards)
@@ -135,10 +135,10 @@ def test_the_episode_in_progress_survives_an_interruption_cut(tmp_path):
         [ids[50].item()],
     ]
     assert len({ids[0].item(), ids[40].item(), ids[50].item()}) == 3
-    expected = monte_carlo_returns(online, finished.cfg.critic.discount)
+    expected = monte_carlo_returns(online, finished.settings.critic.discount)
     assert torch.allclose(online[MC_RETURN], expected.float())
     by_hand = sum(
-        float(r) * finished.cfg.critic.discount**k
+        float(r) * finished.settings.critic.discount**k
         for k, r in enumerate(online["next", "reward"][40:50].squeeze(-1))
     )
     assert float(online[MC_RETURN][40]) == pytest.approx(by_hand, rel=1e-5)
@@ -173,11 +173,11 @@ def test_dual_on_the_calql_critic_runs_resumes_and_saves_each_weight_once(tmp_pa
     assert eq7.weighting == "sac" and eq7.value_network is None
     online = finished.replay.online_buffer[:]
     assert (finished.frames, len(online)) == (100, 90)
-    expected = monte_carlo_returns(online, finished.cfg.critic.discount)
+    expected = monte_carlo_returns(online, finished.settings.critic.discount)
     assert torch.allclose(online[MC_RETURN], expected.float())
     assert torch.allclose(
         finished.data.transitions[MC_RETURN],
-        monte_carlo_returns(finished.data.transitions, finished.cfg.critic.discount).float(),
+        monte_carlo_returns(finished.data.transitions, finished.settings.critic.discount).float(),
     )
     scalars = tmp_path / "logs" / "dual" / "scalars"
     assert (scalars / "offline" / "loss_cql.csv").is_file()

@@ -23,7 +23,7 @@ import torch
 from tensordict.nn import TensorDictModule
 from torch import nn
 
-from torchrl_dual.recipe import CONFIG_DIR, O2ORun, compose_checked, run
+from torchrl_dual.recipe import CONFIG_DIR, O2ORun, RecipeSettings, compose_checked, run
 from torchrl_dual.recipe.o2o.episodes import assign_episodes
 from torchrl_dual.recipe.settings.o2o import COLLECTORS
 
@@ -182,7 +182,10 @@ def test_workers_act_with_the_weights_and_buffers_pushed_after_an_update_block()
     module = ConstantAction()
     policy = TensorDictModule(module, in_keys=["observation"], out_keys=["action"])
     fake_run = SimpleNamespace(
-        cfg=cfg, data=None, frames=0, learner=SimpleNamespace(exploration_policy=policy)
+        settings=RecipeSettings.of(cfg),
+        data=None,
+        frames=0,
+        learner=SimpleNamespace(exploration_policy=policy),
     )
     kind = COLLECTORS["multi_sync"]
     collector = kind.make(fake_run, 200)

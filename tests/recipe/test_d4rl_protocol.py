@@ -87,7 +87,7 @@ def test_relabelled_data_reaching_the_goal_end_their_episode_there(minari_path, 
     from torchrl_dual.recipe.kits import d4rl_protocol
 
     cfg = compose(tmp_path, "env=antmaze", "env.normalize_observations=false")
-    task = d4rl_protocol.data_protocol(cfg).antmaze_task
+    task = d4rl_protocol.data_protocol(cfg.env).antmaze_task
     episodes = list(minari.load_dataset(ANTMAZE_ID).iterate_episodes())
     visited = episodes[1].observations["achieved_goal"][12]
     moved = type(task)(**{**task.__dict__, "goal": visited})

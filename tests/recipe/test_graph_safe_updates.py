@@ -201,8 +201,9 @@ def test_one_graph_per_phase_and_batch_shape_and_the_optimizers_made_capturable_
     monkeypatch,
 ):
     import tensordict.nn
-    from omegaconf import OmegaConf
     from tensordict import TensorDict
+
+    from torchrl_dual.recipe.settings.schema import CompileSettings
 
     monkeypatch.setattr(tensordict.nn, "CudaGraphModule", _StandInGraph)
     w = torch.nn.Parameter(torch.ones(3))
@@ -219,7 +220,7 @@ def test_one_graph_per_phase_and_batch_shape_and_the_optimizers_made_capturable_
             calls.append((tuple(batch.shape), adam.param_groups[0]["capturable"]))
             return {"loss": (w * batch["x"]).sum().detach()}
 
-    settings = OmegaConf.create({"compile": False, "compile_mode": None, "cudagraphs": True})
+    settings = CompileSettings(compile=False, compile_mode=None, cudagraphs=True)
     step = make_update_step(Learner(), settings, lambda: phase["online"])
     assert isinstance(step, GraphedUpdate)
     out = step(TensorDict(x=torch.ones(2, 3), batch_size=[2]))
@@ -242,8 +243,9 @@ def test_a_replayed_update_moves_the_version_counters_of_the_optimizers_paramete
     """A CUDA graph's replay changes the weights without moving their version counters;
     the acting path's caches read those counters, so the step moves them by hand."""
     import tensordict.nn
-    from omegaconf import OmegaConf
     from tensordict import TensorDict
+
+    from torchrl_dual.recipe.settings.schema import CompileSettings
 
     class _Replay(_StandInGraph):
         def __call__(self, td):  # the weights change, no counter moves (as a replay)
@@ -261,7 +263,7 @@ def test_a_replayed_update_moves_the_version_counters_of_the_optimizers_paramete
         def update(self, batch):
             return {"loss": w.sum().detach()}
 
-    settings = OmegaConf.create({"compile": False, "compile_mode": None, "cudagraphs": True})
+    settings = CompileSettings(compile=False, compile_mode=None, cudagraphs=True)
     step = make_update_step(Learner(), settings, lambda: "offline")
     versions = [w._version]
     for _ in range(2):

@@ -181,9 +181,9 @@ def test_the_ensemble_state_round_trips_without_the_shared_weights(frozenlake):
 
 
 def test_a_resumed_run_restores_the_ensemble_and_acts_like_the_checkpointed_one(frozenlake):
-    out = Path(frozenlake.cfg.output_dir)
+    out = Path(frozenlake.settings.output_dir)
     saved = checkpoint_state(out)
-    cache = Path(frozenlake.cfg.data_cache_dir)
+    cache = Path(frozenlake.settings.data_cache_dir)
     cfg = fast_cfg(out, cache, "algo=iql_la", "env=frozenlake", "resume=true")
     resumed = O2ORun(cfg, IQLLALearner).learner
     for name in ("weight_deviation", "bias_deviation", "actor.log_std", "laplace.theta_map"):

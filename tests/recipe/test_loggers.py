@@ -239,14 +239,11 @@ def test_the_online_signals_cover_the_whole_online_phase_across_a_resume(wandb_r
 def test_a_shared_offline_phase_keeps_the_runs_own_wandb_run(tmp_path):
     """A run loading a shared offline phase (``offline_cache``) takes the snapshot's logger
     counters but logs on to its own W&B run; the snapshot stores no W&B files."""
-    from omegaconf import OmegaConf
-
     from torchrl_dual.recipe.o2o.loggers import make_logger
     from torchrl_dual.recipe.o2o.offline_cache import OfflinePhaseCache
+    from torchrl_dual.recipe.settings.loggers import WandbSettings
 
-    cfg = OmegaConf.create(
-        {"logger": {"backend": "wandb", "project": "p", "entity": None, "mode": "offline"}}
-    )
+    cfg = WandbSettings(backend="wandb", project="p", entity=None, mode="offline")
     first = make_logger(cfg, tmp_path / "first" / "logs", "dual")
     first.log_scalar("planner/loss_diffusion", 1.0, step=60)
     snapshot = first.state_dict()

@@ -17,12 +17,12 @@ def _run(offline_fraction: float, batch_size: int = 8, n_offline: int = 50) -> S
         storage=LazyTensorStorage(n_offline), sampler=RandomSampler(), batch_size=batch_size
     )
     offline.extend(TensorDict({"source": torch.zeros(n_offline, 1)}, batch_size=[n_offline]))
-    cfg = SimpleNamespace(
+    settings = SimpleNamespace(
         online=SimpleNamespace(offline_fraction=offline_fraction, batch_size=batch_size),
         budget=SimpleNamespace(online_frames=20),
     )
     return SimpleNamespace(
-        cfg=cfg, offline_buffer=offline, learner=SimpleNamespace(extra_online_capacity=0)
+        settings=settings, offline_buffer=offline, learner=SimpleNamespace(extra_online_capacity=0)
     )
 
 

@@ -131,7 +131,8 @@ def key(*overrides: str) -> str:
     # a fresh output_dir (not part of the key): the default one may hold a user's run
     fresh = f"output_dir={tempfile.mkdtemp()}"
     cfg = compose_checked(RECIPE_CONFIG_DIR, ["budget=smoke", fresh, *overrides])
-    return OfflinePhaseCache("/unused", offline_key_config(cfg, DualLearner.online_keys), "x").key
+    config = offline_key_config(OmegaConf.to_container(cfg, resolve=True), DualLearner.online_keys)
+    return OfflinePhaseCache("/unused", config, "x").key
 
 
 def test_online_keys_share_the_key_and_offline_keys_do_not():
@@ -246,7 +247,8 @@ def test_every_config_key_is_classified_for_the_offline_cache(tmp_path, monkeypa
         cfg = compose_checked(
             RECIPE_CONFIG_DIR, [f"algo={algo}", *overrides, f"output_dir={tmp_path}"]
         )
-        keyed |= set(_leaves(offline_key_config(cfg, ALGORITHMS[algo].learner.online_keys)))
+        config = OmegaConf.to_container(cfg, resolve=True)
+        keyed |= set(_leaves(offline_key_config(config, ALGORITHMS[algo].learner.online_keys)))
     recorded = set(KEYED.read_text().split())
     assert keyed == recorded, (
         f"config keys new to the offline-cache key: {sorted(keyed - recorded)}; gone from it: "

@@ -5,6 +5,7 @@ evaluation scores the env's own, and the identity changes no offline-cache key."
 from __future__ import annotations
 
 import torch
+from omegaconf import OmegaConf
 
 from torchrl_dual.recipe import CONFIG_DIR, compose_checked
 from torchrl_dual.recipe.kits import build
@@ -33,7 +34,8 @@ def test_data_and_online_env_carry_the_transform_and_the_score_does_not(tmp_path
 
 
 def test_the_reward_transform_is_part_of_the_offline_cache_key(tmp_path):
-    key = offline_key_config(compose(tmp_path))
+    key = offline_key_config(OmegaConf.to_container(compose(tmp_path), resolve=True))
     assert (key["env"]["reward_scale"], key["env"]["reward_shift"]) == (1.0, 0.0)
-    other = offline_key_config(compose(tmp_path, "env.reward_shift=-1"))
+    other = compose(tmp_path, "env.reward_shift=-1")
+    other = offline_key_config(OmegaConf.to_container(other, resolve=True))
     assert other["env"]["reward_shift"] == -1.0 and other != key

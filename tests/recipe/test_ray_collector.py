@@ -28,7 +28,7 @@ from test_collectors import (
     two_worker_run,
 )
 
-from torchrl_dual.recipe import O2ORun, compose_checked, run
+from torchrl_dual.recipe import O2ORun, RecipeSettings, compose_checked, run
 from torchrl_dual.recipe.o2o.ray_collector import InterleavedTrajectories
 from torchrl_dual.recipe.settings import o2o as o2o_settings
 from torchrl_dual.recipe.settings.errors import ConfigError, UserError
@@ -198,7 +198,7 @@ def test_collector_address_auto_without_a_cluster_is_a_user_error(tmp_path, monk
         CONFIG_DIR, ["collector=ray", "collector.address=auto", f"output_dir={tmp_path}"]
     )
     fake_run = SimpleNamespace(
-        cfg=cfg,
+        settings=RecipeSettings.of(cfg),
         data=None,
         frames=0,
         learner=SimpleNamespace(exploration_policy=torch.nn.Linear(1, 1)),

@@ -86,12 +86,12 @@ def test_extra_variance_reaches_the_acting_noise_and_is_an_online_key(tmp_path):
 
     cfg = cfg_for(tmp_path / "run", tmp_path / "data", "exploration.shift_weight=0",
                   "exploration.extra_variance=0.15")  # fmt: skip
-    learner = O2ORun(cfg, DualLearner).learner
-    assert learner.noise.extra_variance == pytest.approx(0.15)
-    assert float(learner.noise.shift_weight) == 0.0
-    plain_cfg = cfg_for(tmp_path / "plain", tmp_path / "data")
-    assert O2ORun(plain_cfg, DualLearner).learner.noise.extra_variance == 0.0
+    run = O2ORun(cfg, DualLearner)
+    assert run.learner.noise.extra_variance == pytest.approx(0.15)
+    assert float(run.learner.noise.shift_weight) == 0.0
+    plain = O2ORun(cfg_for(tmp_path / "plain", tmp_path / "data"), DualLearner)
+    assert plain.learner.noise.extra_variance == 0.0
     online = DualLearner.online_keys
-    assert offline_key_config(cfg, online) == offline_key_config(plain_cfg, online)
+    assert offline_key_config(run.config, online) == offline_key_config(plain.config, online)
     with pytest.raises(ConfigError, match=r"exploration.extra_variance"):
         cfg_for(tmp_path, tmp_path, "exploration.extra_variance=-0.1")

@@ -54,7 +54,7 @@ def test_so2_runs_with_k_critic_steps_per_actor_step(so2_run):
 
 def test_so2_targets_are_sac_n_offline_and_smoothed_per_member_online(so2_run):
     _, _, _, result = so2_run
-    loss, cfg = result.learner.critic.loss, result.cfg
+    loss, cfg = result.learner.critic.loss, result.settings
     critic = result.learner.critic
     assert (loss.target_reduction, loss.policy_noise) == ("independent", 0.3)
     critic.phases(loss, online=False)
@@ -94,11 +94,11 @@ def test_dual_on_so2_critic_with_balanced_replay(tmp_path):
     assert state["updates"] == 10 + 20
     assert _adam_steps(state["critic_optimizer"]) == 10 + 20 * 3
     assert _adam_steps(state["actor_optimizer"]) == 10 + 20
-    assert result.cfg.actor.weighting == "sac"  # the critic's preset
+    assert result.settings.actor.weighting == "sac"  # the critic's preset
     eq7 = result.learner.loss.actor_objective
     assert eq7.weighting == "sac"
     # one α for the targets and the actor, and the actor's Q read inside the action box
-    assert eq7.entropy_coef == result.cfg.critic.entropy_coef
+    assert eq7.entropy_coef == result.settings.critic.entropy_coef
     assert eq7.action_box.high.tolist() == [1.0, 1.0]
     # the critic's targets sample DUAL's own actor (N(mu, sigma-bar^2)), saved once
     assert not any(k.startswith("actor_network") for k in state["critic"])

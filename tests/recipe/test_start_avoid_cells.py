@@ -192,10 +192,11 @@ def test_the_key_keeps_the_offline_phase_and_its_cache_key(tmp_path):
     before the key (without it) has the key of today's default."""
     base = compose(tmp_path, *MEDIUM_EXPLORE)
     avoiding = compose(tmp_path, *MEDIUM_EXPLORE, AVOID)
+    base, avoiding = (OmegaConf.to_container(c, resolve=True) for c in (base, avoiding))
     assert offline_key_config(base) == offline_key_config(avoiding)
-    container = OmegaConf.to_container(base, resolve=True)
-    del container["env"]["start_avoid_cells"]
-    assert offline_key_config(OmegaConf.create(container)) == offline_key_config(base)
+    before = offline_key_config(base)
+    del base["env"]["start_avoid_cells"]
+    assert offline_key_config(base) == before
 
 
 # ----------------------------------------------------------------------------- the reading

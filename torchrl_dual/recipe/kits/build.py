@@ -20,7 +20,6 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from omegaconf import DictConfig, OmegaConf
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
 from torchrl.envs import EnvBase
@@ -38,43 +37,45 @@ Evaluator = Callable[[nn.Module], dict[str, float]]
 (``normalized_score`` is NaN when the data set has no reference returns)."""
 
 
-def env_kit(cfg: DictConfig | RecipeSettings) -> EnvKit:
-    """The :class:`EnvKit` of ``cfg.env.kind`` (the config, or the run's typed settings)."""
-    return ENV_KITS[cfg.env.kind]
+def env_kit(settings: RecipeSettings) -> EnvKit:
+    """The :class:`EnvKit` of ``env.kind``."""
+    return ENV_KITS[settings.env.kind]
 
 
-def make_offline_dataset(cfg: DictConfig) -> OfflineDataset:
+def make_offline_dataset(settings: RecipeSettings) -> OfflineDataset:
     """``D_offline`` from the cache (or generated and cached), checked (Alg. 1 line 1)."""
-    data = env_kit(cfg).load_data(cfg)
+    data = env_kit(settings).load_data(settings)
     try:
         validate_transitions(data.transitions)
     except ValueError as err:
-        cache = cfg.data_cache_dir if cfg.data_cache_dir is not None else default_cache_dir()
+        cache = settings.data_cache_dir
+        cache = cache if cache is not None else default_cache_dir()
         raise UserError(
             "data_cache_dir",
             cache,
-            f"the cached offline data of env={cfg.env.name} is invalid: {err} Delete its "
+            f"the cached offline data of env={settings.env.name} is invalid: {err} Delete its "
             "entry in the cache to regenerate it.",
         ) from err
-    warn_if_batches_exceed_data(cfg, len(data))
+    warn_if_batches_exceed_data(settings, len(data))
     return data
 
 
-def warn_if_batches_exceed_data(cfg: DictConfig, transitions: int) -> None:
+def warn_if_batches_exceed_data(settings: RecipeSettings, transitions: int) -> None:
     """Warns when an update's batch is larger than ``D_offline``.
 
     One ``warning:`` line when an update draws more transitions (``online.batch_size``)
     or windows (``planner.batch_size``) than ``D_offline`` holds: sampled with
     replacement, such a batch repeats the data many times over at a cost that grows with
-    its size.
+    its size. A batch size equal to ``budget.batch_size`` is named as that key, which
+    the sections take by default.
     """
     for section in ("online", "planner"):
-        node = cfg.get(section)
-        if node is None or node.get("batch_size", 0) <= transitions:
+        batch = getattr(settings.get(section), "batch_size", 0)
+        if batch <= transitions:
             continue
-        batch = node.batch_size
-        interpolated = OmegaConf.is_interpolation(node, "batch_size")  # the budget's value
-        name = "budget.batch_size" if interpolated else f"{section}.batch_size"
+        name = (
+            "budget.batch_size" if batch == settings.budget.batch_size else f"{section}.batch_size"
+        )
         warn(
             f"{name}={batch} exceeds the {transitions} transitions of the offline data: "
             f"drawn with replacement, a batch holds each about {batch / transitions:.0f} "
@@ -83,13 +84,13 @@ def warn_if_batches_exceed_data(cfg: DictConfig, transitions: int) -> None:
         return
 
 
-def projected_policy(cfg: DictConfig | RecipeSettings, policy: nn.Module) -> nn.Module:
+def projected_policy(settings: RecipeSettings, policy: nn.Module) -> nn.Module:
     """``policy`` followed by the env kit's ``action_projection``, or ``policy`` itself.
 
     The projection gives the executed action the replay buffer stores, e.g.
     Frozen-Lake's one-hot argmax.
     """
-    projection = env_kit(cfg).action_projection
+    projection = env_kit(settings).action_projection
     if projection is None:
         return policy
     return TensorDictSequential(
@@ -97,16 +98,18 @@ def projected_policy(cfg: DictConfig | RecipeSettings, policy: nn.Module) -> nn.
     )
 
 
-def make_train_env(cfg: DictConfig, data: OfflineDataset | None = None) -> EnvBase:
+def make_train_env(settings: RecipeSettings, data: OfflineDataset | None = None) -> EnvBase:
     """The online env with :class:`PreviousTransition`, which carries ``(s_{t-1}, a_{t-1})``.
 
     The policy turns them into ``d_t`` of Eq. (10). ``data`` is ``D_offline`` when the
     caller has it (kits whose env depends on it read it otherwise).
     """
-    return env_kit(cfg).make_env(cfg, data).append_transform(PreviousTransition())
+    return env_kit(settings).make_env(settings, data).append_transform(PreviousTransition())
 
 
-def make_collection_env(cfg: DictConfig, data: OfflineDataset | None, env: EnvBase) -> EnvBase:
+def make_collection_env(
+    settings: RecipeSettings, data: OfflineDataset | None, env: EnvBase
+) -> EnvBase:
     """The env ``collector=single`` steps: the online env, or ``N`` copies of it as one batch.
 
     With ``collector.num_envs = N > 1``, ``N`` more copies of ``env``
@@ -114,16 +117,16 @@ def make_collection_env(cfg: DictConfig, data: OfflineDataset | None, env: EnvBa
     (:func:`~torchrl_dual.envs.vectorized_env`: one Gymnasium vector env, each copy with
     the kit's Gymnasium wrappers, the transforms once over the batch).
     """
-    num_envs = cfg.collector.get("num_envs", 1)
+    num_envs = getattr(settings.collector, "num_envs", 1)
     if num_envs == 1:
         return env
-    return vectorized_env(lambda: make_train_env(cfg, data), num_envs)
+    return vectorized_env(lambda: make_train_env(settings, data), num_envs)
 
 
 class TrainEnvFactory:
-    """``() -> env``: the online env of ``cfg`` (with ``PreviousTransition``), picklable.
+    """``() -> env``: the online env of ``settings`` (with ``PreviousTransition``), picklable.
 
-    It holds the resolved config as plain containers and the offline data set without its
+    It holds the run's settings and the offline data set without its
     transitions (:meth:`~torchrl_dual.data.OfflineDataset.without_transitions`), so a
     spawned worker process (or a Ray actor) receives a few kilobytes rather than the run's
     offline data; kits whose env depends on the data (the Minari kits' observation
@@ -131,28 +134,26 @@ class TrainEnvFactory:
     read the data set again in each worker.
 
     Args:
-        cfg (DictConfig): a validated recipe config.
+        settings (RecipeSettings): the run's settings.
         data (OfflineDataset, optional): the run's ``D_offline``.
 
     Examples:
         >>> import pickle
-        >>> env = {"kind": "pointmaze", "maze": "umaze", "max_episode_steps": 20}
-        >>> env.update(shift="none", shift_angle=0.0, shift_scale=None, goal_cell=None,
-        ...     reward_scale=1.0, reward_shift=0.0)
-        >>> cfg = OmegaConf.create({"seed": 0, "env": env})  # what the PointMaze kit reads
-        >>> factory = pickle.loads(pickle.dumps(TrainEnvFactory(cfg)))
+        >>> from torchrl_dual.recipe import CONFIG_DIR, compose_checked
+        >>> settings = RecipeSettings.of(compose_checked(CONFIG_DIR, ["budget=smoke"]))
+        >>> factory = pickle.loads(pickle.dumps(TrainEnvFactory(settings)))
         >>> env = factory()
         >>> "previous_observation" in env.reset().keys()
         True
     """
 
-    def __init__(self, cfg: DictConfig, data: OfflineDataset | None = None) -> None:
-        self.config = OmegaConf.to_container(cfg, resolve=True)
+    def __init__(self, settings: RecipeSettings, data: OfflineDataset | None = None) -> None:
+        self.settings = settings
         self.data = None if data is None else data.without_transitions()
 
     def __call__(self) -> EnvBase:
-        """A fresh online env built from the stored config and data (in a worker process)."""
-        return make_train_env(OmegaConf.create(self.config), self.data)
+        """A fresh online env built from the stored settings and data (in a worker process)."""
+        return make_train_env(self.settings, self.data)
 
 
 def check_dims(env: EnvBase, data: OfflineDataset, name: Any = None) -> None:
@@ -169,6 +170,6 @@ def check_dims(env: EnvBase, data: OfflineDataset, name: Any = None) -> None:
         )
 
 
-def make_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
+def make_evaluator(settings: RecipeSettings, data: OfflineDataset) -> Evaluator:
     """Deterministic evaluation returning the mean return and the normalized score."""
-    return env_kit(cfg).make_evaluator(cfg, data)
+    return env_kit(settings).make_evaluator(settings, data)

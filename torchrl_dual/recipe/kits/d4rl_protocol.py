@@ -29,11 +29,10 @@ import functools
 from dataclasses import dataclass
 from typing import Any
 
-from omegaconf import DictConfig
-
 from torchrl_dual.data.d4rl_references import D4RL_HORIZONS, d4rl_references
 from torchrl_dual.envs import register_robotics_envs, release_maze_xml
 from torchrl_dual.envs.d4rl_antmaze import D4RLAntMazeTask, d4rl_horizon_seconds, d4rl_maze_of
+from torchrl_dual.recipe.settings.envs import MinariSettings
 from torchrl_dual.recipe.settings.errors import UserError
 from torchrl_dual.recipe.settings.minari_datasets import FAMILIES
 
@@ -84,9 +83,8 @@ def _antmaze_task(dataset_id: str, dataset: str) -> D4RLAntMazeTask:
         env.close()
 
 
-def data_protocol(cfg: DictConfig) -> DataProtocol:
-    """The :class:`DataProtocol` of ``cfg.env`` (a Minari family's)."""
-    env = cfg.env
+def data_protocol(env: MinariSettings) -> DataProtocol:
+    """The :class:`DataProtocol` of a Minari family's ``env`` section."""
     if env.protocol == "minari":
         return DataProtocol("minari", evaluate_in_eval_env=True)
     dataset_id = FAMILIES[env.kind].dataset_id(env)
@@ -103,7 +101,7 @@ def data_protocol(cfg: DictConfig) -> DataProtocol:
         "d4rl",
         max_episode_steps=D4RL_HORIZONS[env.task],
         references=d4rl_references(env.task),
-        pen_drop_ends=env.get("task") == "pen",
+        pen_drop_ends=getattr(env, "task", None) == "pen",
     )
 
 
@@ -120,17 +118,17 @@ def ant_step_seconds(dataset_id: str) -> float:
         env.close()
 
 
-def horizon_of_seconds(cfg: DictConfig) -> int | None:
+def horizon_of_seconds(env: MinariSettings) -> int | None:
     """The time limit in steps that ``env.horizon_seconds`` gives (AntMaze), or ``None`` if unset.
 
     The seconds (``d4rl``: D4RL's, 0.1 s x 700 / 1000) at the data's env step.
     """
-    seconds = cfg.env.get("horizon_seconds")
+    seconds = getattr(env, "horizon_seconds", None)
     if seconds is None:
         return None
     if seconds == "d4rl":
-        seconds = d4rl_horizon_seconds(cfg.env.dataset)
-    step = ant_step_seconds(FAMILIES[cfg.env.kind].dataset_id(cfg.env))
+        seconds = d4rl_horizon_seconds(env.dataset)
+    step = ant_step_seconds(FAMILIES[env.kind].dataset_id(env))
     return max(1, round(float(seconds) / step))
 
 

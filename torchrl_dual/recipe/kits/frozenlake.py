@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from omegaconf import DictConfig
 from torch import nn
 from torchrl.envs import EnvBase
 
@@ -23,16 +22,17 @@ from torchrl_dual.envs import (
 )
 from torchrl_dual.evaluation import frozenlake_policy_actions
 from torchrl_dual.recipe.kits.build import Evaluator
+from torchrl_dual.recipe.settings.structured import RecipeSettings
 
 
-def frozenlake_data(cfg: DictConfig) -> OfflineDataset:
+def frozenlake_data(settings: RecipeSettings) -> OfflineDataset:
     """The Frozen-Lake kit's ``D_offline``: epsilon-greedy episodes, cached on disk."""
-    env = cfg.env
+    env = settings.env
     return load_or_generate_frozenlake_dataset(
         env.map_name,
-        cfg.budget.dataset_transitions,
-        cfg.seed,
-        cfg.data_cache_dir,
+        settings.budget.dataset_transitions,
+        settings.seed,
+        settings.data_cache_dir,
         success_rate=env.offline_success_rate,
         eval_success_rate=env.online_success_rate,
         epsilon=env.epsilon,
@@ -40,21 +40,21 @@ def frozenlake_data(cfg: DictConfig) -> OfflineDataset:
     )
 
 
-def frozenlake_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
+def frozenlake_env(settings: RecipeSettings, data: OfflineDataset | None) -> EnvBase:
     """The Frozen-Lake kit's online env, at ``env.online_success_rate`` and ``env.shift``."""
-    env = cfg.env
+    env = settings.env
     return make_frozenlake_env(
         env.map_name,
         success_rate=env.online_success_rate,
-        seed=cfg.seed,
+        seed=settings.seed,
         max_episode_steps=env.max_episode_steps,
         shift=env.shift,
     )
 
 
-def frozenlake_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
+def frozenlake_evaluator(settings: RecipeSettings, data: OfflineDataset) -> Evaluator:
     """The exact success probability of the greedy policy (value iteration, no sampling)."""
-    env = cfg.env
+    env = settings.env
     num_states = frozenlake_num_states(env.map_name)
 
     def success(actions: np.ndarray, shift: str) -> float:
@@ -69,7 +69,7 @@ def frozenlake_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
         )
 
     def evaluate(policy: nn.Module) -> dict[str, float]:
-        actions = frozenlake_policy_actions(policy, num_states, cfg.device)
+        actions = frozenlake_policy_actions(policy, num_states, settings.device)
         shifted = success(actions, env.shift)
         result = {"return": shifted, "normalized_score": float(data.normalized_score(shifted))}
         if env.shift != "none":

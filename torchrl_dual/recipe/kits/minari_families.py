@@ -41,7 +41,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from omegaconf import DictConfig
 from torch import nn
 from torchrl.envs import EnvBase
 
@@ -66,6 +65,7 @@ from torchrl_dual.recipe.kits.d4rl_protocol import (
 from torchrl_dual.recipe.settings.errors import UserError
 from torchrl_dual.recipe.settings.minari_datasets import FAMILIES
 from torchrl_dual.recipe.settings.references import reward_transform
+from torchrl_dual.recipe.settings.structured import RecipeSettings
 
 OBSERVATION_STD_EPS = 1e-3
 """Added to the data set's state std (CORL's ``compute_mean_std(eps=1e-3)``)."""
@@ -120,18 +120,18 @@ def observation_normalizer(data: OfflineDataset, enabled: bool) -> tuple[np.ndar
     return loc.float().numpy(), scale.float().numpy()
 
 
-def _time_limit(cfg: DictConfig, dataset_id: str) -> int | None:
+def _time_limit(settings: RecipeSettings, dataset_id: str) -> int | None:
     """The episodes' time limit of a Minari run.
 
     ``env.max_episode_steps``, else AntMaze's ``env.horizon_seconds``, else the
     protocol's, else the data set's env spec.
     """
-    if cfg.env.max_episode_steps is not None:
-        return int(cfg.env.max_episode_steps)
-    steps = horizon_of_seconds(cfg)
+    if settings.env.max_episode_steps is not None:
+        return int(settings.env.max_episode_steps)
+    steps = horizon_of_seconds(settings.env)
     if steps is not None:
         return steps
-    protocol = data_protocol(cfg)
+    protocol = data_protocol(settings.env)
     if protocol.max_episode_steps is not None:
         return protocol.max_episode_steps
     import minari
@@ -140,16 +140,16 @@ def _time_limit(cfg: DictConfig, dataset_id: str) -> int | None:
     return None if spec is None else spec.max_episode_steps
 
 
-def minari_data(cfg: DictConfig) -> OfflineDataset:
+def minari_data(settings: RecipeSettings) -> OfflineDataset:
     """A Minari family's ``D_offline``, following ``env.protocol``.
 
     The data set's transitions (D4RL's single goal relabelled for AntMaze), the references of
     the protocol, and the reward transform (:func:`reward_transform`) applied and recorded in
     the metadata.
     """
-    env = cfg.env
+    env = settings.env
     dataset_id = FAMILIES[env.kind].dataset_id(env)
-    protocol = data_protocol(cfg)
+    protocol = data_protocol(settings.env)
     data = load_minari_dataset(dataset_id, observation_keys=protocol.observation_keys)
     if protocol.antmaze_task is not None:  # D4RL's single goal: its rewards and terminals
         data.transitions = relabel_to_goal(
@@ -158,11 +158,11 @@ def minari_data(cfg: DictConfig) -> OfflineDataset:
     if protocol.references is not None:
         data.reference_min, data.reference_max = protocol.references
     td = data.transitions
-    reward_scale_setting, reward_shift = reward_transform(cfg)
+    reward_scale_setting, reward_shift = reward_transform(settings.env, settings.critic.name)
     if reward_scale_setting == "returns":
         returns = _episode_returns(data)
         spread = float(returns.max() - returns.min())
-        horizon = _time_limit(cfg, dataset_id) or 1000
+        horizon = _time_limit(settings, dataset_id) or 1000
         if spread <= 0:
             raise UserError(
                 "env.reward_scale",
@@ -190,16 +190,18 @@ def minari_data(cfg: DictConfig) -> OfflineDataset:
 
 
 # ----------------------------------------------------------------------------- envs
-def minari_gym_env(cfg: DictConfig, data: OfflineDataset, *, eval_env: bool, shifted: bool):
+def minari_gym_env(
+    settings: RecipeSettings, data: OfflineDataset, *, eval_env: bool, shifted: bool
+):
     """The data set's (evaluation) env, shifted if asked, behind the data's observation map."""
     import minari
 
-    env = cfg.env
+    env = settings.env
     dataset_id = FAMILIES[env.kind].dataset_id(env)
     dataset = minari.load_dataset(dataset_id)
     register_robotics_envs()  # AntMaze / Adroit ids, without the import's notice
-    protocol = data_protocol(cfg)
-    horizon = _time_limit(cfg, dataset_id)
+    protocol = data_protocol(settings.env)
+    horizon = _time_limit(settings, dataset_id)
     kwargs = {} if horizon is None else {"max_episode_steps": horizon}
     eval_env = eval_env and protocol.evaluate_in_eval_env
     raw = release_maze_xml(dataset.recover_environment(eval_env=eval_env, **kwargs))
@@ -219,26 +221,26 @@ def minari_gym_env(cfg: DictConfig, data: OfflineDataset, *, eval_env: bool, shi
     )
 
 
-def minari_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
+def minari_env(settings: RecipeSettings, data: OfflineDataset | None) -> EnvBase:
     """A Minari family's online env: flat, normalized observations, the data's reward transform."""
     if data is None:  # its observation normalization and reward scale come from the data
-        data = minari_data(cfg)
+        data = minari_data(settings)
     return make_flat_env(
-        minari_gym_env(cfg, data, eval_env=False, shifted=True),
+        minari_gym_env(settings, data, eval_env=False, shifted=True),
         reward_scale=data.metadata["reward_scale"],
         reward_shift=data.metadata["reward_shift"],
-        seed=cfg.seed,
+        seed=settings.seed,
     )
 
 
-def minari_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
+def minari_evaluator(settings: RecipeSettings, data: OfflineDataset) -> Evaluator:
     """Deterministic episodes in the data set's evaluation env; raw (unmodified) returns.
 
     The envs are built at the first evaluation and kept.
     """
     has_references = data.reference_min is not None and data.reference_max is not None
     kept: dict[bool, list] = {True: [], False: []}  # shifted, unshifted
-    probe = minari_gym_env(cfg, data, eval_env=True, shifted=False)
+    probe = minari_gym_env(settings, data, eval_env=True, shifted=False)
     low, high = probe.action_space.low, probe.action_space.high
     probe.close()
 
@@ -247,25 +249,25 @@ def minari_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
 
     def returns(policy: nn.Module, shifted: bool) -> np.ndarray:
         return evaluate_episodes(
-            lambda: minari_gym_env(cfg, data, eval_env=True, shifted=shifted),
+            lambda: minari_gym_env(settings, data, eval_env=True, shifted=shifted),
             policy,
-            cfg.budget.eval_episodes,
+            settings.budget.eval_episodes,
             observation_fn=lambda obs: obs,
             action_fn=lambda a: np.clip(a, low, high),
-            seed=10_000 + cfg.seed,
-            device=cfg.device,
+            seed=10_000 + settings.seed,
+            device=settings.device,
             envs=kept[shifted],
         )
 
     def evaluate(policy: nn.Module) -> dict[str, float]:
-        shifted = returns(policy, cfg.env.shift != "none")
+        shifted = returns(policy, settings.env.shift != "none")
         mean = float(shifted.mean())
         result: dict[str, Any] = {
             "return": mean,
             "return_std": float(shifted.std()),
             "normalized_score": score(mean),
         }
-        if cfg.env.shift != "none":
+        if settings.env.shift != "none":
             plain = float(returns(policy, False).mean())
             result["return_unshifted"] = plain
             result["normalized_score_unshifted"] = score(plain)

@@ -24,7 +24,9 @@ from torchrl_dual.envs import (
 )
 from torchrl_dual.evaluation import evaluate_episodes
 from torchrl_dual.recipe.kits.build import Evaluator
+from torchrl_dual.recipe.settings.envs import PointMazeSettings
 from torchrl_dual.recipe.settings.errors import ConfigError
+from torchrl_dual.recipe.settings.structured import RecipeSettings
 
 
 def check_pointmaze(cfg: DictConfig) -> None:
@@ -60,36 +62,38 @@ def check_pointmaze(cfg: DictConfig) -> None:
         raise ConfigError("env.start_avoid_cells", no_start, str(err)) from err
 
 
-def _pointmaze_shift(env: DictConfig) -> dict[str, Any]:
+def _pointmaze_shift(env: PointMazeSettings) -> dict[str, Any]:
     return {"shift": env.shift, "shift_angle": env.shift_angle, "shift_scale": env.shift_scale}
 
 
-def _pointmaze_goal(env: DictConfig) -> list[int] | None:
+def _pointmaze_goal(env: PointMazeSettings) -> list[int] | None:
     return None if env.goal_cell is None else list(env.goal_cell)
 
 
-def _pointmaze_avoided(env: DictConfig, key: str = "data_avoid_cells") -> list[list[int]] | None:
-    cells = env.get(key)
+def _pointmaze_avoided(
+    env: PointMazeSettings, key: str = "data_avoid_cells"
+) -> list[list[int]] | None:
+    cells = getattr(env, key, None)
     return None if not cells else [list(cell) for cell in cells]
 
 
-def _pointmaze_starts_avoided(env: DictConfig) -> list[list[int]] | None:
+def _pointmaze_starts_avoided(env: PointMazeSettings) -> list[list[int]] | None:
     return _pointmaze_avoided(env, "start_avoid_cells")
 
 
-def pointmaze_data(cfg: DictConfig) -> OfflineDataset:
+def pointmaze_data(settings: RecipeSettings) -> OfflineDataset:
     """The PointMaze kit's ``D_offline``: controller episodes of ``env.maze``, cached on disk.
 
-    The data are generated (or loaded from ``cfg.data_cache_dir``) with
+    The data are generated (or loaded from ``settings.data_cache_dir``) with
     ``budget.dataset_transitions`` transitions; the rewards are scaled and shifted as
     the online env's are.
     """
-    env = cfg.env
+    env = settings.env
     data = load_or_generate_maze_dataset(
         env.maze,
-        cfg.budget.dataset_transitions,
-        cfg.seed,
-        cfg.data_cache_dir,
+        settings.budget.dataset_transitions,
+        settings.seed,
+        settings.data_cache_dir,
         max_episode_steps=env.max_episode_steps,
         goal_cell=_pointmaze_goal(env),
         avoid_cells=_pointmaze_avoided(env),
@@ -100,13 +104,13 @@ def pointmaze_data(cfg: DictConfig) -> OfflineDataset:
     return data
 
 
-def pointmaze_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
+def pointmaze_env(settings: RecipeSettings, data: OfflineDataset | None) -> EnvBase:
     """The PointMaze kit's online env, with the config's goal, starts, reward and shift."""
-    env = cfg.env
+    env = settings.env
     return make_pointmaze_env(
         env.maze,
         max_episode_steps=env.max_episode_steps,
-        seed=cfg.seed,
+        seed=settings.seed,
         device="cpu",
         goal_cell=_pointmaze_goal(env),
         start_avoid_cells=_pointmaze_starts_avoided(env),
@@ -116,13 +120,13 @@ def pointmaze_env(cfg: DictConfig, data: OfflineDataset | None) -> EnvBase:
     )
 
 
-def pointmaze_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
+def pointmaze_evaluator(settings: RecipeSettings, data: OfflineDataset) -> Evaluator:
     """The PointMaze kit's evaluator: deterministic episodes, scored by the data's references.
 
     Runs ``budget.eval_episodes`` episodes in the shifted env (and, under ``env.shift``, in
     the unshifted one too); the envs are built at the first evaluation and kept.
     """
-    env = cfg.env
+    env = settings.env
     kept: dict[bool, list] = {True: [], False: []}  # shifted, unshifted
 
     def returns(policy: nn.Module, shifted: bool) -> np.ndarray:
@@ -135,11 +139,11 @@ def pointmaze_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
                 **(_pointmaze_shift(env) if shifted else {}),
             ),
             policy,
-            cfg.budget.eval_episodes,
+            settings.budget.eval_episodes,
             observation_fn=flatten_pointmaze_obs,
             action_fn=lambda a: np.clip(a, -1.0, 1.0),
-            seed=10_000 + cfg.seed,
-            device=cfg.device,
+            seed=10_000 + settings.seed,
+            device=settings.device,
             envs=kept[shifted],
         )
 
@@ -160,7 +164,7 @@ def pointmaze_evaluator(cfg: DictConfig, data: OfflineDataset) -> Evaluator:
     return evaluate
 
 
-def pointmaze_start_distances(env: DictConfig) -> dict[str, dict[int, int]]:
+def pointmaze_start_distances(env: PointMazeSettings) -> dict[str, dict[int, int]]:
     """How far the episodes of a PointMaze ``env.*`` config start from the goal and avoided cells.
 
     The online env's and the evaluator's, which share the reset: ``{"goal": {moves:

@@ -19,7 +19,7 @@
   :mod:`torchrl_dual.recipe.o2o.ray_collector`.
 
 Every worker builds its env with :class:`~torchrl_dual.recipe.kits.build.TrainEnvFactory`
-(a picklable ``cfg -> env``, so its ``PreviousTransition`` and hence the shift signal
+(a picklable ``() -> env``, so its ``PreviousTransition`` and hence the shift signal
 ``d_t`` of Eq. (10) follow that worker's own trajectory). The workers act with an *acting copy* of the learner's
 exploration policy, whose tensors they share (TorchRL's ``SharedMemWeightSyncScheme``):
 the updates never touch it, so an asynchronous worker never reads a network mid-update or a
@@ -53,7 +53,6 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import torch
-from omegaconf import DictConfig
 from tensordict import TensorDict
 from torch import nn
 from torchrl.collectors import Collector, MultiAsyncCollector, MultiSyncCollector
@@ -65,11 +64,12 @@ if TYPE_CHECKING:
     from torchrl.collectors import BaseCollector
 
     from torchrl_dual.recipe.o2o.run import O2ORun
+    from torchrl_dual.recipe.settings.structured import RecipeSettings
 
 
-def collector_device(cfg: DictConfig) -> torch.device:
+def collector_device(settings: RecipeSettings) -> torch.device:
     """``collector.device``, or the run's ``device`` where it is null."""
-    return torch.device(cfg.collector.device or cfg.device)
+    return torch.device(settings.collector.device or settings.device)
 
 
 def make_single(run: O2ORun, total_frames: int) -> BaseCollector:
@@ -80,16 +80,16 @@ def make_single(run: O2ORun, total_frames: int) -> BaseCollector:
     collector acts with a copy of the policy on ``collector.device`` if the learner's is
     elsewhere.
     """
-    cfg = run.cfg
+    settings = run.settings
     env = run.collection_env
-    env.set_seed(cfg.seed + 1 + run.frames)
+    env.set_seed(settings.seed + 1 + run.frames)
     return Collector(
         env,
         run.learner.exploration_policy,
-        frames_per_batch=cfg.budget.frames_per_batch,
+        frames_per_batch=settings.budget.frames_per_batch,
         total_frames=total_frames,
         exploration_type=ExplorationType.RANDOM,
-        device=collector_device(cfg),
+        device=collector_device(settings),
         auto_register_policy_transforms=False,
     )
 
@@ -98,19 +98,19 @@ def make_multi(collector_class: type) -> Callable[[O2ORun, int], BaseCollector]:
     """``(run, total_frames) -> collector`` for TorchRL's multi-process ``collector_class``."""
 
     def make(run: O2ORun, total_frames: int) -> BaseCollector:
-        cfg = run.cfg
+        settings = run.settings
         collector = collector_class(
-            [TrainEnvFactory(cfg, run.data)] * cfg.collector.num_workers,
+            [TrainEnvFactory(settings, run.data)] * settings.collector.num_workers,
             copy.deepcopy(run.learner.exploration_policy),  # the acting copy
-            frames_per_batch=cfg.budget.frames_per_batch,
+            frames_per_batch=settings.budget.frames_per_batch,
             total_frames=total_frames,
             exploration_type=ExplorationType.RANDOM,
-            device=collector_device(cfg),
-            num_threads=cfg.num_threads,  # this process's threads (TorchRL would lower them)
+            device=collector_device(settings),
+            num_threads=settings.num_threads,  # this process's threads (TorchRL would lower them)
             auto_register_policy_transforms=False,
         )
         try:  # worker 0 gets seed + 1 + frames, the others TorchRL's chained seeds
-            collector.set_seed(cfg.seed + 1 + run.frames)
+            collector.set_seed(settings.seed + 1 + run.frames)
         except BaseException:
             collector.shutdown()
             raise

@@ -99,7 +99,7 @@ class CutPoints:
 
     def __iter__(self) -> Iterator[TensorDictBase]:
         run = self.run
-        while run.frames < run.cfg.budget.online_frames:
+        while run.frames < run.settings.budget.online_frames:
             self.current = run.collector()
             for batch in self.current:
                 with held():  # a signal now stops the run after this batch
@@ -127,8 +127,9 @@ class OnlinePhase:
         self, run: O2ORun, trainer: Trainer, cut_points: CutPoints, updates: LearnerUpdates
     ) -> None:
         self.run, self.trainer, self.cut_points, self.updates = run, trainer, cut_points, updates
-        self.push = COLLECTORS[run.cfg.collector.name].push  # the weights' way to the collector
-        self.device = torch.device(run.cfg.device)
+        # the weights' way to the collector
+        self.push = COLLECTORS[run.settings.collector.name].push
+        self.device = torch.device(run.settings.device)
         self.offline_done = False
         self.clock: StageClock | None = None
         self.bar: tqdm | None = None
@@ -136,7 +137,7 @@ class OnlinePhase:
 
     def offline(self) -> None:
         """``setup``: the offline stages and the offline evaluation; the online schedule."""
-        run, budget = self.run, self.run.cfg.budget
+        run, budget = self.run, self.run.settings.budget
         run_offline_stages(run)
         run.stage("offline_eval", lambda: run.evaluate("offline"))
         self.offline_done = True
@@ -145,14 +146,14 @@ class OnlinePhase:
         self.clock = StageClock(run.stage_seconds, run.stage_cpu_seconds, "online")
         # the online frames' bar, from a resumed run's frames on (TorchRL's starts at 0)
         self.bar = tqdm(
-            total=budget.online_frames, initial=run.frames, disable=not run.cfg.progress
+            total=budget.online_frames, initial=run.frames, disable=not run.settings.progress
         )
 
     def store(self, batch: TensorDictBase) -> None:
         """``batch_process``: stores the batch (l. 11-13); ``utd_ratio`` credits per frame."""
         run = self.run
         self.stats = run.store(batch)  # acted with the exploration policy
-        run.update_credit += run.cfg.online.utd_ratio * batch.numel()
+        run.update_credit += run.settings.online.utd_ratio * batch.numel()
         self.updates.last = {}
 
     def sample(self, batch: TensorDictBase) -> TensorDictBase:
@@ -174,7 +175,7 @@ class OnlinePhase:
 
     def log_evaluate_checkpoint(self, batch: TensorDictBase) -> None:
         """``post_steps_log``: log, move the bar; evaluate and checkpoint (a cut point) when due."""
-        run, budget = self.run, self.run.cfg.budget
+        run, budget = self.run, self.run.settings.budget
         self.bar.update(run.frames - self.bar.n)
         run.log({**self.stats, **self.updates.last}, run.frames, "online/")
         if (signals := online_signals(run.frames, self.stats)) is not None:
@@ -187,7 +188,8 @@ class OnlinePhase:
             run.save()
             self.next_save = _next_multiple(run.frames, budget.checkpoint_every)
             self.cut_points.cut = True
-        if run.cfg.interrupt_at_frames is not None and run.frames >= run.cfg.interrupt_at_frames:
+        stop_at = run.settings.interrupt_at_frames
+        if stop_at is not None and run.frames >= stop_at:
             raise KeyboardInterrupt
 
     def close_bar(self) -> None:
@@ -227,7 +229,7 @@ def make_trainer(run: O2ORun) -> tuple[Trainer, OnlinePhase]:
     cut_points, updates = CutPoints(run), run.update
     trainer = Trainer(
         collector=cut_points,
-        total_frames=run.cfg.budget.online_frames,
+        total_frames=run.settings.budget.online_frames,
         frame_skip=1,
         optim_steps_per_batch=None,  # as many as the credits allow: sample() stops them
         loss_module=run.learner.update,

@@ -19,6 +19,7 @@ same key wait for the first one instead of computing it twice.
 
 from __future__ import annotations
 
+import copy
 import fcntl
 import hashlib
 import json
@@ -27,8 +28,6 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
-
-from omegaconf import DictConfig, OmegaConf
 
 from torchrl_dual.checkpoint import CheckpointError, RunCheckpoint
 from torchrl_dual.recipe.settings.errors import UserError
@@ -74,13 +73,14 @@ ONLINE_KEYS: tuple[str, ...] = (
 evaluation, which runs after the snapshot on the possibly shifted env, and bookkeeping)."""
 
 
-def offline_key_config(cfg: DictConfig, extra_online_keys: tuple[str, ...] = ()) -> dict:
-    """The resolved config without the online-only keys: what a shared offline phase comes from.
+def offline_key_config(config: dict, extra_online_keys: tuple[str, ...] = ()) -> dict:
+    """The resolved ``config`` without the online-only keys: what a shared offline phase comes from.
 
-    Every config key is in :data:`ONLINE_KEYS` or in the record of keyed names that
-    ``tests/recipe/test_offline_cache.py`` checks the config against.
+    ``config`` is the run's resolved config as plain containers (``O2ORun.config``); it is
+    left as it is. Every config key is in :data:`ONLINE_KEYS` or in the record of keyed
+    names that ``tests/recipe/test_offline_cache.py`` checks the config against.
     """
-    container = OmegaConf.to_container(cfg, resolve=True)
+    container = copy.deepcopy(config)
     for dotted in (*ONLINE_KEYS, *extra_online_keys):
         node, leaf = _parent(container, dotted)
         if node is not None:
@@ -174,17 +174,17 @@ class OfflinePhaseCache:
 def run_offline_stages(run: O2ORun) -> None:
     """Runs the learner's offline stages, sharing its shared stages through the offline cache.
 
-    With ``cfg.offline_cache`` set, :attr:`Learner.shared_stages` are loaded from the
+    With ``offline_cache`` set, :attr:`Learner.shared_stages` are loaded from the
     snapshot if another run wrote it, else computed and written (under the entry's
     lock); then the remaining stages run.
     """
     learner = run.learner
     stages = learner.offline_stages()
     shared = [(name, fn) for name, fn in stages if name in learner.shared_stages]
-    root = run.cfg.get("offline_cache")
+    root = run.settings.offline_cache
     todo = [name for name, _ in shared if name not in run.stages_done]
     if root is not None and shared and todo:
-        key_config = offline_key_config(run.cfg, learner.online_keys)
+        key_config = offline_key_config(run.config, learner.online_keys)
         cache = OfflinePhaseCache(root, key_config, run.checkpoint_layout)
         modules = learner.shared_modules()
         with cache.lock():

@@ -100,17 +100,17 @@ def make_ray(run: O2ORun, total_frames: int) -> BaseCollector:
     """
     from torchrl.collectors.distributed import RayCollector  # imports ray
 
-    cfg, settings = run.cfg, run.cfg.collector
-    workers = settings.num_workers
+    settings, section = run.settings, run.settings.collector
+    workers = section.num_workers
     try:
         collector = RayCollector(
-            [TrainEnvFactory(cfg, run.data)] * workers,
+            [TrainEnvFactory(settings, run.data)] * workers,
             copy.deepcopy(run.learner.exploration_policy),  # what the actors are sent
-            frames_per_batch=cfg.budget.frames_per_batch,
+            frames_per_batch=settings.budget.frames_per_batch,
             total_frames=total_frames,
             exploration_type=ExplorationType.RANDOM,
             device="cpu",
-            sync=settings.sync,
+            sync=section.sync,
             collector_kwargs=[
                 {
                     "traj_pool": InterleavedTrajectories(worker, workers),
@@ -120,7 +120,7 @@ def make_ray(run: O2ORun, total_frames: int) -> BaseCollector:
             ],
             remote_configs={"num_cpus": 1},
             ray_init_config={
-                "address": settings.address,
+                "address": section.address,
                 "include_dashboard": False,
                 "log_to_driver": False,
             },
@@ -128,12 +128,12 @@ def make_ray(run: O2ORun, total_frames: int) -> BaseCollector:
     except ConnectionError as error:
         raise UserError(
             "collector.address",
-            settings.address,
+            section.address,
             f"{error} Start a cluster (ray start --head) or use collector.address=null "
             "for a local Ray runtime",
         ) from None
     try:  # actor 0 gets seed + 1 + frames, the others TorchRL's chained seeds
-        collector.set_seed(cfg.seed + 1 + run.frames)
+        collector.set_seed(settings.seed + 1 + run.frames)
         push_to_actors(collector, run.learner.exploration_policy)
     except BaseException:
         collector.shutdown()

@@ -108,34 +108,34 @@ def make_mixed_replay(run: O2ORun) -> Replay:
     "conflicting batch_sizes" ``UserWarning`` in every run's log) when that differs from
     the buffer's own default.
     """
-    cfg = run.cfg
+    settings = run.settings
     offline = run.offline_buffer
-    joint = cfg.online.offline_fraction == "joint"
+    joint = settings.online.offline_fraction == "joint"
     buffer = OfflineToOnlineReplayBuffer(
         ReplayBuffer(storage=offline.storage, sampler=RandomSampler()),
         online_capacity=online_capacity(run),
-        offline_fraction=0.5 if joint else cfg.online.offline_fraction,
-        batch_size=cfg.online.batch_size,
+        offline_fraction=0.5 if joint else settings.online.offline_fraction,
+        batch_size=settings.online.batch_size,
     )
-    return JointReplay(buffer, cfg.online.batch_size) if joint else Replay(buffer)
+    return JointReplay(buffer, settings.online.batch_size) if joint else Replay(buffer)
 
 
 class BalancedReplay(Replay):
     """OFF2ON's balanced replay with its density-ratio network, loss and optimizer."""
 
     def __init__(self, run: O2ORun) -> None:
-        cfg, c = run.cfg, run.cfg.replay
+        settings, c = run.settings, run.settings.replay
         network = make_density_ratio_network(
             run.data.obs_dim, run.data.action_dim, num_cells=[c.hidden] * c.depth
-        ).to(cfg.device)
-        self.loss = DensityRatioLoss(network).to(cfg.device)
+        ).to(settings.device)
+        self.loss = DensityRatioLoss(network).to(settings.device)
         self.optimizer = adam(self.loss.parameters(), lr=c.lr)
-        self.device, self.ratio_batch_size = cfg.device, c.ratio_batch_size
+        self.device, self.ratio_batch_size = settings.device, c.ratio_batch_size
         super().__init__(
             BalancedReplayBuffer(
                 run.offline_buffer,
                 online_capacity=online_capacity(run),
-                batch_size=cfg.online.batch_size,
+                batch_size=settings.online.batch_size,
                 ratio_network=network,
                 temperature=c.temperature,
             )
@@ -178,4 +178,4 @@ class BalancedReplay(Replay):
 
 def online_capacity(run: O2ORun) -> int:
     """``budget.online_frames`` plus what the learner adds (never overwritten)."""
-    return max(run.cfg.budget.online_frames + run.learner.extra_online_capacity, 1)
+    return max(run.settings.budget.online_frames + run.learner.extra_online_capacity, 1)

@@ -80,7 +80,10 @@ class O2ORun:
     """Everything one offline-to-online run needs apart from its :class:`Learner`.
 
     ``cfg`` must have passed :func:`~torchrl_dual.recipe.validate_config`;
-    ``make_learner`` is ``run -> Learner`` (usually the learner class).
+    ``make_learner`` is ``run -> Learner`` (usually the learner class). The run reads
+    ``cfg`` once, as :attr:`settings` (typed: what the run, its env kit and its learner
+    read) and :attr:`config` (resolved, plain containers: the checkpoint's fingerprint,
+    ``summary.json``, the offline cache's key, a W&B run's config).
 
     Examples:
         >>> import contextlib, io, tempfile
@@ -99,42 +102,41 @@ class O2ORun:
     """
 
     def __init__(self, cfg: DictConfig, make_learner: Callable[[O2ORun], Learner]) -> None:
-        self.cfg = cfg
-        self.settings = RecipeSettings.of(cfg)  # what the learners read, typed
-        self.name = str(cfg.algo)
-        torch.set_num_threads(cfg.num_threads)
+        self.settings = settings = RecipeSettings.of(cfg)
+        self.config: dict[str, Any] = OmegaConf.to_container(cfg, resolve=True)
+        self.name = settings.algo
+        torch.set_num_threads(settings.num_threads)
         install_tensordict_patch()  # TensorDictModule outputs without a sys.path scan each
-        self.seed_everything(cfg.seed)
-        self.output_dir = Path(cfg.output_dir)
-        fingerprint = {
-            k: v
-            for k, v in OmegaConf.to_container(cfg, resolve=True).items()
-            if k not in RESUMABLE_KEYS
-        }
+        self.seed_everything(settings.seed)
+        self.output_dir = Path(settings.output_dir)
+        fingerprint = {k: v for k, v in self.config.items() if k not in RESUMABLE_KEYS}
         fingerprint["checkpoint_layout"] = self.checkpoint_layout = CHECKPOINT_LAYOUT
         # may change on resume
-        fingerprint["budget"].pop("offline_checkpoint_every", None)
-        acquire_run_directory(cfg.output_dir)  # one run per directory (o2o/run_lock.py)
-        check_output_dir(cfg)  # with the lock held: no run can write a checkpoint meanwhile
+        fingerprint["budget"] = {
+            k: v for k, v in fingerprint["budget"].items() if k != "offline_checkpoint_every"
+        }
+        acquire_run_directory(settings.output_dir)  # one run per directory (o2o/run_lock.py)
+        # with the lock held: no run can write a checkpoint meanwhile
+        check_output_dir(settings.output_dir, settings.resume)
         self.checkpoint = RunCheckpoint(
             self.output_dir / "checkpoint.pt", fingerprint, free_keys=RESUMABLE_KEYS
         )
         # Read a checkpoint first, so a corrupt or incompatible one fails before any work.
-        saved = self._load_checkpoint() if cfg.resume and self.checkpoint.exists() else None
-        if cfg.resume and saved is None:
+        saved = self._load_checkpoint() if settings.resume and self.checkpoint.exists() else None
+        if settings.resume and saved is None:
             self.say(f"resume=true: no checkpoint in {self.output_dir}; starting a new run")
         # ---- data and envs (Alg. 1 line 1)
-        self.data = env_kits.make_offline_dataset(cfg)
-        self.env = env_kits.make_train_env(cfg, self.data)
-        env_kits.check_dims(self.env, self.data, cfg.env.name)
+        self.data = env_kits.make_offline_dataset(settings)
+        self.env = env_kits.make_train_env(settings, self.data)
+        env_kits.check_dims(self.env, self.data, settings.env.name)
         # what collector=single steps: the env, or collector.num_envs copies as one batch
-        self.collection_env = env_kits.make_collection_env(cfg, self.data, self.env)
-        self.evaluate_policy = env_kits.make_evaluator(cfg, self.data)
+        self.collection_env = env_kits.make_collection_env(settings, self.data, self.env)
+        self.evaluate_policy = env_kits.make_evaluator(settings, self.data)
         self.offline_buffer = self._offline_buffer()
         # ---- the algorithm's networks, losses and policies
         self.learner = make_learner(self)
         self.update = LearnerUpdates(self)  # one counted update; the trainer's stepper
-        self.replay = REPLAYS[cfg.replay.name][1](self)  # D_offline ∪ D_online (replays.py)
+        self.replay = REPLAYS[settings.replay.name][1](self)  # D_offline ∪ D_online (replays.py)
         # ---- counters
         self.stages_done: list[str] = []
         self.stage_seconds: dict[str, float] = {}  # wall-clock seconds per stage
@@ -156,12 +158,14 @@ class O2ORun:
         self.make_logger(logger_state)
 
     def make_logger(self, state: dict | None = None) -> None:
-        """The ``cfg.logger`` backend's TorchRL logger under ``output_dir/logs``.
+        """The ``logger.backend`` TorchRL logger under ``output_dir/logs``.
 
         It continues ``state``, if given; it replaces and closes the current one.
         """
         previous = getattr(self, "logger", None)
-        self.logger = make_logger(self.cfg, self.output_dir / "logs", self.name, state, previous)
+        self.logger = make_logger(
+            self.settings.logger, self.output_dir / "logs", self.name, state, previous, self.config
+        )
 
     # ------------------------------------------------------------------ bookkeeping
     @staticmethod
@@ -182,9 +186,9 @@ class O2ORun:
         ``OfflineToOnlineReplayBuffer``.
         """
         buffer = ReplayBuffer(
-            storage=LazyTensorStorage(len(self.data), device=self.cfg.device),
+            storage=LazyTensorStorage(len(self.data), device=self.settings.device),
             sampler=RandomSampler(),
-            batch_size=self.cfg.online.batch_size,
+            batch_size=self.settings.online.batch_size,
         )
         buffer.extend(self.data.transitions)
         return buffer
@@ -305,7 +309,7 @@ class O2ORun:
         """D_offline then D_online, in chunks on the run's device."""
         for source in (self.data.transitions, self.replay.online_buffer):
             for start in range(0, len(source), chunk):
-                yield source[start : start + chunk].to(self.cfg.device)
+                yield source[start : start + chunk].to(self.settings.device)
 
     # ------------------------------------------------------------------ updates
     def pretrain_updates(self) -> None:
@@ -314,7 +318,7 @@ class O2ORun:
         Checkpointed within (:meth:`stage_checkpoints`; the weights, optimizers,
         counters and random state are the run's own state).
         """
-        total = self.cfg.budget.offline_updates
+        total = self.settings.budget.offline_updates
         tenth = max(total // 10, 1)
         with self.stage_checkpoints() as checkpoints:
             saved = None if checkpoints is None else checkpoints.resume()
@@ -322,18 +326,18 @@ class O2ORun:
             bar = tqdm(
                 range(start, total),
                 desc="actor+critic",
-                disable=not self.cfg.progress,
+                disable=not self.settings.progress,
                 leave=False,
                 initial=start,
                 total=total,
             )
             for i in bar:
-                metrics = self.update(self.offline_buffer.sample().to(self.cfg.device))
+                metrics = self.update(self.offline_buffer.sample().to(self.settings.device))
                 if i % 100 == 0:
                     self.log(metrics, self.updates, "offline/")
                     if "loss_actor" in metrics:
                         bar.set_postfix(actor=f"{metrics['loss_actor']:.3f}")
-                if not self.cfg.progress and (i + 1) % tenth == 0:  # no bar: a line per 10 %
+                if not self.settings.progress and (i + 1) % tenth == 0:  # no bar: a line per 10 %
                     self.say(f"actor+critic: {i + 1}/{total} updates")
                 if checkpoints is not None:
                     checkpoints.after_update(i + 1, total, lambda done=i + 1: {"done": done})
@@ -363,10 +367,10 @@ class O2ORun:
         The ``collector.name`` entry of
         :data:`~torchrl_dual.recipe.settings.o2o.COLLECTORS`.
         """
-        remaining = max(self.cfg.budget.online_frames - self.frames, 0)
+        remaining = max(self.settings.budget.online_frames - self.frames, 0)
         self.open_episodes = {}  # a new collector starts new trajectories
         self.learner.collector_started()  # its episode in progress ends, its critic is online
-        return COLLECTORS[self.cfg.collector.name].make(self, remaining)
+        return COLLECTORS[self.settings.collector.name].make(self, remaining)
 
     def store(self, batch: TensorDictBase) -> dict:
         """D_online ← D_online ∪ {(s_t, a_t, s_t+1, r_t)} with the executed action (l. 13)."""

@@ -28,7 +28,7 @@ from torchrl_dual.recipe.o2o.stage_clock import StageClock
 class StageRun(Protocol):
     """What this module reads and writes of the run (an :class:`~torchrl_dual.recipe.O2ORun`)."""
 
-    cfg: Any
+    settings: Any  # the run's RecipeSettings
     checkpoint: RunCheckpoint
     current_stage: str | None  # the offline stage running
     stage_clock: StageClock | None  # its clock
@@ -71,8 +71,8 @@ class StageCheckpoints:
         """
         run = self.run
         run.offline_steps += 1
-        stop = requested() or run.offline_steps == run.cfg.get("interrupt_at_offline_updates")
-        if stop or run.offline_steps % run.cfg.budget.offline_checkpoint_every == 0:
+        stop = requested() or run.offline_steps == run.settings.get("interrupt_at_offline_updates")
+        if stop or run.offline_steps % run.settings.budget.offline_checkpoint_every == 0:
             run.stage_clock.tick()  # the stage's seconds so far, continued on resume
             run.stage_progress = {
                 "stage": self.stage,

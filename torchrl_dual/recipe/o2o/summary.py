@@ -14,16 +14,16 @@ import os
 from pathlib import Path
 from typing import Any, Protocol
 
-from omegaconf import DictConfig, OmegaConf
-
 from torchrl_dual.recipe.o2o.loggers import logs_text
 from torchrl_dual.recipe.o2o.plots import plot_learning_curve
+from torchrl_dual.recipe.settings.structured import RecipeSettings
 
 
 class FinishedRun(Protocol):
     """What this module reads of a run (a :class:`~torchrl_dual.recipe.O2ORun`)."""
 
-    cfg: DictConfig
+    settings: RecipeSettings
+    config: dict  # the resolved config, plain containers
     name: str
     output_dir: Path
     learner: Any
@@ -62,16 +62,16 @@ def run_summary(run: FinishedRun) -> dict:
     process (:class:`~torchrl_dual.recipe.o2o.stage_clock.StageClock`), which runs sharing the
     cores do not inflate.
     """
-    cfg = run.cfg
+    settings = run.settings
     seconds = {name: round(float(value), 3) for name, value in run.stage_seconds.items()}
     offline = sum(value for name, value in seconds.items() if name != "online")
     cpu = {name: round(float(value), 3) for name, value in run.stage_cpu_seconds.items()}
     return {
-        "algo": str(cfg.algo),
-        "env": str(cfg.env.name),
-        "seed": int(cfg.seed),
-        "budget": str(cfg.budget.name),
-        "shift": str(cfg.env.get("shift", "none")),
+        "algo": settings.algo,
+        "env": str(settings.env.name),
+        "seed": settings.seed,
+        "budget": str(settings.budget.name),
+        "shift": str(getattr(settings.env, "shift", "none")),
         "history": run.history,
         "online_signals": run.online_signals,
         "stage_seconds": seconds,
@@ -82,7 +82,7 @@ def run_summary(run: FinishedRun) -> dict:
         "shared_offline": bool(run.shared_offline),
         "frames": int(run.frames),
         "updates": int(run.updates),
-        "config": OmegaConf.to_container(cfg, resolve=True),
+        "config": run.config,
     }
 
 
@@ -104,7 +104,7 @@ def report_finished_run(run: FinishedRun) -> None:
     png = plot_learning_curve(
         run.history,
         run.output_dir / "learning_curve.png",
-        title=f"{run.learner.title} on {run.cfg.env.name}",
+        title=f"{run.learner.title} on {run.settings.env.name}",
         signals=run.online_signals,
     )
     offline = next((h["normalized_score"] for h in run.history if h["label"] == "offline"), None)
@@ -114,5 +114,5 @@ def report_finished_run(run: FinishedRun) -> None:
     if run.history:
         final = run.history[-1]["normalized_score"]
         run.say(f"normalized score at the end of the online phase: {score_text(final)}")
-    run.say(logs_text(run.cfg, run.output_dir / "logs", run.name))
+    run.say(logs_text(run.settings.logger, run.output_dir / "logs", run.name))
     run.say(f"learning curve: {png}")

@@ -30,19 +30,20 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Protocol
 
 import torch
-from omegaconf import DictConfig
 from tensordict import TensorDict, TensorDictBase
 from torchrl.trainers import OptimizationStepper, Trainer
 
 if TYPE_CHECKING:
     from torchrl_dual.recipe.o2o.learner import Learner
+    from torchrl_dual.recipe.settings.schema import CompileSettings
+    from torchrl_dual.recipe.settings.structured import RecipeSettings
 
 CUDA_GRAPH_WARMUP = 3
 """Eager calls on a side stream before the capture (optimizer state, lazy buffers)."""
 
 
 def make_update_step(
-    learner: Learner, settings: DictConfig | None, phase: Callable[[], Any]
+    learner: Learner, settings: CompileSettings | None, phase: Callable[[], Any]
 ) -> Callable[[TensorDictBase], dict]:
     """``batch -> metrics``: ``learner.update`` as ``settings`` (the ``compile`` section) asks.
 
@@ -52,7 +53,7 @@ def make_update_step(
     if settings is not None and settings.compile:
         mode = settings.compile_mode
         update = torch.compile(update, mode=None if mode in (None, "default") else mode)
-    if settings is None or not settings.get("cudagraphs", False):
+    if settings is None or not settings.cudagraphs:
         return update
     return GraphedUpdate(
         update,
@@ -65,7 +66,7 @@ def make_update_step(
 class UpdatedRun(Protocol):
     """What :class:`LearnerUpdates` uses of its run (an :class:`~torchrl_dual.recipe.O2ORun`)."""
 
-    cfg: DictConfig
+    settings: RecipeSettings
     learner: Learner
     replay: Any
     frames: int
@@ -86,7 +87,7 @@ class LearnerUpdates(OptimizationStepper):
 
     def __init__(self, run: UpdatedRun) -> None:
         self.run = run
-        self.update = make_update_step(run.learner, run.cfg.get("compile"), lambda: run.frames > 0)
+        self.update = make_update_step(run.learner, run.settings.compile, lambda: run.frames > 0)
         self.last: dict = {}
         self._none = TensorDict()
 

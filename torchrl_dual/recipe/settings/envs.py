@@ -45,15 +45,17 @@ class EnvKit:
     Args:
         settings (type): schema dataclass of the ``env.*`` keys, a subclass of
             :class:`EnvSettings` (see ``rules.key``).
-        load_data (callable): ``cfg -> OfflineDataset``, ``D_offline`` (cached or read).
-        make_env (callable): ``(cfg, data) -> EnvBase``, the online env (the recipe appends
+        load_data (callable): ``settings -> OfflineDataset``, ``D_offline`` (cached or read);
+            ``settings`` is the run's :class:`~torchrl_dual.recipe.RecipeSettings`.
+        make_env (callable): ``(settings, data) -> EnvBase``, the online env (the recipe appends
             :class:`~torchrl_dual.transforms.PreviousTransition` for Eq. 10's ``d_t``);
             ``data`` (``D_offline``, or ``None``: the kit reads it if it needs it) carries
             what the env must agree with (e.g. observation normalization).
-        make_evaluator (callable): ``(cfg, data) -> Evaluator``.
+        make_evaluator (callable): ``(settings, data) -> Evaluator``.
         action_projection (callable, optional): maps the sampled action to the executed
             one (stored in the replay buffer), e.g. the one-hot argmax of a discrete env.
-        check (callable, optional): ``cfg -> None``, run by ``validate_config`` after
+        check (callable, optional): ``cfg -> None`` on the composed config, run by
+            ``validate_config`` after
             the key checks; raises :class:`~torchrl_dual.recipe.settings.errors.ConfigError` for what
             the machine lacks (e.g. a Minari data set that is not on disk).
 

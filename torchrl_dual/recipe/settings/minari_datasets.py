@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import dataclass
+from typing import Any
 
 from omegaconf import DictConfig
 
@@ -34,9 +35,12 @@ class MinariFamily:
     tasks: tuple[str, ...]
     datasets: tuple[str, ...]
 
-    def dataset_id(self, env: DictConfig) -> str:
-        """The Minari id of ``env.task`` / ``env.dataset`` / ``env.dataset_version``."""
-        task = env.get("task", "")
+    def dataset_id(self, env: Any) -> str:
+        """The Minari id of ``env.task`` / ``env.dataset`` / ``env.dataset_version``.
+
+        ``env`` is the ``env`` section, as the config or the run's typed settings hold it.
+        """
+        task = getattr(env, "task", "")
         return self.id_format.format(task=task, dataset=env.dataset, version=env.dataset_version)
 
 

@@ -281,7 +281,7 @@ def check_ray_collector(cfg: DictConfig) -> None:
         )
 
 
-def check_output_dir(cfg: DictConfig) -> None:
+def check_output_dir(output_dir: str, resume: bool) -> None:
     """Checks that ``output_dir`` is writable and holds no checkpoint a fresh run would overwrite.
 
     ``output_dir`` must be a directory (or not exist yet) that this process can create
@@ -290,22 +290,22 @@ def check_output_dir(cfg: DictConfig) -> None:
     in the nearest existing ancestor (removed at once), so a failed check leaves nothing
     behind.
     """
-    output_dir = Path(cfg.output_dir)
+    value, output_dir = output_dir, Path(output_dir)
     for path in (output_dir, *output_dir.parents):
         if path.exists() and not path.is_dir():
-            raise ConfigError("output_dir", cfg.output_dir, f"{path} is a file, not a directory")
+            raise ConfigError("output_dir", value, f"{path} is a file, not a directory")
     existing = next(p for p in (output_dir, *output_dir.parents) if p.exists())
     try:
         os.rmdir(tempfile.mkdtemp(prefix=".write-probe-", dir=existing))
     except OSError as err:
         raise ConfigError(
             "output_dir",
-            cfg.output_dir,
+            value,
             f"cannot be created or written in {existing} ({err.strerror}); choose a "
             "directory you can write to",
         ) from None
     checkpoint = output_dir / "checkpoint.pt"
-    if checkpoint.exists() and not cfg.resume:
+    if checkpoint.exists() and not resume:
         raise ConfigError(
             "resume",
             False,

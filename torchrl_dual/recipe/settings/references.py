@@ -24,9 +24,12 @@ files they come from, are in docs/reproducing.md.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from omegaconf import DictConfig, OmegaConf
+
+if TYPE_CHECKING:
+    from torchrl_dual.recipe.settings.envs import MinariSettings
 
 REWARD_TRANSFORMS: dict[str, dict[str, tuple[float | str, float]]] = {
     "antmaze": {"iql": (1.0, -1.0), "so2": (1.0, -1.0), "calql": (10.0, -5.0)},
@@ -144,25 +147,23 @@ def register_reference_resolver() -> None:
         OmegaConf.register_new_resolver(RESOLVER, reference_setting)
 
 
-def reward_transform(cfg: DictConfig) -> tuple[float | str, float]:
+def reward_transform(env: MinariSettings, critic: str) -> tuple[float | str, float]:
     """``(reward_scale, reward_shift)`` of a Minari family's run.
 
-    ``env.reward_scale`` / ``env.reward_shift`` where set, else
-    :data:`REWARD_TRANSFORMS` for ``critic.name``.
+    The ``env`` section's ``reward_scale`` / ``reward_shift`` where set, else
+    :data:`REWARD_TRANSFORMS` for the ``critic`` (``critic.name``).
 
     Examples:
-        >>> from omegaconf import OmegaConf
-        >>> cfg = OmegaConf.create({"env": {"kind": "antmaze", "reward_scale": None,
-        ...     "reward_shift": None}, "critic": {"name": "calql"}})
-        >>> reward_transform(cfg)
+        >>> from types import SimpleNamespace
+        >>> env = SimpleNamespace(kind="antmaze", reward_scale=None, reward_shift=None)
+        >>> reward_transform(env, "calql")
         (10.0, -5.0)
-        >>> cfg.env.reward_shift = -1.0
-        >>> reward_transform(cfg)
+        >>> env.reward_shift = -1.0
+        >>> reward_transform(env, "calql")
         (10.0, -1.0)
     """
-    preset_scale, preset_shift = REWARD_TRANSFORMS[cfg.env.kind][cfg.critic.name]
-    scale = cfg.env.reward_scale
-    shift = cfg.env.reward_shift
+    preset_scale, preset_shift = REWARD_TRANSFORMS[env.kind][critic]
+    scale, shift = env.reward_scale, env.reward_shift
     return (
         preset_scale if scale is None else (scale if scale == "returns" else float(scale)),
         float(preset_shift if shift is None else shift),

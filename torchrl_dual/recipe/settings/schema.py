@@ -328,7 +328,7 @@ def check_machine(cfg: DictConfig) -> None:
     if cfg.collector.device is not None:
         check_device("collector.device", cfg.collector.device)
     check_logger(cfg)
-    check_output_dir(cfg)
+    check_output_dir(cfg.output_dir, cfg.resume)
     for name in ("data_cache_dir", "offline_cache"):
         if cfg[name] is not None and Path(cfg[name]).is_file():
             raise ConfigError(name, cfg[name], "is a file, not a directory")
