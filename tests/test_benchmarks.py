@@ -212,3 +212,5 @@ def test_package_size_counts_code_docstrings_comments_and_blank_lines(tmp_path, 
     assert kinds["total"] == 13
     package_size.main([str(tmp_path)])
     assert capsys.readouterr().out == "13 lines: 4 code, 4 docstring, 4 blank, 1 comment\n"
+    (tmp_path / "n.py").write_text("Y = 2\n")  # a file and a folder holding another: summed
+    assert package_size.line_kinds(tmp_path / "n.py", tmp_path / "sub")["code"] == 5

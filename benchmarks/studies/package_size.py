@@ -1,7 +1,7 @@
 """The package's lines by kind: code, docstrings, comments and blank lines.
 
     python -m benchmarks.studies.package_size              # torchrl_dual/
-    python -m benchmarks.studies.package_size some/folder
+    python -m benchmarks.studies.package_size some/folder other/module.py   # their sum
 
 A docstring is a module's, class's or function's first string, or a string right after
 an assignment in a module or class body (an attribute's docstring, as Sphinx reads
@@ -45,10 +45,14 @@ def docstring_lines(source: str) -> set[int]:
     return lines
 
 
-def line_kinds(folder: Path) -> Counter:
-    """``{"total", "code", "docstring", "comment", "blank"}`` over ``folder``'s ``.py`` files."""
+def line_kinds(*paths: Path) -> Counter:
+    """``{"total", "code", "docstring", "comment", "blank"}`` over the ``.py`` files of ``paths``.
+
+    Each path is a ``.py`` file or a folder (all its ``.py`` files).
+    """
     kinds: Counter = Counter()
-    for path in sorted(folder.rglob("*.py")):
+    files = {f for p in paths for f in ([p] if p.is_file() else p.rglob("*.py"))}
+    for path in sorted(files):
         source = path.read_text()
         docs = docstring_lines(source)
         for number, line in enumerate(source.splitlines(), 1):
@@ -62,9 +66,9 @@ def line_kinds(folder: Path) -> Counter:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Prints the counts of the folder in ``argv`` (default ``torchrl_dual``)."""
+    """Prints the counts of the files and folders in ``argv`` (default ``torchrl_dual``)."""
     args = sys.argv[1:] if argv is None else argv
-    kinds = line_kinds(Path(args[0] if args else "torchrl_dual"))
+    kinds = line_kinds(*(Path(a) for a in args or ["torchrl_dual"]))
     parts = ", ".join(f"{kinds[k]:,} {k}" for k in ("code", "docstring", "blank", "comment"))
     print(f"{kinds['total']:,} lines: {parts}")
 

@@ -146,7 +146,10 @@ class OnlinePhase:
         self.clock = StageClock(run.stage_seconds, run.stage_cpu_seconds, "online")
         # the online frames' bar, from a resumed run's frames on (TorchRL's starts at 0)
         self.bar = tqdm(
-            total=budget.online_frames, initial=run.frames, disable=not run.settings.progress
+            desc="online frames",
+            total=budget.online_frames,
+            initial=run.frames,
+            disable=not run.settings.progress,
         )
 
     def store(self, batch: TensorDictBase) -> None:
