@@ -1,6 +1,6 @@
 """DUAL offline-to-online RL, Algorithm 1 of the paper, end to end (Hydra entry point).
 
-    python recipes/o2o.py                          # PointMaze U-maze, ~10 min of one CPU core
+    python recipes/o2o.py                          # PointMaze U-maze, 5 to 10 min of one CPU core
     python recipes/o2o.py env=frozenlake budget=smoke
     python recipes/o2o.py resume=true              # continue an interrupted run
 

@@ -150,7 +150,7 @@ class BudgetSettings:
         Text(),
         "the budget, chosen with `budget=<name>` (default `default`): `smoke` runs every step "
         "in well under a minute with small networks to check the plumbing (the tests use it; "
-        "its numbers mean nothing), `default` is sized for about 10 minutes of one CPU core for "
+        "its numbers mean nothing), `default` is sized for 5 to 10 minutes of one CPU core for "
         "DUAL on PointMaze U-maze (measured times in [results.md](results.md)), its split (few "
         "planner and distillation updates, many actor-critic updates) chosen by measurement, "
         "`paper` is the paper's scale (Appendix A, CORL settings: 1M offline and 1M online "
