@@ -81,9 +81,8 @@ class O2ORun:
 
     ``cfg`` must have passed :func:`~torchrl_dual.recipe.validate_config`;
     ``make_learner`` is ``run -> Learner`` (usually the learner class). The run reads
-    ``cfg`` once, as :attr:`settings` (typed: what the run, its env kit and its learner
-    read) and :attr:`config` (resolved, plain containers: the checkpoint's fingerprint,
-    ``summary.json``, the offline cache's key, a W&B run's config).
+    ``cfg`` as :attr:`settings` (typed, for the run, its env kit and learner) and
+    :attr:`config` (plain: the fingerprint, ``summary.json``, the offline cache's key).
 
     Examples:
         >>> import contextlib, io, tempfile
@@ -111,13 +110,10 @@ class O2ORun:
         self.output_dir = Path(settings.output_dir)
         fingerprint = {k: v for k, v in self.config.items() if k not in RESUMABLE_KEYS}
         fingerprint["checkpoint_layout"] = self.checkpoint_layout = CHECKPOINT_LAYOUT
-        # may change on resume
-        fingerprint["budget"] = {
-            k: v for k, v in fingerprint["budget"].items() if k != "offline_checkpoint_every"
-        }
+        budget = fingerprint["budget"] = dict(fingerprint["budget"])
+        budget.pop("offline_checkpoint_every", None)  # may change on resume
         acquire_run_directory(settings.output_dir)  # one run per directory (o2o/run_lock.py)
-        # with the lock held: no run can write a checkpoint meanwhile
-        check_output_dir(settings.output_dir, settings.resume)
+        check_output_dir(settings.output_dir, settings.resume)  # locked: no other writer now
         self.checkpoint = RunCheckpoint(
             self.output_dir / "checkpoint.pt", fingerprint, free_keys=RESUMABLE_KEYS
         )
