@@ -41,7 +41,7 @@ Episode ids: :func:`~torchrl_dual.recipe.o2o.episodes.assign_episodes` maps the
 collectors' trajectory ids to the run's episode ids.
 
 Cal-QL's Monte-Carlo labels (``critic=calql``) hold one stream of transitions until its
-episode ends: :func:`~torchrl_dual.recipe.settings.o2o.check_collector` refuses them with
+episode ends: :func:`~torchrl_dual.recipe.settings.o2o.check_streams` refuses them with
 several workers. The table :data:`~torchrl_dual.recipe.settings.o2o.COLLECTORS` names the
 builders below.
 """

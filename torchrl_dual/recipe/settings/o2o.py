@@ -14,6 +14,7 @@ import os
 import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -150,45 +151,25 @@ class RayCollectorSettings(CollectorSettings):
     )
 
 
-def check_worker_count(cfg: DictConfig) -> None:
-    """Checks ``collector.num_workers`` and ``collector.num_envs`` against the collector.
+def check_single(cfg: DictConfig) -> None:
+    """``collector=single``: ``collector.num_envs > 1`` envs collect equal shares of a batch."""
+    envs = cfg.collector.num_envs
+    if envs > 1:
+        split = f"collector.num_envs={envs} envs collect equal shares of each batch"
+        check_streams(cfg, split, envs, "collector.num_envs", envs, "collector.num_envs=1")
 
-    ``collector.num_workers`` with ``collector=single`` and ``collector.num_envs`` with
-    the others (run before the key checks, which would only call them unknown keys).
+
+def check_workers(cfg: DictConfig, stacked_by: str | None) -> None:
+    """The worker collectors' checks.
+
+    ``stacked_by`` names the keys that split each batch evenly over the workers
+    (``None``: the first worker's batch is taken whole).
     """
-    name = cfg.collector.name
-    if name == "single" and "num_workers" in cfg.collector:
-        raise ConfigError(
-            "collector.num_workers",
-            cfg.collector.num_workers,
-            "collector=single collects in this process; choose collector=multi_sync or "
-            "collector=multi_async for worker processes, collector=ray for Ray actors",
-        )
-    if name != "single" and "num_envs" in cfg.collector:
-        raise ConfigError(
-            "collector.num_envs",
-            cfg.collector.num_envs,
-            f"collector={name} steps one env per worker; batched envs are collector=single's "
-            "(collector=single collector.num_envs=N), or raise collector.num_workers",
-        )
-
-
-def check_collector(cfg: DictConfig) -> None:
-    """The combinations of ``collector.*`` with other keys that cannot work."""
-    name = cfg.collector.name
-    if name == "single":
-        envs = cfg.collector.num_envs
-        if envs > 1:  # every env collects budget.frames_per_batch / num_envs frames
-            split = f"collector.num_envs={envs} envs collect equal shares of each batch"
-            check_streams(cfg, split, envs, "collector.num_envs", envs, "collector.num_envs=1")
-        return
-    if name == "ray":
-        check_ray_collector(cfg)
     workers = cfg.collector.num_workers
-    stacked = name == "multi_sync" or (name == "ray" and cfg.collector.sync)
-    sync = " collector.sync=true" if name == "ray" else ""
-    split = f"collector={name}{sync} splits each batch over collector.num_workers={workers}"
-    check_streams(cfg, split if stacked else None, workers, "collector", name, "collector=single")
+    split = None if stacked_by is None else (
+        f"{stacked_by} splits each batch over collector.num_workers={workers}"
+    )  # fmt: skip
+    check_streams(cfg, split, workers, "collector", cfg.collector.name, "collector=single")
 
 
 def check_streams(
@@ -213,44 +194,6 @@ def check_streams(
         )
 
 
-class CollectorKind(NamedTuple):
-    """One ``collector.name``: its schema, how the run builds it, how weights reach it."""
-
-    settings: type
-    """The dataclass of ``collector.*`` (checked by ``validate_config``)."""
-    make: Callable[..., Any]
-    """``(run, total_frames) -> collector``, acting with the learner's exploration policy."""
-    push: Callable[..., None]
-    """``(collector, policy) -> None``, after every update block: the policy's current
-    parameters and buffers reach the collector's next batch."""
-
-
-_COLLECTORS = "torchrl_dual.recipe.o2o.collectors"
-_RAY = "torchrl_dual.recipe.o2o.ray_collector"
-
-COLLECTORS: dict[str, CollectorKind] = {
-    "single": CollectorKind(
-        SingleCollectorSettings,
-        Ref(f"{_COLLECTORS}:make_single"),
-        Ref(f"{_COLLECTORS}:push_to_single"),
-    ),
-    "multi_sync": CollectorKind(
-        MultiCollectorSettings,
-        Ref(f"{_COLLECTORS}:make_multi_sync"),
-        Ref(f"{_COLLECTORS}:push_to_processes"),
-    ),
-    "multi_async": CollectorKind(
-        MultiCollectorSettings,
-        Ref(f"{_COLLECTORS}:make_multi_async"),
-        Ref(f"{_COLLECTORS}:push_to_processes"),
-    ),
-    "ray": CollectorKind(
-        RayCollectorSettings, Ref(f"{_RAY}:make_ray"), Ref(f"{_RAY}:push_to_actors")
-    ),
-}
-"""``collector.name`` -> its :class:`CollectorKind`."""
-
-
 INSTALL_RAY = 'pip install "torchrl-dual[ray]"'
 
 
@@ -260,9 +203,10 @@ def ray_installed() -> bool:
 
 
 def check_ray_collector(cfg: DictConfig) -> None:
-    """What ``collector=ray`` needs beyond the process collectors' checks: Ray, and ``device=cpu``.
+    """What ``collector=ray`` needs: Ray, ``device=cpu``, then the worker collectors' checks.
 
-    Beyond :func:`check_collector`.
+    Stacked batches (``collector.sync=true``) are split evenly over the actors, as
+    ``multi_sync``'s; first-come ones are taken whole, as ``multi_async``'s.
     """
     if not ray_installed():
         raise ConfigError("collector", "ray", f"needs Ray, which is not installed: {INSTALL_RAY}")
@@ -279,6 +223,70 @@ def check_ray_collector(cfg: DictConfig) -> None:
             cfg.collector.device,
             "collector=ray's remote collectors act on the CPUs of the Ray nodes: use null or cpu",
         )
+    check_workers(cfg, "collector=ray collector.sync=true" if cfg.collector.sync else None)
+
+
+class CollectorKind(NamedTuple):
+    """One ``collector.name``: its schema and checks, how the run builds it, how weights reach it."""
+
+    settings: type
+    """The dataclass of ``collector.*`` (checked by ``validate_config``)."""
+    make: Callable[..., Any]
+    """``(run, total_frames) -> collector``, acting with the learner's exploration policy."""
+    push: Callable[..., None]
+    """``(collector, policy) -> None``, after every update block: the policy's current
+    parameters and buffers reach the collector's next batch."""
+    check: Callable[[DictConfig], None]
+    """``cfg -> None``: the combinations of ``collector.*`` with other keys that cannot work
+    (``validate_config`` runs it after the key checks)."""
+    misplaced: dict[str, str]
+    """Another kind's ``collector.*`` key -> why it is not this kind's (``validate_config``
+    says so before the key checks, which would only call it unknown)."""
+
+
+_COLLECTORS = "torchrl_dual.recipe.o2o.collectors"
+_RAY = "torchrl_dual.recipe.o2o.ray_collector"
+
+_IN_PROCESS = {
+    "num_workers": "collects in this process; choose collector=multi_sync or "
+    "collector=multi_async for worker processes, collector=ray for Ray actors"
+}
+_ONE_ENV_PER_WORKER = {
+    "num_envs": "steps one env per worker; batched envs are collector=single's "
+    "(collector=single collector.num_envs=N), or raise collector.num_workers"
+}
+
+COLLECTORS: dict[str, CollectorKind] = {
+    "single": CollectorKind(
+        SingleCollectorSettings,
+        Ref(f"{_COLLECTORS}:make_single"),
+        Ref(f"{_COLLECTORS}:push_to_single"),
+        check_single,
+        _IN_PROCESS,
+    ),
+    "multi_sync": CollectorKind(
+        MultiCollectorSettings,
+        Ref(f"{_COLLECTORS}:make_multi_sync"),
+        Ref(f"{_COLLECTORS}:push_to_processes"),
+        partial(check_workers, stacked_by="collector=multi_sync"),
+        _ONE_ENV_PER_WORKER,
+    ),
+    "multi_async": CollectorKind(
+        MultiCollectorSettings,
+        Ref(f"{_COLLECTORS}:make_multi_async"),
+        Ref(f"{_COLLECTORS}:push_to_processes"),
+        partial(check_workers, stacked_by=None),
+        _ONE_ENV_PER_WORKER,
+    ),
+    "ray": CollectorKind(
+        RayCollectorSettings,
+        Ref(f"{_RAY}:make_ray"),
+        Ref(f"{_RAY}:push_to_actors"),
+        check_ray_collector,
+        _ONE_ENV_PER_WORKER,
+    ),
+}
+"""``collector.name`` -> its :class:`CollectorKind`."""
 
 
 def check_output_dir(output_dir: str, resume: bool) -> None:

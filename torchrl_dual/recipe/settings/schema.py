@@ -24,13 +24,7 @@ from torchrl_dual.recipe.settings.algos import ALGORITHMS
 from torchrl_dual.recipe.settings.envs import ENV_KITS, EnvKit
 from torchrl_dual.recipe.settings.errors import ConfigError
 from torchrl_dual.recipe.settings.loggers import LOGGERS, check_logger
-from torchrl_dual.recipe.settings.o2o import (
-    COLLECTORS,
-    REPLAYS,
-    check_collector,
-    check_output_dir,
-    check_worker_count,
-)
+from torchrl_dual.recipe.settings.o2o import COLLECTORS, REPLAYS, check_output_dir
 from torchrl_dual.recipe.settings.parts import CRITICS
 from torchrl_dual.recipe.settings.rules import (
     Choice,
@@ -237,8 +231,12 @@ def _selection(cfg: DictConfig) -> tuple[Algorithm, EnvKit, dict[str, type]]:
     kit = _choice(cfg, "env.kind", ENV_KITS, "which environment kit builds the env and data")
     critic_schema, _ = _choice(cfg, "critic.name", CRITICS, "the critic")
     replay_schema, _ = _choice(cfg, "replay.name", REPLAYS, "the online replay")
-    collector_schema = _choice(cfg, "collector.name", COLLECTORS, "the online collector").settings
-    check_worker_count(cfg)
+    collector = _choice(cfg, "collector.name", COLLECTORS, "the online collector")
+    for name, why in collector.misplaced.items():  # before the key checks call it unknown
+        if name in cfg.collector:
+            raise ConfigError(
+                f"collector.{name}", cfg.collector[name], f"collector={cfg.collector.name} {why}"
+            )
     logger = _choice(cfg, "logger.backend", LOGGERS, "the TorchRL logger backend")
     return (
         entry,
@@ -249,7 +247,7 @@ def _selection(cfg: DictConfig) -> tuple[Algorithm, EnvKit, dict[str, type]]:
             **algorithm.sections,
             "critic": critic_schema,
             "replay": replay_schema,
-            "collector": collector_schema,
+            "collector": collector.settings,
             "logger": logger.settings,
             "compile": CompileSettings,
         },
@@ -286,7 +284,7 @@ def validate_config(cfg: DictConfig) -> DictConfig:
             "critic", cfg.critic.name, f"{cfg.algo} supports {', '.join(algorithm.critics)}"
         )
     algorithm.check(cfg)
-    check_collector(cfg)
+    COLLECTORS[cfg.collector.name].check(cfg)
     if cfg.compile.cudagraphs and entry.no_cuda_graph is not None:
         raise ConfigError(
             "compile.cudagraphs", True, f"not for algo={cfg.algo}: {entry.no_cuda_graph}"
