@@ -101,8 +101,8 @@ def test_an_unfinished_episode_is_held_until_it_ends(calql_run):
         ),
         (
             ["algo=dual", "critic=calql", "augment.kind=planner"],
-            "augment.kind=planner: adds generated transitions without Cal-QL's Monte-Carlo "
-            "bound; use augment.kind=none with critic=calql",
+            "augment.kind=planner: adds generated transitions without the Monte-Carlo bound "
+            "of critic=calql; use augment.kind=none with critic=calql",
         ),
     ],
 )

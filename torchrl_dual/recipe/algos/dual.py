@@ -31,7 +31,7 @@ from torchrl_dual.recipe.parts.networks import make_planner, make_policy, studen
 from torchrl_dual.recipe.parts.planner_augment import augment_capacity, make_augmenter
 from torchrl_dual.recipe.parts.planner_stage import offline_windows, pretrain_planner
 from torchrl_dual.recipe.settings.dual import ActorSettings
-from torchrl_dual.recipe.settings.parts import POLICY_CRITICS
+from torchrl_dual.recipe.settings.parts import CRITICS
 from torchrl_dual.trainers.hooks import RefitSchedule
 from torchrl_dual.trainers.stepper import CriticActorStepper
 
@@ -148,12 +148,12 @@ class DualLearner(Learner):
         self.transition = make_transition_model(
             s.exploration.transition_model, final_steps, self.teacher, self.actor
         )
-        samples_policy = s.critic.name in POLICY_CRITICS  # Cal-QL: N(μ(s), σ̄²) of π_θ
-        view = policy_view(self.actor, spec) if samples_policy else None
+        critic = CRITICS[s.critic.name]
+        view = policy_view(self.actor, spec) if critic.samples_policy else None  # N(μ, σ̄²)
         self.critic = make_critic(s, data.obs_dim, data.action_dim, actor=view)
         self.online_batches_per_update = self.critic.online_steps_per_update  # SO2: 10
-        # critic=calql: the Monte-Carlo bound on D_offline now, on D_online per episode
-        self.labels = MonteCarloLabels(run) if s.critic.name == "calql" else None
+        # Cal-QL's Monte-Carlo bound: on D_offline now, on D_online per episode
+        self.labels = MonteCarloLabels(run) if critic.monte_carlo_labels else None
         entropy_coef = getattr(s.critic, "entropy_coef", None)  # SO2's α
         self.loss = make_loss(s.actor, self.actor, self.critic, spec, entropy_coef)
         self.actor_optimizer = adam(self.loss.actor_parameters(), lr=s.actor.lr)

@@ -15,7 +15,12 @@ from omegaconf import DictConfig
 from torchrl_dual.recipe.settings.algo_common import AlgorithmSettings, OnlineSettings
 from torchrl_dual.recipe.settings.errors import ConfigError
 from torchrl_dual.recipe.settings.names import LATENTS, SCHEDULES, UNCERTAINTIES, WEIGHTINGS
-from torchrl_dual.recipe.settings.parts import AugmentSettings, check_augment, check_planner_window
+from torchrl_dual.recipe.settings.parts import (
+    CRITICS,
+    AugmentSettings,
+    check_augment,
+    check_planner_window,
+)
 from torchrl_dual.recipe.settings.rules import (
     Choice,
     Either,
@@ -276,20 +281,20 @@ def check_critic(cfg: DictConfig) -> None:
     Eq. 7 on a critic without V (``critic=calql`` or ``so2``, the paper's Cal-QL and SO2
     rows) weighs by Q alone; Cal-QL labels whole episodes online.
     """
-    name = cfg.critic.name
-    if name != "iql" and cfg.actor.weighting == "advantage":
+    name, critic = cfg.critic.name, CRITICS[cfg.critic.name]
+    if not critic.has_value and cfg.actor.weighting == "advantage":
         raise ConfigError(
             "actor.weighting",
             "advantage",
             f"needs IQL's value network V; critic={name} has none: use actor.weighting=sac "
             "(Q - alpha log pi, the paper's Cal-QL and SO2 rows) or uniform",
         )
-    if name == "calql" and cfg.augment.kind != "none":
+    if critic.monte_carlo_labels and cfg.augment.kind != "none":
         raise ConfigError(
             "augment.kind",
             cfg.augment.kind,
-            "adds generated transitions without Cal-QL's Monte-Carlo bound; use "
-            "augment.kind=none with critic=calql",
+            f"adds generated transitions without the Monte-Carlo bound of critic={name}; use "
+            f"augment.kind=none with critic={name}",
         )
 
 

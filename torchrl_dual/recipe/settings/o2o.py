@@ -22,6 +22,7 @@ from omegaconf import DictConfig
 
 from torchrl_dual.recipe.settings.errors import ConfigError
 from torchrl_dual.recipe.settings.lazy import Ref
+from torchrl_dual.recipe.settings.parts import CRITICS
 from torchrl_dual.recipe.settings.rules import Flag, Integer, Maybe, Real, Text, key
 
 
@@ -178,19 +179,19 @@ def check_streams(
     """Checks the online batches from several streams (workers or envs, ``key=value``).
 
     An even ``split`` into ``parts`` (``None``: not split) needs
-    ``budget.frames_per_batch`` to be a multiple of them, and Cal-QL's Monte-Carlo
-    labels need ``one_stream``.
+    ``budget.frames_per_batch`` to be a multiple of them, and a critic's Monte-Carlo
+    labels (Cal-QL's) need ``one_stream``.
     """
     if split is not None and cfg.budget.frames_per_batch % parts:
         raise ConfigError(
             "budget.frames_per_batch", cfg.budget.frames_per_batch, f"{split}: use a multiple of it"
         )
-    if cfg.critic.name == "calql":
+    if CRITICS[cfg.critic.name].monte_carlo_labels:
         raise ConfigError(
             key,
             value,
-            "critic=calql labels one stream of online episodes with Monte-Carlo returns; "
-            f"use {one_stream} with it",
+            f"critic={cfg.critic.name} labels one stream of online episodes with Monte-Carlo "
+            f"returns; use {one_stream} with it",
         )
 
 

@@ -163,13 +163,8 @@ class SO2CriticSettings(CriticSettings):
     )
 
 
-POLICY_CRITICS = ("calql", "so2")
-"""Critics whose loss samples the policy: a learner with its own actor passes them
-:func:`policy_view` of it (``actor=``)."""
-
-
 class CriticKind(NamedTuple):
-    """One ``critic.name``: its schema and its builder."""
+    """One ``critic.name``: its schema, its builder and what it asks of the run."""
 
     settings: type
     """The dataclass of ``critic.*`` (checked by ``validate_config``)."""
@@ -178,14 +173,27 @@ class CriticKind(NamedTuple):
     :class:`~torchrl_dual.recipe.parts.critics.Critic`, ``settings`` an instance of
     :attr:`settings` (:func:`~torchrl_dual.recipe.parts.critics.make_critic` builds it
     from the config)."""
+    has_value: bool = False
+    """Whether it learns ``V(s)``, which Eq. 7's ``actor.weighting=advantage`` reads."""
+    samples_policy: bool = False
+    """Whether its loss samples the policy: a learner with its own actor passes it
+    :func:`~torchrl_dual.recipe.parts.networks.policy_view` of it (``actor=``)."""
+    monte_carlo_labels: bool = False
+    """Whether its loss reads Monte-Carlo returns: whole online episodes from one stream,
+    no generated transitions (``augment``)."""
 
 
 _CRITICS = "torchrl_dual.recipe.parts.critics"
 
 CRITICS: dict[str, CriticKind] = {
-    "iql": CriticKind(IQLCriticSettings, Ref(f"{_CRITICS}:make_iql_critic")),
-    "calql": CriticKind(CalQLCriticSettings, Ref(f"{_CRITICS}:make_calql_critic")),
-    "so2": CriticKind(SO2CriticSettings, Ref(f"{_CRITICS}:make_so2_critic")),
+    "iql": CriticKind(IQLCriticSettings, Ref(f"{_CRITICS}:make_iql_critic"), has_value=True),
+    "calql": CriticKind(
+        CalQLCriticSettings,
+        Ref(f"{_CRITICS}:make_calql_critic"),
+        samples_policy=True,
+        monte_carlo_labels=True,
+    ),
+    "so2": CriticKind(SO2CriticSettings, Ref(f"{_CRITICS}:make_so2_critic"), samples_policy=True),
 }
 """``critic.name`` -> its :class:`CriticKind`."""
 

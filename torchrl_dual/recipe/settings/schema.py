@@ -229,7 +229,7 @@ def _selection(cfg: DictConfig) -> tuple[Algorithm, EnvKit, dict[str, type]]:
     entry = _choice(cfg, "algo", ALGORITHMS, "the algorithm")
     algorithm = entry.settings
     kit = _choice(cfg, "env.kind", ENV_KITS, "which environment kit builds the env and data")
-    critic_schema, _ = _choice(cfg, "critic.name", CRITICS, "the critic")
+    critic_schema = _choice(cfg, "critic.name", CRITICS, "the critic").settings
     replay_schema, _ = _choice(cfg, "replay.name", REPLAYS, "the online replay")
     collector = _choice(cfg, "collector.name", COLLECTORS, "the online collector")
     for name, why in collector.misplaced.items():  # before the key checks call it unknown
