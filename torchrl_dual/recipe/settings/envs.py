@@ -55,9 +55,9 @@ class EnvKit:
         action_projection (callable, optional): maps the sampled action to the executed
             one (stored in the replay buffer), e.g. the one-hot argmax of a discrete env.
         check (callable, optional): ``cfg -> None`` on the composed config, run by
-            ``validate_config`` after
-            the key checks; raises :class:`~torchrl_dual.recipe.settings.errors.ConfigError` for what
-            the machine lacks (e.g. a Minari data set that is not on disk).
+            ``validate_config`` after the key checks; raises
+            :class:`~torchrl_dual.recipe.settings.errors.ConfigError` for what the machine
+            lacks (e.g. a Minari data set that is not on disk).
 
     Examples:
         >>> kit = ENV_KITS["frozenlake"]

@@ -36,10 +36,7 @@ class MinariFamily:
     datasets: tuple[str, ...]
 
     def dataset_id(self, env: Any) -> str:
-        """The Minari id of ``env.task`` / ``env.dataset`` / ``env.dataset_version``.
-
-        ``env`` is the ``env`` section, as the config or the run's typed settings hold it.
-        """
+        """The Minari id of the ``env`` section's ``task``, ``dataset`` and ``dataset_version``."""
         task = getattr(env, "task", "")
         return self.id_format.format(task=task, dataset=env.dataset, version=env.dataset_version)
 
