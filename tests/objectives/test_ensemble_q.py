@@ -115,3 +115,33 @@ def test_networks_other_than_a_plain_one_output_mlp_keep_the_vmapped_call():
         out_keys=["state_action_value"],
     )
     assert EnsembleMLP.of(plain, vmapped) is vmapped  # not a ValueOperator
+
+
+def test_the_packages_twin_q_calls_are_ensemble_mlps_with_the_vmapped_numbers():
+    """DUAL's critic (``IQLCriticLoss``), the IQL baseline's ``OnePassIQLLoss`` and Eq. 7's
+    weights (``WeightedMAPActorLoss``) call their twin Q as ``EnsembleMLP``: TorchRL's
+    vmapped numbers, without its overhead."""
+    from torchrl.modules import ProbabilisticActor, TanhNormal
+
+    from torchrl_dual.modules import LinearHeadActor
+    from torchrl_dual.objectives import IQLCriticLoss, OnePassIQLLoss, WeightedMAPActorLoss
+
+    q, _, vmapped = _twin()
+    value = ValueOperator(MLP(in_features=OBS, out_features=1, num_cells=[8]), ["observation"])
+    critic = IQLCriticLoss(q, value)
+    assert isinstance(critic._vmap_qvalue_networkN0, EnsembleMLP)
+    policy = ProbabilisticActor(
+        TensorDictModule(nn.Linear(OBS, 2 * ACT), ["observation"], ["param"]),
+        in_keys=["param"],
+        distribution_class=TanhNormal,
+    )
+    assert isinstance(OnePassIQLLoss(policy, q, value)._vmap_qvalue_networkN0, EnsembleMLP)
+    actor = LinearHeadActor(MLP(in_features=OBS, out_features=8, num_cells=[8]), ACT)
+    eq7 = WeightedMAPActorLoss.from_iql(actor, critic)
+    data = TensorDict(observation=torch.randn(6, OBS), action=torch.rand(6, ACT), batch_size=[6])
+    targets = critic.target_qvalue_network_params.detach()
+    expected = vmapped(data, targets)["state_action_value"].min(0).values.squeeze(-1)
+    assert torch.equal(eq7.q_value(data), expected)
+    assert [type(call) for call in eq7._ensemble_calls.values()] == [EnsembleMLP]
+    eq7.set_vmap_randomness("different")  # TorchRL's hook: rebuilt at the next call
+    assert eq7._ensemble_calls == {}

@@ -109,19 +109,22 @@ def test_actor_gradient_never_reaches_v_nor_q():
 
 
 def test_v_and_target_q_run_once_each():
-    """TorchRL's three methods evaluate V three times (V(s) twice, V(s') once) and the
-    target Q twice; the one pass evaluates V twice (V(s), V(s')) and the target Q once."""
+    """TorchRL's three methods evaluate V three times (V(s) twice, V(s') once) and the Q
+    ensemble three times (Q in the TD loss, the target Q twice); the one pass evaluates V
+    twice (V(s), V(s')) and the Q ensemble twice (the target Q once)."""
 
     def count_calls(loss: IQLLoss) -> tuple[int, int]:
         calls = {"value": 0, "q": 0}
-        hooks = [
-            loss.value_network.register_forward_hook(
-                lambda *_: calls.__setitem__("value", calls["value"] + 1)
-            ),
-            loss.qvalue_network.register_forward_hook(
-                lambda *_: calls.__setitem__("q", calls["q"] + 1)
-            ),
-        ]
+        hook = loss.value_network.register_forward_hook(
+            lambda *_: calls.__setitem__("value", calls["value"] + 1)
+        )
+        q_call = loss._vmap_qvalue_networkN0  # the Q ensemble's one call (vmap or EnsembleMLP)
+
+        def counted(*args):
+            calls["q"] += 1
+            return q_call(*args)
+
+        loss._vmap_qvalue_networkN0 = counted
         try:
             if isinstance(loss, OnePassIQLLoss):
                 loss.terms(_batch())
@@ -129,15 +132,15 @@ def test_v_and_target_q_run_once_each():
                 for method in (loss.qvalue_loss, loss.value_loss, loss.actor_loss):
                     method(_batch())
         finally:
-            for hook in hooks:
-                hook.remove()
+            hook.remove()
+            loss._vmap_qvalue_networkN0 = q_call
         return calls["value"], calls["q"]
 
     reference, one_pass = _pair()
     ref_value, ref_q = count_calls(reference)
     value, q = count_calls(one_pass)
     assert (ref_value, value) == (3, 2)
-    assert q == ref_q - 1
+    assert (ref_q, q) == (3, 2)
 
 
 @pytest.mark.parametrize("reduction", ["mean", "none"])

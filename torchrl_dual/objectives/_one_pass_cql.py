@@ -27,7 +27,7 @@ from torchrl.modules.distributions.utils import rsample_and_log_prob
 from torchrl.objectives.cql import CQLLoss
 from torchrl.objectives.utils import distance_loss
 
-from torchrl_dual.objectives.ensemble_q import EnsembleMLP
+from torchrl_dual.objectives.ensemble_q import EnsembleMLPCalls
 
 PARAMS = (
     "actor_network_params",
@@ -38,7 +38,7 @@ PARAMS = (
 """The functional parameter groups whose weak references TorchRL clears under compile."""
 
 
-class OnePassCQLLoss(CQLLoss):
+class OnePassCQLLoss(EnsembleMLPCalls, CQLLoss):
     """TorchRL's ``CQLLoss`` with the actor evaluated once per state.
 
     :class:`~torchrl.objectives.CQLLoss` whose :meth:`forward` and :meth:`critic_terms`
@@ -49,18 +49,6 @@ class OnePassCQLLoss(CQLLoss):
     ``alpha_loss`` remain TorchRL's for callers that need one term (their Q calls are
     :class:`~torchrl_dual.objectives.ensemble_q.EnsembleMLP`'s).
     """
-
-    def _make_vmap(self) -> None:
-        """TorchRL's vmapped Q calls, with :class:`EnsembleMLP` for a plain MLP.
-
-        TorchRL's vmapped Q calls, the ``(None, 0)`` one as :class:`EnsembleMLP` (the
-        same numbers, a faster backward) when the Q network is a plain MLP.
-        """
-        super()._make_vmap()
-        if not self.deactivate_vmap:
-            self._vmap_qvalue_networkN0 = EnsembleMLP.of(
-                self.qvalue_network, self._vmap_qvalue_networkN0
-            )
 
     @dispatch
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:

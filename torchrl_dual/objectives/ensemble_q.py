@@ -138,3 +138,21 @@ class EnsembleMLP:
             if bias:
                 h = h + weights.get((name, "bias")).unsqueeze(-2)
         return TensorDict({self.out_key: h}, batch_size=[h.shape[0], *tensordict.batch_size])
+
+
+class EnsembleMLPCalls:
+    """Mixin for a TorchRL loss with stacked Q networks: its vmapped Q call as :class:`EnsembleMLP`.
+
+    Placed before the loss class (``class IQLCriticLoss(EnsembleMLPCalls, IQLLoss)``): after
+    TorchRL's ``_make_vmap``, ``_vmap_qvalue_networkN0`` is :meth:`EnsembleMLP.of` of it when
+    the Q networks are stacked (``[E]`` parameters) and a plain MLP, and stays TorchRL's
+    otherwise (and with ``deactivate_vmap``). The same numbers and gradients, with less
+    overhead per call and the faster last-layer backward of the module docstring.
+    """
+
+    def _make_vmap(self) -> None:
+        super()._make_vmap()
+        if not self.deactivate_vmap and self.qvalue_network_params.ndim == 1:
+            self._vmap_qvalue_networkN0 = EnsembleMLP.of(
+                self.qvalue_network, self._vmap_qvalue_networkN0
+            )

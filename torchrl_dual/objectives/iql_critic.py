@@ -9,6 +9,8 @@ from torch import nn
 from torchrl.modules import ProbabilisticActor
 from torchrl.objectives import IQLLoss
 
+from torchrl_dual.objectives.ensemble_q import EnsembleMLPCalls
+
 
 class _NoActor(nn.Module):
     """The actor slot of TorchRL's ``IQLLoss``, which cannot be left empty: refuses to act.
@@ -22,7 +24,7 @@ class _NoActor(nn.Module):
         )
 
 
-class IQLCriticLoss(IQLLoss):
+class IQLCriticLoss(EnsembleMLPCalls, IQLLoss):
     """IQL's critics (Kostrikov et al. 2022, Eq. 5-6): TorchRL's ``IQLLoss`` without the actor.
 
     :class:`~torchrl.objectives.IQLLoss`'s expectile value loss and twin-Q TD loss.

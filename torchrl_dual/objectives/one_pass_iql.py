@@ -19,6 +19,8 @@ from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import dispatch
 from torchrl.objectives import IQLLoss
 
+from torchrl_dual.objectives.ensemble_q import EnsembleMLPCalls
+
 _PARAMS = tuple(
     f"{prefix}{name}_network_params"
     for prefix in ("", "target_")
@@ -27,7 +29,7 @@ _PARAMS = tuple(
 """The functional parameter groups whose weak references TorchRL clears under compile."""
 
 
-class OnePassIQLLoss(IQLLoss):
+class OnePassIQLLoss(EnsembleMLPCalls, IQLLoss):
     """TorchRL's IQL loss with the target Q and ``V(s)`` shared between its terms.
 
     :class:`~torchrl.objectives.IQLLoss` whose :meth:`forward` (and :meth:`terms`) share
