@@ -148,12 +148,12 @@ class DualLearner(Learner):
         self.transition = make_transition_model(
             s.exploration.transition_model, final_steps, self.teacher, self.actor
         )
-        critic = CRITICS[s.critic.name]
-        view = policy_view(self.actor, spec) if critic.samples_policy else None  # N(μ, σ̄²)
+        kind = CRITICS[s.critic.name]  # what the critic asks of the learner
+        view = policy_view(self.actor, spec) if kind.samples_policy else None  # N(μ, σ̄²)
         self.critic = make_critic(s, data.obs_dim, data.action_dim, actor=view)
         self.online_batches_per_update = self.critic.online_steps_per_update  # SO2: 10
         # Cal-QL's Monte-Carlo bound: on D_offline now, on D_online per episode
-        self.labels = MonteCarloLabels(run) if critic.monte_carlo_labels else None
+        self.labels = MonteCarloLabels(run) if kind.monte_carlo_labels else None
         entropy_coef = getattr(s.critic, "entropy_coef", None)  # SO2's α
         self.loss = make_loss(s.actor, self.actor, self.critic, spec, entropy_coef)
         self.actor_optimizer = adam(self.loss.actor_parameters(), lr=s.actor.lr)

@@ -71,7 +71,7 @@ class StageCheckpoints:
         """
         run = self.run
         run.offline_steps += 1
-        stop = requested() or run.offline_steps == run.settings.get("interrupt_at_offline_updates")
+        stop = requested() or run.offline_steps == run.settings.interrupt_at_offline_updates
         if stop or run.offline_steps % run.settings.budget.offline_checkpoint_every == 0:
             run.stage_clock.tick()  # the stage's seconds so far, continued on resume
             run.stage_progress = {
